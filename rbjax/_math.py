@@ -1,0 +1,237 @@
+"""Rotation and vector math: skew matrices, unit quaternions and rotation matrices.
+
+Conventions (as in the lecture notes):
+
+* Quaternions are ``[w, x, y, z]`` with the scalar first. A unit quaternion ``q``
+  maps body-frame vectors to the world frame: ``v_world = q ⊗ (0, v_body) ⊗ q*``.
+* ``skew(a) @ b == a × b`` (the notes' tilde).
+
+Every function broadcasts over leading batch dimensions and is written with
+explicit components, so that under ``vmap`` and inside ``lax.scan`` XLA sees
+elementwise arithmetic it can fuse rather than small batched matmuls.
+Functions that take a norm are NaN-safe: values and gradients are finite at zero.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jax import Array
+from jax.typing import ArrayLike
+
+__all__ = [
+    "cross",
+    "matrix_to_quat",
+    "orthonormalize",
+    "quat_angle",
+    "quat_conjugate",
+    "quat_exp",
+    "quat_log",
+    "quat_multiply",
+    "quat_normalize",
+    "quat_rotate",
+    "quat_to_matrix",
+    "safe_norm",
+    "skew",
+]
+
+
+def _eps(x: Array) -> Array:
+    return jnp.asarray(jnp.finfo(x.dtype).eps, x.dtype)
+
+
+def safe_norm(x: ArrayLike, axis: int = -1, keepdims: bool = False) -> Array:
+    """Euclidean norm ``‖x‖`` along ``axis`` whose gradient is 0, not NaN, at ``x = 0``.
+
+    Uses the double-``where`` pattern: the square root never sees a zero that
+    would be differentiated.
+    """
+    x = jnp.asarray(x)
+    sq = jnp.sum(x * x, axis=axis, keepdims=keepdims)
+    zero = sq == 0
+    return jnp.where(zero, 0.0, jnp.sqrt(jnp.where(zero, 1.0, sq)))
+
+
+def skew(a: ArrayLike) -> Array:
+    """Skew-symmetric matrix ``ã`` with ``ã b = a × b`` (the notes' tilde).
+
+    ``a``: ``(..., 3)`` → ``(..., 3, 3)``::
+
+        ã = [[ 0, -az,  ay],
+             [ az,  0, -ax],
+             [-ay, ax,   0]]
+    """
+    a = jnp.asarray(a)
+    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
+    z = jnp.zeros_like(ax)
+    return jnp.stack(
+        [
+            jnp.stack([z, -az, ay], axis=-1),
+            jnp.stack([az, z, -ax], axis=-1),
+            jnp.stack([-ay, ax, z], axis=-1),
+        ],
+        axis=-2,
+    )
+
+
+def cross(a: ArrayLike, b: ArrayLike) -> Array:
+    """Cross product ``a × b`` of ``(..., 3)`` vectors, written by components."""
+    a, b = jnp.asarray(a), jnp.asarray(b)
+    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
+    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
+    return jnp.stack([ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx], axis=-1)
+
+
+def quat_multiply(p: ArrayLike, q: ArrayLike) -> Array:
+    """Hamilton product ``p ⊗ q`` of ``(..., 4)`` quaternions ``[w, x, y, z]``.
+
+    ``(pw, pv) ⊗ (qw, qv) = (pw qw - pv·qv, pw qv + qw pv + pv × qv)``.
+    """
+    p, q = jnp.asarray(p), jnp.asarray(q)
+    pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return jnp.stack(
+        [
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        ],
+        axis=-1,
+    )
+
+
+def quat_conjugate(q: ArrayLike) -> Array:
+    """Conjugate ``q* = [w, -x, -y, -z]``; the inverse rotation for a unit ``q``."""
+    q = jnp.asarray(q)
+    return jnp.concatenate([q[..., :1], -q[..., 1:]], axis=-1)
+
+
+def quat_rotate(q: ArrayLike, v: ArrayLike) -> Array:
+    """Rotate ``(..., 3)`` vectors by unit quaternions: ``q ⊗ (0, v) ⊗ q*``.
+
+    Evaluated as ``v + w t + u × t`` with ``t = 2 u × v`` (``q = [w, u]``): 18
+    multiplies, no rotation matrix.
+    """
+    q, v = jnp.asarray(q), jnp.asarray(v)
+    w, u = q[..., :1], q[..., 1:]
+    t = 2 * cross(u, v)
+    return v + w * t + cross(u, t)
+
+
+def quat_normalize(q: ArrayLike) -> Array:
+    """``q / ‖q‖`` for ``(..., 4)`` quaternions (finite gradient; ``q = 0`` is invalid)."""
+    q = jnp.asarray(q)
+    return q / jnp.sqrt(jnp.sum(q * q, axis=-1, keepdims=True))
+
+
+def quat_to_matrix(q: ArrayLike) -> Array:
+    """Rotation matrix ``R`` (body to world) of unit quaternions ``(..., 4)`` → ``(..., 3, 3)``.
+
+    ``R = (w² - u·u) 1 + 2 u uᵀ + 2 w ũ``. Columns of ``R`` are the body axes
+    expressed in the world frame, as in the notes.
+    """
+    q = jnp.asarray(q)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz = x * y, x * z, y * z
+    wx, wy, wz = w * x, w * y, w * z
+    return jnp.stack(
+        [
+            jnp.stack([1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy)], axis=-1),
+            jnp.stack([2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx)], axis=-1),
+            jnp.stack([2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy)], axis=-1),
+        ],
+        axis=-2,
+    )
+
+
+def matrix_to_quat(R: ArrayLike) -> Array:
+    """Unit quaternion ``[w, x, y, z]`` with ``w ≥ 0`` of rotation matrices ``(..., 3, 3)``.
+
+    Shepperd's method: of the four candidate formulas, take the one whose
+    divisor ``4·max(w², x², y², z²)`` is largest, so the result is accurate for
+    every rotation, including half turns. The square roots of the unused
+    candidates are clamped, so gradients carry no NaN from branches not taken.
+    """
+    R = jnp.asarray(R)
+    r00, r01, r02 = R[..., 0, 0], R[..., 0, 1], R[..., 0, 2]
+    r10, r11, r12 = R[..., 1, 0], R[..., 1, 1], R[..., 1, 2]
+    r20, r21, r22 = R[..., 2, 0], R[..., 2, 1], R[..., 2, 2]
+    tr = r00 + r11 + r22
+    # 4 w² = 1 + tr, 4 x² = 1 + r00 - r11 - r22, ...
+    four_sq = jnp.stack(
+        [1 + tr, 1 + r00 - r11 - r22, 1 - r00 + r11 - r22, 1 - r00 - r11 + r22], axis=-1
+    )
+    s = 2 * jnp.sqrt(jnp.maximum(four_sq, _eps(R)))  # s_k = 4 |q_k|
+    cand = jnp.stack(
+        [
+            jnp.stack([s[..., 0] / 4, (r21 - r12) / s[..., 0], (r02 - r20) / s[..., 0], (r10 - r01) / s[..., 0]], -1),
+            jnp.stack([(r21 - r12) / s[..., 1], s[..., 1] / 4, (r01 + r10) / s[..., 1], (r02 + r20) / s[..., 1]], -1),
+            jnp.stack([(r02 - r20) / s[..., 2], (r01 + r10) / s[..., 2], s[..., 2] / 4, (r12 + r21) / s[..., 2]], -1),
+            jnp.stack([(r10 - r01) / s[..., 3], (r02 + r20) / s[..., 3], (r12 + r21) / s[..., 3], s[..., 3] / 4], -1),
+        ],
+        axis=-2,
+    )
+    k = jnp.argmax(four_sq, axis=-1)
+    q = jnp.take_along_axis(cand, k[..., None, None], axis=-2)[..., 0, :]
+    q = jnp.where(q[..., :1] < 0, -q, q)
+    return quat_normalize(q)
+
+
+def quat_exp(rotvec: ArrayLike) -> Array:
+    """Exponential map: rotation vector ``θ n`` (radians) → unit quaternion.
+
+    ``exp(θ n) = [cos(θ/2), sin(θ/2) n]``. Near ``θ = 0`` a Taylor series replaces
+    ``sin(θ/2)/θ``, so the value and every gradient are finite at zero rotation.
+    """
+    v = jnp.asarray(rotvec)
+    th2 = jnp.sum(v * v, axis=-1, keepdims=True)
+    small = th2 < jnp.sqrt(_eps(v))
+    th = jnp.sqrt(jnp.where(small, 1.0, th2))
+    half_sinc = jnp.where(small, 0.5 - th2 / 48 + th2 * th2 / 3840, jnp.sin(th / 2) / th)
+    cos_half = jnp.where(small, 1 - th2 / 8 + th2 * th2 / 384, jnp.cos(th / 2))
+    return jnp.concatenate([cos_half, half_sinc * v], axis=-1)
+
+
+def quat_log(q: ArrayLike) -> Array:
+    """Logarithm: unit quaternion → rotation vector ``θ n`` with ``θ ∈ [0, π]``.
+
+    ``q`` and ``-q`` give the same result (the shorter rotation). Finite
+    gradients at the identity.
+    """
+    q = jnp.asarray(q)
+    q = jnp.where(q[..., :1] < 0, -q, q)
+    w, u = q[..., :1], q[..., 1:]
+    s = safe_norm(u, keepdims=True)
+    small = s < jnp.sqrt(_eps(q))
+    s_safe = jnp.where(small, 1.0, s)
+    # θ/s with θ = 2 atan2(s, w); near s = 0 its series (2/w)(1 - s²/(3w²)) avoids 0/0
+    scale = jnp.where(small, 2 / w * (1 - s * s / (3 * w * w)), 2 * jnp.arctan2(s_safe, w) / s_safe)
+    return scale * u
+
+
+def quat_angle(p: ArrayLike, q: ArrayLike) -> Array:
+    """Angle (radians, in ``[0, π]``) of the rotation taking ``p`` to ``q``.
+
+    ``2 atan2(‖vec(p* ⊗ q)‖, |scal(p* ⊗ q)|)``; insensitive to the sign of either
+    quaternion, accurate for small angles (unlike ``arccos``).
+    """
+    d = quat_multiply(quat_conjugate(p), q)
+    return 2 * jnp.arctan2(safe_norm(d[..., 1:]), jnp.abs(d[..., 0]))
+
+
+def orthonormalize(R: ArrayLike, iterations: int = 2) -> Array:
+    """Nearest rotation matrix to a nearly orthogonal ``R`` ``(..., 3, 3)``.
+
+    Newton–Schulz iteration for the polar factor, ``R ← R (3·1 - RᵀR) / 2``,
+    which converges quadratically: an ``R`` with ``‖RᵀR - 1‖ = ε`` comes out
+    with ``O(ε^(2^k))`` after ``k`` iterations. Unlike Gram–Schmidt it treats the
+    three axes alike (no drift toward the first column). Valid while
+    ``‖RᵀR - 1‖ < 1``, which an integrator step keeps with a wide margin.
+    """
+    R = jnp.asarray(R)
+    eye = jnp.eye(3, dtype=R.dtype)
+    for _ in range(iterations):
+        RtR = jnp.einsum("...ki,...kj->...ij", R, R)
+        R = 0.5 * jnp.einsum("...ik,...kj->...ij", R, 3 * eye - RtR)
+    return R

@@ -1,0 +1,65 @@
+"""Time-stepping methods, one per module, registered by name.
+
+A method is a batch-level function ``step(state, force_fn, t, dt) -> state``:
+``force_fn(state, t) -> Forces`` sees the whole batch (so forces may couple
+bodies) and may be called at intermediate stages; the per-body arithmetic
+inside is written for one body and lifted with :func:`rbjax._batching.lift`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable
+
+__all__ = ["Method", "register", "get", "available"]
+
+StepFn = Callable[[Any, Callable[[Any, Any], Any], Any, Any], Any]
+
+
+@dataclasses.dataclass(frozen=True)
+class Method:
+    """A registered integrator.
+
+    Attributes:
+        name: the ``method=`` string.
+        order: global order of accuracy.
+        steps: ``{state type: batch-level step function}``.
+        conserves: short statement of what it conserves (for docs and tests).
+        cost: cost per step relative to ``"euler"`` (measured, approximate).
+    """
+
+    name: str
+    order: int
+    steps: dict[type, StepFn]
+    conserves: str = ""
+    cost: float = 1.0
+
+
+_REGISTRY: dict[str, Method] = {}
+
+
+def register(method: Method) -> Method:
+    _REGISTRY[method.name] = method
+    return method
+
+
+def get(name: str, state_type: type) -> StepFn:
+    """The step function of ``name`` for ``state_type``; ``ValueError`` if none."""
+    m = _REGISTRY.get(name)
+    if m is None:
+        raise ValueError(f"unknown method {name!r}; available: {sorted(_REGISTRY)}")
+    fn = m.steps.get(state_type)
+    if fn is None:
+        raise ValueError(
+            f"method {name!r} does not support {state_type.__name__}; it supports "
+            f"{sorted(t.__name__ for t in m.steps)}"
+        )
+    return fn
+
+
+def available(state_type: type | None = None) -> dict[str, Method]:
+    """Registered methods, optionally only those supporting ``state_type``."""
+    return {k: m for k, m in _REGISTRY.items() if state_type is None or state_type in m.steps}
+
+
+from . import euler as euler  # noqa: E402  (registers itself)

@@ -1,0 +1,78 @@
+"""The notes' explicit Euler integration, for all three state forms.
+
+Every update uses the old state (no update sees another's new value):
+
+* ``State`` ``(x, v, q, L)``: ``x += v dt``; ``v += F/m dt``;
+  ``q += ½ (0, ω) ⊗ q dt`` with ``ω = I_w⁻¹ L``, then ``q ← q/‖q‖``; ``L += τ dt``.
+* ``MatrixState`` ``(x, v, R, ω)``: ``R += ω̃ R dt``, then re-orthonormalised by
+  two Newton–Schulz polar iterations (:func:`rbjax.orthonormalize`);
+  ``ω += I_w⁻¹ (τ - ω × I_w ω) dt`` with ``I_w⁻¹ = R I_L⁻¹ Rᵀ``.
+* ``ParticleState``: ``x += v dt``; ``v += F/m dt``.
+
+First order. In the L-form torque-free ``L`` is exact, but ``|L|`` in body
+axes and the energy grow every step (by ``dt² |L × ω|²`` in ``|L|²``-weighted
+terms): choose it for teaching and for matching the notes, not for long runs.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from .._batching import lift
+from .._math import cross, orthonormalize, quat_multiply, quat_normalize, skew
+from .._pytree import replace
+from .._quantities import _omega_world
+from .._state import Forces, MatrixState, ParticleState, State, _apply
+from . import Method, register
+
+
+def _translate(x, v, m, f: Forces, dt):
+    v_new = v if f.force is None else v + f.force / m * dt
+    return x + v * dt, v_new
+
+
+def euler_state(s: State, f: Forces, dt) -> State:
+    """One explicit-Euler step of one body in the ``(x, v, q, L)`` form."""
+    x, v = _translate(s.position, s.velocity, s.body.mass, f, dt)
+    w = _omega_world(s)
+    q = s.orientation
+    wq = jnp.concatenate([jnp.zeros_like(w[:1]), w])
+    q = quat_normalize(q + 0.5 * dt * quat_multiply(wq, q))
+    L = s.angular_momentum if f.torque is None else s.angular_momentum + f.torque * dt
+    return replace(s, position=x, velocity=v, orientation=q, angular_momentum=L)
+
+
+def euler_matrix(s: MatrixState, f: Forces, dt) -> MatrixState:
+    """One explicit-Euler step of one body in the ``(x, v, R, ω)`` form."""
+    x, v = _translate(s.position, s.velocity, s.body.mass, f, dt)
+    R, w = s.rotation, s.angular_velocity
+    I_w = R @ s.body.inertia @ R.T
+    I_w_inv = R @ s.body.inverse_inertia @ R.T
+    tau = -cross(w, _apply(I_w, w)) if f.torque is None else f.torque - cross(w, _apply(I_w, w))
+    R_new = orthonormalize(R + skew(w) @ R * dt)
+    w_new = w + _apply(I_w_inv, tau) * dt
+    return replace(s, position=x, velocity=v, rotation=R_new, angular_velocity=w_new)
+
+
+def euler_particles(s: ParticleState, f: Forces, dt) -> ParticleState:
+    """One explicit-Euler step of one particle."""
+    x, v = _translate(s.position, s.velocity, s.mass, f, dt)
+    return replace(s, position=x, velocity=v)
+
+
+def _batch(kernel):
+    def step(state, force_fn, t, dt):
+        return lift(kernel)(state, force_fn(state, t), dt)
+
+    return step
+
+
+register(
+    Method(
+        name="euler",
+        order=1,
+        steps={State: _batch(euler_state), MatrixState: _batch(euler_matrix), ParticleState: _batch(euler_particles)},
+        conserves="torque-free: L exactly (L-form); nothing else — energy grows every step",
+        cost=1.0,
+    )
+)

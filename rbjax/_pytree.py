@@ -1,0 +1,98 @@
+"""Frozen-dataclass pytrees.
+
+Registration is by hand rather than with ``jax.tree_util.register_dataclass``
+because that function unflattens through ``__init__``: every jit output, every
+``tree_map`` would re-run the validation in ``__post_init__`` (and a device-to-host
+copy with it). Here unflattening bypasses ``__init__`` as equinox does, so
+validation runs once, where a user builds the object.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, TypeVar
+
+import jax
+
+T = TypeVar("T")
+
+__all__ = ["pytree_dataclass", "field", "static_field", "replace", "new_unchecked", "core_ndim_of"]
+
+
+def field(*, core_ndim: int = 0, **kwargs: Any) -> Any:
+    """A data field (a pytree leaf or subtree) of rank ``core_ndim`` per body.
+
+    ``core_ndim`` is the rank of the field for a single body (0 for a mass, 1 for
+    a vector, 2 for a 3x3 tensor). Leading dimensions beyond it are batch
+    dimensions; see :mod:`rbjax._batching`.
+    """
+    metadata = dict(kwargs.pop("metadata", {}))
+    metadata["core_ndim"] = core_ndim
+    return dataclasses.field(metadata=metadata, **kwargs)
+
+
+def static_field(**kwargs: Any) -> Any:
+    """A field stored in the treedef (hashable, part of the compiled program)."""
+    metadata = dict(kwargs.pop("metadata", {}))
+    metadata["static"] = True
+    return dataclasses.field(metadata=metadata, **kwargs)
+
+
+def _is_static(f: dataclasses.Field) -> bool:
+    return bool(f.metadata.get("static", False))
+
+
+def pytree_dataclass(cls: type[T]) -> type[T]:
+    """Make ``cls`` a frozen dataclass registered as a pytree with keyed paths."""
+    cls = dataclasses.dataclass(frozen=True)(cls)
+    fields = dataclasses.fields(cls)
+    data = tuple(f.name for f in fields if not _is_static(f))
+    meta = tuple(f.name for f in fields if _is_static(f))
+    keys = tuple(jax.tree_util.GetAttrKey(n) for n in data)
+
+    def flatten_with_keys(obj):
+        return [(k, getattr(obj, n)) for k, n in zip(keys, data)], tuple(
+            getattr(obj, n) for n in meta
+        )
+
+    def flatten(obj):
+        return [getattr(obj, n) for n in data], tuple(getattr(obj, n) for n in meta)
+
+    def unflatten(aux, children):
+        obj = object.__new__(cls)
+        for n, v in zip(meta, aux):
+            object.__setattr__(obj, n, v)
+        for n, v in zip(data, children):
+            object.__setattr__(obj, n, v)
+        return obj
+
+    jax.tree_util.register_pytree_with_keys(cls, flatten_with_keys, unflatten, flatten)
+    cls._rbjax_data_fields = data  # type: ignore[attr-defined]
+    cls._rbjax_core_ndim = {f.name: f.metadata.get("core_ndim", 0) for f in fields}  # type: ignore[attr-defined]
+    return cls
+
+
+def replace(obj: T, **changes: Any) -> T:
+    """``dataclasses.replace`` without re-running ``__init__`` validation.
+
+    For library-internal updates of values that are already valid (or traced).
+    """
+    fields = {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)}  # type: ignore[arg-type]
+    return new_unchecked(type(obj), **{**fields, **changes})
+
+
+def new_unchecked(cls: type[T], **fields: Any) -> T:
+    """Build ``cls(**fields)`` without ``__init__``: for values already known valid."""
+    obj = object.__new__(cls)
+    for f in dataclasses.fields(cls):  # type: ignore[arg-type]
+        object.__setattr__(obj, f.name, fields[f.name])
+    return obj
+
+
+def core_ndim_of(obj: Any) -> dict[str, int]:
+    """Per-field single-body rank of a pytree dataclass made by this module."""
+    return type(obj)._rbjax_core_ndim  # type: ignore[attr-defined]
+
+
+def is_rbjax_dataclass(obj: Any) -> bool:
+    return hasattr(type(obj), "_rbjax_data_fields")

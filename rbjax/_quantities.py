@@ -1,0 +1,155 @@
+"""Derived quantities: pure functions of a state (single body or any batch).
+
+Each is written for one body and lifted over the batch with ``vmap``
+(:func:`rbjax._batching.lift`), so trajectories ``(T, *B)`` work too.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jax import Array
+from jax.typing import ArrayLike
+
+from ._batching import lift
+from ._math import cross, matrix_to_quat, quat_conjugate, quat_rotate, quat_to_matrix
+from ._pytree import new_unchecked
+from ._state import AnyState, MatrixState, ParticleState, RigidState, State, _apply
+
+__all__ = [
+    "angular_momentum",
+    "angular_velocity",
+    "body_angular_velocity",
+    "kinetic_energy",
+    "linear_momentum",
+    "orientation",
+    "rotation_matrix",
+    "to_matrix_state",
+    "to_state",
+    "world_inertia",
+]
+
+
+def _omega_world(s: State) -> Array:
+    # ω = I_w⁻¹ L = R I_L⁻¹ Rᵀ L, evaluated with quaternion rotations (no matrix)
+    return quat_rotate(s.orientation, _apply(s.body.inverse_inertia, quat_rotate(quat_conjugate(s.orientation), s.angular_momentum)))
+
+
+def _one_angular_velocity(s: RigidState) -> Array:
+    if isinstance(s, State):
+        return _omega_world(s)
+    return s.angular_velocity
+
+
+def angular_velocity(state: RigidState) -> Array:
+    """World-frame angular velocity ``ω`` (rad/s), ``(*B, 3)``.
+
+    For :class:`State` ``ω = I_w⁻¹ L = R I_L⁻¹ Rᵀ L``; for :class:`MatrixState`
+    the stored ``ω``.
+    """
+    return lift(_one_angular_velocity)(state)
+
+
+def _one_body_angular_velocity(s: RigidState) -> Array:
+    if isinstance(s, State):
+        return _apply(s.body.inverse_inertia, quat_rotate(quat_conjugate(s.orientation), s.angular_momentum))
+    return jnp.swapaxes(s.rotation, -1, -2) @ s.angular_velocity
+
+
+def body_angular_velocity(state: RigidState) -> Array:
+    """Body-frame angular velocity ``ω_L = Rᵀ ω`` (rad/s), ``(*B, 3)``: what a gyroscope reads."""
+    return lift(_one_body_angular_velocity)(state)
+
+
+def _one_rotation(s: RigidState) -> Array:
+    return quat_to_matrix(s.orientation) if isinstance(s, State) else s.rotation
+
+
+def rotation_matrix(state: RigidState) -> Array:
+    """Rotation matrix ``R`` (body to world), ``(*B, 3, 3)``."""
+    return lift(_one_rotation)(state)
+
+
+def _one_orientation(s: RigidState) -> Array:
+    return s.orientation if isinstance(s, State) else matrix_to_quat(s.rotation)
+
+
+def orientation(state: RigidState) -> Array:
+    """Unit quaternion ``[w, x, y, z]`` (body to world), ``(*B, 4)``."""
+    return lift(_one_orientation)(state)
+
+
+def _one_world_inertia(s: RigidState) -> Array:
+    R = _one_rotation(s)
+    return R @ s.body.inertia @ R.T
+
+
+def world_inertia(state: RigidState) -> Array:
+    """World-frame inertia ``I_w = R I_L Rᵀ`` (kg m², about the centre of mass), ``(*B, 3, 3)``."""
+    return lift(_one_world_inertia)(state)
+
+
+def _one_angular_momentum(s: AnyState, about: Array | None) -> Array:
+    if isinstance(s, ParticleState):
+        return cross(s.position - (0.0 if about is None else about), s.mass * s.velocity)
+    if isinstance(s, State):
+        L = s.angular_momentum
+    else:
+        L = s.rotation @ _apply(s.body.inertia, s.rotation.T @ s.angular_velocity)
+    if about is not None:
+        L = L + cross(s.position - about, s.body.mass * s.velocity)
+    return L
+
+
+def angular_momentum(state: AnyState, about: ArrayLike | None = None) -> Array:
+    """Angular momentum (world, kg m²/s), ``(*B, 3)``.
+
+    Rigid bodies: spin ``L = I_w ω`` about the centre of mass, plus the orbital
+    term ``(x - a) × m v`` when a world point ``about = a`` is given. Particles:
+    ``L = r × p`` about ``about`` (default the world origin), as in the notes.
+    """
+    a = None if about is None else jnp.asarray(about, state.dtype)
+    return lift(lambda s: _one_angular_momentum(s, a))(state)
+
+
+def _one_linear_momentum(s: AnyState) -> Array:
+    m = s.mass if isinstance(s, ParticleState) else s.body.mass
+    return m * s.velocity
+
+
+def linear_momentum(state: AnyState) -> Array:
+    """Linear momentum ``p = m v`` (world, kg m/s), ``(*B, 3)``."""
+    return lift(_one_linear_momentum)(state)
+
+
+def _one_kinetic_energy(s: AnyState) -> Array:
+    m = s.mass if isinstance(s, ParticleState) else s.body.mass
+    e = 0.5 * m * jnp.sum(s.velocity**2)
+    if isinstance(s, ParticleState):
+        return e
+    w = _one_angular_velocity(s)
+    L = s.angular_momentum if isinstance(s, State) else _one_angular_momentum(s, None)
+    return e + 0.5 * jnp.dot(w, L)
+
+
+def kinetic_energy(state: AnyState) -> Array:
+    """Kinetic energy ``½ m ‖v‖² + ½ ω · L`` (J), ``(*B,)``; translation only for particles."""
+    return lift(_one_kinetic_energy)(state)
+
+
+def to_matrix_state(state: State) -> MatrixState:
+    """Convert ``(x, v, q, L)`` to ``(x, v, R, ω)`` (same motion, no validation)."""
+    R, w = rotation_matrix(state), angular_velocity(state)
+    return new_unchecked(
+        MatrixState, body=state.body, position=state.position, velocity=state.velocity,
+        rotation=R, angular_velocity=w,
+    )
+
+
+def to_state(state: MatrixState) -> State:
+    """Convert ``(x, v, R, ω)`` to ``(x, v, q, L)`` (same motion, no validation)."""
+    q, L = orientation(state), angular_momentum(state)
+    return new_unchecked(
+        State, body=state.body, position=state.position, velocity=state.velocity,
+        orientation=q, angular_momentum=L,
+    )
+

@@ -1,0 +1,179 @@
+"""``step`` and ``simulate``: pure functions over state pytrees."""
+
+from __future__ import annotations
+
+import functools
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+from jax.typing import ArrayLike
+
+from . import _methods
+from ._batching import batch_shape
+from ._pytree import replace
+from ._state import AnyState, ForceLike, Forces, ParticleState
+
+__all__ = ["step", "simulate", "as_force_fn"]
+
+# Fields that do not change along a trajectory: carried outside the scan and not
+# stacked over time in the returned trajectory.
+_CONSTANT_FIELDS = {ParticleState: ("mass",)}
+
+
+def _constant_fields(state: AnyState) -> tuple[str, ...]:
+    return _CONSTANT_FIELDS.get(type(state), ("body",))
+
+
+def _check_dt(dt: Any) -> None:
+    if isinstance(dt, jax.core.Tracer):
+        return  # checked mode covers traced values
+    d = np.asarray(dt)
+    if d.ndim != 0:
+        raise ValueError(f"dt must be a scalar, got shape {d.shape}")
+    if not np.isfinite(d) or d <= 0:
+        raise ValueError(f"dt must be finite and > 0, got {d}")
+
+
+def as_force_fn(forces: ForceLike) -> Callable[[Any, Array], Forces]:
+    """Normalise ``None`` / ``Forces`` / callable to ``(state, t) -> Forces``."""
+    if forces is None:
+        return lambda state, t: Forces()
+    if isinstance(forces, Forces):
+        return lambda state, t: forces
+    if callable(forces):
+        return forces
+    raise TypeError(f"forces must be Forces, a callable (state, t) -> Forces, or None; got {type(forces)}")
+
+
+def step(state: AnyState, forces: ForceLike, dt: ArrayLike, method: str = "euler", *, t: ArrayLike = 0.0) -> AnyState:
+    """Advance ``state`` by one step of ``dt`` seconds.
+
+    Args:
+        state: :class:`State`, :class:`MatrixState` or :class:`ParticleState`,
+            one body or a batch of any leading shape.
+        forces: world-frame :class:`Forces` (force on and torque about the centre
+            of mass), a callable ``(state, t) -> Forces`` evaluated by the method
+            where it needs it, or ``None``.
+        dt: step (s), > 0.
+        method: integrator name (static); see :func:`rbjax.methods`.
+        t: time (s) at the start of the step, passed to a callable ``forces``.
+
+    Returns the new state, of the same type and shape. Pure; ``jit`` it with
+    ``static_argnames="method"``.
+    """
+    fn = _methods.get(method, type(state))
+    _check_dt(dt)
+    if isinstance(forces, Forces):
+        batch_shape(state, forces)
+    dt = jnp.asarray(dt, state.dtype)
+    return fn(state, as_force_fn(forces), jnp.asarray(t, state.dtype), dt)
+
+
+def _is_time_series(forces: Forces, state: AnyState, steps: int) -> bool:
+    leaves = [a for a in (forces.force, forces.torque) if a is not None]
+    if not leaves:
+        return False
+    nb = len(state.batch_shape)
+    series = [a.ndim - 1 > nb for a in leaves]
+    if any(series):
+        for a in leaves:
+            if a.ndim - 1 <= nb or a.shape[0] != steps:
+                raise ValueError(
+                    f"time-series forces must have shape (steps={steps}, *batch, 3); got {a.shape} "
+                    f"for a state of batch shape {state.batch_shape}"
+                )
+        return True
+    return False
+
+
+def simulate(
+    state: AnyState,
+    forces: ForceLike,
+    dt: ArrayLike,
+    steps: int,
+    method: str = "euler",
+    *,
+    save_every: int = 1,
+    t0: ArrayLike = 0.0,
+) -> AnyState:
+    """Integrate ``steps`` steps of ``dt`` with ``lax.scan`` and return the trajectory.
+
+    Args:
+        state: initial state (one body or any batch).
+        forces: world-frame forces, one of
+
+            * a constant :class:`Forces` (``(*B, 3)`` or broadcastable);
+            * a :class:`Forces` with a leading time axis, ``(steps, *B, 3)``, one
+              per step (held constant within the step);
+            * a callable ``(state, t) -> Forces`` on the whole batch;
+            * ``None``.
+        dt: step (s), > 0; differentiable.
+        steps: number of steps (static).
+        method: integrator name (static).
+        save_every: keep every ``save_every``-th state (static); must divide ``steps``.
+        t0: start time (s).
+
+    Returns:
+        The trajectory, the same pytree type as ``state`` with a leading time axis
+        of length ``steps // save_every + 1`` on every changing field, starting
+        with the initial state. Constant fields (``body``; ``mass`` of particles)
+        are not repeated over time: they keep the initial state's shape and
+        broadcast against the time axis in every rbjax function.
+
+    A new callable ``forces`` object compiles anew (it is a static argument).
+    """
+    _methods.get(method, type(state))
+    if not isinstance(steps, (int, np.integer)) or steps < 0:
+        raise ValueError(f"steps must be a non-negative int, got {steps!r}")
+    if not isinstance(save_every, (int, np.integer)) or save_every < 1 or steps % save_every:
+        raise ValueError(f"save_every must be a positive int dividing steps={steps}, got {save_every!r}")
+    _check_dt(dt)
+    force_fn = None
+    if isinstance(forces, Forces):
+        series = _is_time_series(forces, state, steps)
+        if not series:
+            batch_shape(state, forces)
+    elif forces is None or callable(forces):
+        series, force_fn, forces = False, forces, None
+    else:
+        raise TypeError(f"forces must be Forces, a callable (state, t) -> Forces, or None; got {type(forces)}")
+    return _simulate(
+        state, forces, jnp.asarray(dt), jnp.asarray(t0),
+        steps=int(steps), method=method, save_every=int(save_every), series=series, force_fn=force_fn,
+    )
+
+
+@functools.partial(jax.jit, static_argnames=("steps", "method", "save_every", "series", "force_fn"))
+def _simulate(state, forces, dt, t0, *, steps, method, save_every, series, force_fn):
+    step_fn = _methods.get(method, type(state))
+    dtype = state.dtype
+    dt, t0 = dt.astype(dtype), t0.astype(dtype)
+    consts = {k: getattr(state, k) for k in _constant_fields(state)}
+    strip = lambda s: replace(s, **{k: None for k in consts})  # noqa: E731
+    n_out = steps // save_every
+
+    def one(dyn, k_and_f):
+        k, f = k_and_f
+        s = replace(dyn, **consts)
+        if series:
+            fn = lambda state, t: f  # noqa: E731
+        elif force_fn is not None:
+            fn = force_fn
+        else:
+            fn = as_force_fn(forces)
+        return strip(step_fn(s, fn, t0 + k.astype(dtype) * dt, dt)), None
+
+    def chunk(dyn, xs):
+        dyn, _ = jax.lax.scan(one, dyn, xs)
+        return dyn, dyn
+
+    ks = jnp.arange(steps).reshape(n_out, save_every)
+    fs = jax.tree.map(lambda a: a.reshape((n_out, save_every) + a.shape[1:]), forces) if series else None
+    dyn0 = strip(state)
+    _, traj = jax.lax.scan(chunk, dyn0, (ks, fs))
+    traj = jax.tree.map(lambda a0, a: jnp.concatenate([a0[None], a]), dyn0, traj)
+    return replace(traj, **consts)
+

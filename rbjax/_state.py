@@ -1,0 +1,340 @@
+"""State pytrees (the notes' two simulation columns and particles) and forces.
+
+All vectors are in the world frame unless a name says otherwise; SI units
+(m, m/s, kg m²/s, N, N m). Batch dimensions lead; see :mod:`rbjax._batching`.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, Union
+
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+from jax.typing import ArrayLike
+
+from ._body import Body, _as_float, _is_concrete
+from ._math import cross, quat_rotate, quat_to_matrix
+from ._pytree import field, pytree_dataclass
+
+__all__ = [
+    "Forces",
+    "MatrixState",
+    "ParticleState",
+    "RigidState",
+    "State",
+    "quat_tolerance",
+]
+
+
+def quat_tolerance(dtype: Any) -> float:
+    """Accepted ``|‖q‖ - 1|`` for an input quaternion: ``max(1e-6, 128 eps)``.
+
+    1e-6 in float64 admits quaternions typed or computed by hand to ~6 digits;
+    in float32 128 eps ≈ 1.5e-5 admits a normalised float32 quaternion that went
+    through a few operations.
+    """
+    return max(1e-6, 128 * float(np.finfo(dtype).eps))
+
+
+def _check_vectors(cls: str, **arrays: Array) -> None:
+    for name, a in arrays.items():
+        if a is None:
+            continue
+        want = 4 if name == "orientation" else 3
+        if name == "rotation":
+            if a.shape[-2:] != (3, 3):
+                raise ValueError(f"{cls}: rotation must end in (3, 3), got shape {a.shape}")
+        elif a.shape[-1:] != (want,):
+            raise ValueError(f"{cls}: {name} must end in ({want},), got shape {a.shape}")
+        if _is_concrete(a) and not np.all(np.isfinite(np.asarray(a))):
+            raise ValueError(f"{cls}: {name} must be finite, got non-finite entries")
+
+
+def _check_unit_quaternion(cls: str, q: Array) -> None:
+    if not _is_concrete(q):
+        return
+    err = np.abs(np.linalg.norm(np.asarray(q, dtype=np.float64), axis=-1) - 1)
+    tol = quat_tolerance(q.dtype)
+    if np.any(err > tol):
+        raise ValueError(
+            f"{cls}: orientation must be a unit quaternion [w, x, y, z]; |‖q‖ - 1| = "
+            f"{np.max(err):.3g} exceeds the tolerance {tol:.3g}"
+        )
+
+
+def _check_rotation(cls: str, R: Array) -> None:
+    if not _is_concrete(R):
+        return
+    R64 = np.asarray(R, dtype=np.float64)
+    err = np.max(np.abs(np.swapaxes(R64, -1, -2) @ R64 - np.eye(3)))
+    tol = quat_tolerance(R.dtype)
+    if err > tol or np.any(np.linalg.det(R64) <= 0):
+        raise ValueError(
+            f"{cls}: rotation must be a proper rotation matrix (RᵀR = 1, det R = +1); "
+            f"max |RᵀR - 1| = {err:.3g}, tolerance {tol:.3g}"
+        )
+
+
+def _dtype_of(body: Body | None, *xs: Any) -> Any:
+    arrays = [jnp.asarray(x) for x in xs if x is not None]
+    if body is not None:
+        arrays.append(body.mass)
+    floats = [a for a in arrays if jnp.issubdtype(a.dtype, jnp.floating)]
+    return jnp.result_type(*floats) if floats else jnp.result_type(float)
+
+
+def _vec(x: ArrayLike | None, default: ArrayLike, dtype: Any) -> Array:
+    return jnp.asarray(default if x is None else x, dtype=dtype)
+
+
+@pytree_dataclass
+class State:
+    """Rigid-body state in the notes' ``(x, v, q, L)`` form.
+
+    Attributes:
+        body: mass properties (:class:`Body`), per body or shared by the batch.
+        position: ``(*B, 3)`` centre of mass ``x`` (world, m).
+        velocity: ``(*B, 3)`` centre-of-mass velocity ``v`` (world, m/s).
+        orientation: ``(*B, 4)`` unit quaternion ``q = [w, x, y, z]``, body to world.
+        angular_momentum: ``(*B, 3)`` ``L`` about the centre of mass (world, kg m²/s).
+
+    The angular velocity is derived: ``ω = I_w⁻¹ L`` with ``I_w = R I_L Rᵀ``.
+    Direct construction validates shapes, finiteness and ``‖q‖ = 1`` (tolerance
+    :func:`quat_tolerance`) when values are concrete.
+    """
+
+    body: Body
+    position: Array = field(core_ndim=1)
+    velocity: Array = field(core_ndim=1)
+    orientation: Array = field(core_ndim=1)
+    angular_momentum: Array = field(core_ndim=1)
+
+    def __post_init__(self) -> None:
+        _check_vectors(
+            "State",
+            position=self.position,
+            velocity=self.velocity,
+            orientation=self.orientation,
+            angular_momentum=self.angular_momentum,
+        )
+        _check_unit_quaternion("State", self.orientation)
+
+    @classmethod
+    def create(
+        cls,
+        body: Body,
+        *,
+        position: ArrayLike | None = None,
+        velocity: ArrayLike | None = None,
+        orientation: ArrayLike | None = None,
+        angular_velocity: ArrayLike | None = None,
+    ) -> "State":
+        """State from kinematic quantities; missing ones are zero / identity.
+
+        ``angular_velocity`` ``ω`` is in the world frame (rad/s); the stored
+        momentum is ``L = R I_L Rᵀ ω``. All arguments broadcast against the
+        body's batch shape.
+        """
+        dtype = _dtype_of(body, position, velocity, orientation, angular_velocity)
+        q = _vec(orientation, [1.0, 0.0, 0.0, 0.0], dtype)
+        w = _vec(angular_velocity, [0.0, 0.0, 0.0], dtype)
+        x = _vec(position, [0.0, 0.0, 0.0], dtype)
+        v = _vec(velocity, [0.0, 0.0, 0.0], dtype)
+        shape = jnp.broadcast_shapes(
+            body.batch_shape, x.shape[:-1], v.shape[:-1], q.shape[:-1], w.shape[:-1]
+        )
+        _check_unit_quaternion("State.create", q)
+        L = quat_rotate(q, _apply(body.inertia, quat_rotate(_conj(q), w)))
+        bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])  # noqa: E731
+        return cls(body, bc(x), bc(v), bc(q), bc(L))
+
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        return tuple(self.position.shape[:-1])
+
+    @property
+    def dtype(self) -> Any:
+        return self.position.dtype
+
+
+@pytree_dataclass
+class MatrixState:
+    """Rigid-body state in the notes' ``(x, v, R, ω)`` form.
+
+    Attributes:
+        body: mass properties (:class:`Body`).
+        position: ``(*B, 3)`` centre of mass (world, m).
+        velocity: ``(*B, 3)`` centre-of-mass velocity (world, m/s).
+        rotation: ``(*B, 3, 3)`` rotation matrix ``R``, body to world (columns are
+            the body axes in world coordinates).
+        angular_velocity: ``(*B, 3)`` ``ω`` (world, rad/s).
+    """
+
+    body: Body
+    position: Array = field(core_ndim=1)
+    velocity: Array = field(core_ndim=1)
+    rotation: Array = field(core_ndim=2)
+    angular_velocity: Array = field(core_ndim=1)
+
+    def __post_init__(self) -> None:
+        _check_vectors(
+            "MatrixState",
+            position=self.position,
+            velocity=self.velocity,
+            rotation=self.rotation,
+            angular_velocity=self.angular_velocity,
+        )
+        _check_rotation("MatrixState", self.rotation)
+
+    @classmethod
+    def create(
+        cls,
+        body: Body,
+        *,
+        position: ArrayLike | None = None,
+        velocity: ArrayLike | None = None,
+        orientation: ArrayLike | None = None,
+        angular_velocity: ArrayLike | None = None,
+    ) -> "MatrixState":
+        """State from kinematic quantities, as :meth:`State.create`.
+
+        ``orientation`` is a unit quaternion ``[w, x, y, z]`` or a ``(3, 3)``
+        rotation matrix; ``angular_velocity`` is world-frame ``ω`` (rad/s).
+        """
+        dtype = _dtype_of(body, position, velocity, orientation, angular_velocity)
+        o = _vec(orientation, [1.0, 0.0, 0.0, 0.0], dtype)
+        if o.shape[-1:] == (4,):
+            _check_unit_quaternion("MatrixState.create", o)
+            R = quat_to_matrix(o)
+        else:
+            R = o
+        w = _vec(angular_velocity, [0.0, 0.0, 0.0], dtype)
+        x = _vec(position, [0.0, 0.0, 0.0], dtype)
+        v = _vec(velocity, [0.0, 0.0, 0.0], dtype)
+        shape = jnp.broadcast_shapes(
+            body.batch_shape, x.shape[:-1], v.shape[:-1], R.shape[:-2], w.shape[:-1]
+        )
+        bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])  # noqa: E731
+        return cls(body, bc(x), bc(v), jnp.broadcast_to(R, shape + (3, 3)), bc(w))
+
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        return tuple(self.position.shape[:-1])
+
+    @property
+    def dtype(self) -> Any:
+        return self.position.dtype
+
+
+@pytree_dataclass
+class ParticleState:
+    """Point masses (the notes' first slide): no orientation, nothing rotational.
+
+    Attributes:
+        position: ``(*B, 3)`` (world, m).
+        velocity: ``(*B, 3)`` (world, m/s).
+        mass: ``(*B,)`` kg, > 0.
+    """
+
+    position: Array = field(core_ndim=1)
+    velocity: Array = field(core_ndim=1)
+    mass: Array = field(core_ndim=0)
+
+    def __post_init__(self) -> None:
+        _check_vectors("ParticleState", position=self.position, velocity=self.velocity)
+        if _is_concrete(self.mass):
+            m = np.asarray(self.mass)
+            if not np.all(np.isfinite(m)) or np.any(m <= 0):
+                raise ValueError(f"ParticleState: mass must be finite and > 0, got {m.ravel()[:3]}")
+
+    @classmethod
+    def create(
+        cls,
+        mass: ArrayLike,
+        *,
+        position: ArrayLike | None = None,
+        velocity: ArrayLike | None = None,
+    ) -> "ParticleState":
+        """Particles from mass (kg) and optional position and velocity (zeros)."""
+        m = _as_float(mass)
+        dtype = _dtype_of(None, m, position, velocity)
+        x = _vec(position, [0.0, 0.0, 0.0], dtype)
+        v = _vec(velocity, [0.0, 0.0, 0.0], dtype)
+        shape = jnp.broadcast_shapes(m.shape, x.shape[:-1], v.shape[:-1])
+        return cls(
+            jnp.broadcast_to(x, shape + (3,)),
+            jnp.broadcast_to(v, shape + (3,)),
+            jnp.broadcast_to(m.astype(dtype), shape),
+        )
+
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        return tuple(self.position.shape[:-1])
+
+    @property
+    def dtype(self) -> Any:
+        return self.position.dtype
+
+
+RigidState = Union[State, MatrixState]
+AnyState = Union[State, MatrixState, ParticleState]
+
+
+@pytree_dataclass
+class Forces:
+    """Applied force and torque, world frame.
+
+    Attributes:
+        force: ``(*B, 3)`` net force on the centre of mass (N), or ``None`` for none.
+        torque: ``(*B, 3)`` net torque about the centre of mass (N m), or ``None``.
+
+    ``None`` is static: a step given ``Forces(force=f)`` compiles no torque work.
+    Forces add with ``+``.
+    """
+
+    force: Array | None = field(core_ndim=1, default=None)
+    torque: Array | None = field(core_ndim=1, default=None)
+
+    def __post_init__(self) -> None:
+        for name in ("force", "torque"):
+            v = getattr(self, name)
+            if v is not None:
+                v = _as_float(v)
+                object.__setattr__(self, name, v)
+        _check_vectors("Forces", force=self.force, torque=self.torque)
+
+    @classmethod
+    def at_point(cls, force: ArrayLike, point: ArrayLike, state: AnyState) -> "Forces":
+        """Force ``F`` applied at world point ``p``: torque ``τ = (p - x) × F``."""
+        f = _as_float(force)
+        return cls(force=f, torque=cross(jnp.asarray(point) - state.position, f))
+
+    @classmethod
+    def gravity(cls, state: AnyState, g: ArrayLike = (0.0, 0.0, -9.81)) -> "Forces":
+        """Uniform gravity ``F = m g`` (world frame, m/s²), no torque."""
+        m = state.mass if isinstance(state, ParticleState) else state.body.mass
+        g = jnp.asarray(g, dtype=state.dtype)
+        return cls(force=jnp.broadcast_to(m[..., None] * g, state.position.shape))
+
+    def __add__(self, other: "Forces") -> "Forces":
+        def add(a: Array | None, b: Array | None) -> Array | None:
+            if a is None:
+                return b
+            if b is None:
+                return a
+            return a + b
+
+        return Forces(add(self.force, other.force), add(self.torque, other.torque))
+
+
+ForceLike = Union[Forces, Callable[[Any, Array], Forces], None]
+
+
+def _conj(q: Array) -> Array:
+    return jnp.concatenate([q[..., :1], -q[..., 1:]], axis=-1)
+
+
+def _apply(A: Array, v: Array) -> Array:
+    """``A v`` for ``(..., 3, 3)`` and ``(..., 3)``, by components (fuses under vmap)."""
+    return A[..., 0] * v[..., 0:1] + A[..., 1] * v[..., 1:2] + A[..., 2] * v[..., 2:3]
