@@ -18,6 +18,7 @@ from ._body import (
     rotate_inertia as rotate_inertia,
     sphere as sphere,
 )
+from ._dynamics import derivative as derivative
 from ._math import (
     cross as cross,
     matrix_to_quat as matrix_to_quat,

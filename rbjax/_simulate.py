@@ -14,18 +14,10 @@ from jax.typing import ArrayLike
 from . import _methods
 from ._batching import batch_shape
 from ._pytree import replace
-from ._state import AnyState, ForceLike, Forces, ParticleState
+from ._simulate_support import constant_fields
+from ._state import AnyState, ForceLike, Forces
 
 __all__ = ["step", "simulate", "as_force_fn"]
-
-# Fields that do not change along a trajectory: carried outside the scan and not
-# stacked over time in the returned trajectory.
-_CONSTANT_FIELDS = {ParticleState: ("mass",)}
-
-
-def _constant_fields(state: AnyState) -> tuple[str, ...]:
-    return _CONSTANT_FIELDS.get(type(state), ("body",))
-
 
 def _check_dt(dt: Any) -> None:
     if isinstance(dt, jax.core.Tracer):
@@ -151,7 +143,7 @@ def _simulate(state, forces, dt, t0, *, steps, method, save_every, series, force
     step_fn = _methods.get(method, type(state))
     dtype = state.dtype
     dt, t0 = dt.astype(dtype), t0.astype(dtype)
-    consts = {k: getattr(state, k) for k in _constant_fields(state)}
+    consts = {k: getattr(state, k) for k in constant_fields(state)}
     strip = lambda s: replace(s, **{k: None for k in consts})  # noqa: E731
     n_out = steps // save_every
 

@@ -62,4 +62,5 @@ def available(state_type: type | None = None) -> dict[str, Method]:
     return {k: m for k, m in _REGISTRY.items() if state_type is None or state_type in m.steps}
 
 
-from . import euler as euler  # noqa: E402  (registers itself)
+from . import euler as euler  # noqa: E402  (each module registers itself)
+from . import rk4 as rk4  # noqa: E402
