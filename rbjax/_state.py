@@ -141,6 +141,7 @@ class State:
         w = _vec(angular_velocity, [0.0, 0.0, 0.0], dtype)
         x = _vec(position, [0.0, 0.0, 0.0], dtype)
         v = _vec(velocity, [0.0, 0.0, 0.0], dtype)
+        _check_vectors("State.create", position=x, velocity=v, orientation=q, angular_velocity=w)
         shape = jnp.broadcast_shapes(
             body.batch_shape, x.shape[:-1], v.shape[:-1], q.shape[:-1], w.shape[:-1]
         )
@@ -212,6 +213,7 @@ class MatrixState:
         w = _vec(angular_velocity, [0.0, 0.0, 0.0], dtype)
         x = _vec(position, [0.0, 0.0, 0.0], dtype)
         v = _vec(velocity, [0.0, 0.0, 0.0], dtype)
+        _check_vectors("MatrixState.create", position=x, velocity=v, rotation=R, angular_velocity=w)
         shape = jnp.broadcast_shapes(
             body.batch_shape, x.shape[:-1], v.shape[:-1], R.shape[:-2], w.shape[:-1]
         )
