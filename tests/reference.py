@@ -8,7 +8,7 @@ than one implementation against itself.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 from scipy.integrate import solve_ivp
@@ -53,8 +53,15 @@ def reference_rotation(
         dw = Iinv @ (tau_b - np.cross(wb, I @ wb))
         return np.concatenate([dq, dw])
 
-    sol = solve_ivp(rhs, (times[0], times[-1]), np.concatenate([q0, wb0]), method="DOP853",
-                    t_eval=times, rtol=rtol, atol=atol)
+    sol = solve_ivp(
+        rhs,
+        (times[0], times[-1]),
+        np.concatenate([q0, wb0]),
+        method="DOP853",
+        t_eval=times,
+        rtol=rtol,
+        atol=atol,
+    )
     assert sol.success, sol.message
     q = sol.y[:4].T
     q = q / np.linalg.norm(q, axis=1, keepdims=True)

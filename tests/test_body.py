@@ -14,7 +14,13 @@ def _notes_inertia(masses, points):
     """The notes' written-out matrix: Σ m [[y²+z², -xy, -xz], [-xy, x²+z², -yz], [-xz, -yz, x²+y²]]."""
     I = np.zeros((3, 3))
     for m, (x, y, z) in zip(masses, points):
-        I += m * np.array([[y * y + z * z, -x * y, -x * z], [-x * y, x * x + z * z, -y * z], [-x * z, -y * z, x * x + y * y]])
+        I += m * np.array(
+            [
+                [y * y + z * z, -x * y, -x * z],
+                [-x * y, x * x + z * z, -y * z],
+                [-x * z, -y * z, x * x + y * y],
+            ]
+        )
     return I
 
 
@@ -39,19 +45,25 @@ def test_from_particles_matches_the_notes_formula():
 
 def _ellipsoid_integral(a, b, c):
     """∫ x², y², z² over the solid ellipsoid, by nested quadrature (tolerance 1e-11)."""
+
     def second_moments():
         out = []
         for k in range(3):
             f = lambda z, y, x, k=k: (x, y, z)[k] ** 2  # noqa: E731
             val, _ = integrate.tplquad(
-                f, -a, a,
-                lambda x: -b * np.sqrt(max(0.0, 1 - (x / a) ** 2)), lambda x: b * np.sqrt(max(0.0, 1 - (x / a) ** 2)),
+                f,
+                -a,
+                a,
+                lambda x: -b * np.sqrt(max(0.0, 1 - (x / a) ** 2)),
+                lambda x: b * np.sqrt(max(0.0, 1 - (x / a) ** 2)),
                 lambda x, y: -c * np.sqrt(max(0.0, 1 - (x / a) ** 2 - (y / b) ** 2)),
                 lambda x, y: c * np.sqrt(max(0.0, 1 - (x / a) ** 2 - (y / b) ** 2)),
-                epsabs=1e-11, epsrel=1e-11,
+                epsabs=1e-11,
+                epsrel=1e-11,
             )
             out.append(val)
         return np.array(out)
+
     return second_moments(), 4 / 3 * np.pi * a * b * c
 
 
@@ -62,7 +74,9 @@ def test_ellipsoid_and_sphere_against_quadrature():
     ref = np.diag([mom[1] + mom[2], mom[0] + mom[2], mom[0] + mom[1]])
     # quadrature accurate to ~1e-9 relative (the square-root edges limit it)
     np.testing.assert_allclose(rb.ellipsoid(m, [a, b, c]).inertia, ref, rtol=1e-7, atol=1e-12)
-    np.testing.assert_allclose(rb.sphere(m, 1.3).inertia, rb.ellipsoid(m, [1.3, 1.3, 1.3]).inertia, rtol=1e-15)
+    np.testing.assert_allclose(
+        rb.sphere(m, 1.3).inertia, rb.ellipsoid(m, [1.3, 1.3, 1.3]).inertia, rtol=1e-15
+    )
 
 
 def test_box_and_cylinder_against_quadrature():
@@ -70,7 +84,9 @@ def test_box_and_cylinder_against_quadrature():
     vol = a * b * c
     sq = [integrate.quad(lambda x: x * x, -s / 2, s / 2)[0] * vol / s for s in (a, b, c)]
     mom = m / vol * np.array(sq)
-    np.testing.assert_allclose(rb.box(m, [a, b, c]).inertia, np.diag([mom[1] + mom[2], mom[0] + mom[2], mom[0] + mom[1]]), rtol=1e-13)
+    np.testing.assert_allclose(
+        rb.box(m, [a, b, c]).inertia, np.diag([mom[1] + mom[2], mom[0] + mom[2], mom[0] + mom[1]]), rtol=1e-13
+    )
     r, l = 0.4, 1.7
     vol = np.pi * r * r * l
     # ∫ x² dV over the cylinder = l ∫∫ x² dA (polar); ∫ z² dV = π r² l³/12

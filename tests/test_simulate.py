@@ -6,18 +6,28 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from jax.test_util import check_grads
+from reference import qmul, reference_rotation
 from scipy.spatial.transform import Rotation
 
 import rbjax as rb
-from reference import qmul, reference_rotation
 
-I_GENERIC = Rotation.from_rotvec([0.3, -0.5, 0.2]).as_matrix() @ np.diag([1.0, 2.0, 2.8]) @ Rotation.from_rotvec([0.3, -0.5, 0.2]).as_matrix().T
+I_GENERIC = (
+    Rotation.from_rotvec([0.3, -0.5, 0.2]).as_matrix()
+    @ np.diag([1.0, 2.0, 2.8])
+    @ Rotation.from_rotvec([0.3, -0.5, 0.2]).as_matrix().T
+)
 W0 = np.array([0.4, 1.5, -0.7])
 
 
 def _generic_state(cls=rb.State, **kw):
-    return cls.create(rb.Body(1.5, I_GENERIC), orientation=rb.quat_exp(jnp.array([0.1, 0.2, 0.3])),
-                      angular_velocity=W0, position=[1.0, 2.0, 3.0], velocity=[0.1, -0.2, 0.3], **kw)
+    return cls.create(
+        rb.Body(1.5, I_GENERIC),
+        orientation=rb.quat_exp(jnp.array([0.1, 0.2, 0.3])),
+        angular_velocity=W0,
+        position=[1.0, 2.0, 3.0],
+        velocity=[0.1, -0.2, 0.3],
+        **kw,
+    )
 
 
 def _numpy_euler_L(x, v, q, L, m, I, F, tau, dt):
@@ -40,7 +50,14 @@ def test_euler_state_is_the_notes_update():
     s = _generic_state()
     F, tau, dt = np.array([1.0, 0, -2.0]), np.array([0.3, 0.1, -0.2]), 0.01
     out = rb.step(s, rb.Forces(F, tau), dt)
-    ref = _numpy_euler_L(*(np.asarray(a) for a in (s.position, s.velocity, s.orientation, s.angular_momentum)), 1.5, I_GENERIC, F, tau, dt)
+    ref = _numpy_euler_L(
+        *(np.asarray(a) for a in (s.position, s.velocity, s.orientation, s.angular_momentum)),
+        1.5,
+        I_GENERIC,
+        F,
+        tau,
+        dt,
+    )
     for a, b in zip((out.position, out.velocity, out.orientation, out.angular_momentum), ref):
         np.testing.assert_allclose(a, b, rtol=1e-13, atol=1e-14)
 
@@ -49,7 +66,14 @@ def test_euler_matrix_state_is_the_notes_update():
     s = _generic_state(rb.MatrixState)
     F, tau, dt = np.array([1.0, 0, -2.0]), np.array([0.3, 0.1, -0.2]), 0.01
     out = rb.step(s, rb.Forces(F, tau), dt)
-    x, v, R2, w = _numpy_euler_R(*(np.asarray(a) for a in (s.position, s.velocity, s.rotation, s.angular_velocity)), 1.5, I_GENERIC, F, tau, dt)
+    x, v, R2, w = _numpy_euler_R(
+        *(np.asarray(a) for a in (s.position, s.velocity, s.rotation, s.angular_velocity)),
+        1.5,
+        I_GENERIC,
+        F,
+        tau,
+        dt,
+    )
     for a, b in zip((out.position, out.velocity, out.angular_velocity), (x, v, w)):
         np.testing.assert_allclose(a, b, rtol=1e-13, atol=1e-14)
     # re-orthonormalisation moves R by O(dt²|ω|²) towards its polar factor
@@ -73,12 +97,17 @@ def test_euler_is_first_order_against_dop853(cls):
     """Error at t = 1 s against DOP853 (rtol 1e-12) halves with dt: slope 1 ± 0.15."""
     s = _generic_state(cls)
     t_end = 1.0
-    q_ref, w_ref = reference_rotation(I_GENERIC, np.asarray(rb.orientation(s)), W0, np.array([0.0, t_end]), rtol=1e-12, atol=1e-14)
+    q_ref, w_ref = reference_rotation(
+        I_GENERIC, np.asarray(rb.orientation(s)), W0, np.array([0.0, t_end]), rtol=1e-12, atol=1e-14
+    )
     errs = []
     dts = [1e-2 / 2**k for k in range(4)]
     for dt in dts:
         traj = rb.simulate(s, None, dt, int(round(t_end / dt)), save_every=int(round(t_end / dt)))
-        errs.append(float(rb.quat_angle(rb.orientation(traj)[-1], q_ref[-1])) + float(np.linalg.norm(rb.angular_velocity(traj)[-1] - w_ref[-1])))
+        errs.append(
+            float(rb.quat_angle(rb.orientation(traj)[-1], q_ref[-1]))
+            + float(np.linalg.norm(rb.angular_velocity(traj)[-1] - w_ref[-1]))
+        )
     slope = np.polyfit(np.log(dts), np.log(errs), 1)[0]
     assert abs(slope - 1) < 0.15, (slope, errs)
 
@@ -86,7 +115,9 @@ def test_euler_is_first_order_against_dop853(cls):
 def test_euler_keeps_world_L_exactly_and_gains_energy():
     s = _generic_state()
     traj = rb.simulate(s, None, 0.01, 2000, save_every=100)
-    np.testing.assert_array_equal(traj.angular_momentum, np.broadcast_to(s.angular_momentum, traj.angular_momentum.shape))
+    np.testing.assert_array_equal(
+        traj.angular_momentum, np.broadcast_to(s.angular_momentum, traj.angular_momentum.shape)
+    )
     E = np.asarray(rb.kinetic_energy(traj))
     # the notes' explicit Euler drifts: energy is not conserved (here it rises)
     assert E[-1] > E[0] * (1 + 1e-3)
@@ -123,12 +154,20 @@ def test_batch_equals_per_body_and_jit_equals_eager(method):
     tau = rb.Forces(torque=rng.normal(size=(4, 3)))
     traj = rb.simulate(batch, tau, 0.01, 30, method=method)
     for i in range(4):
-        one = rb.simulate(rb.State.create(rb.box(1.0, sizes[i]), angular_velocity=w[i]), rb.Forces(torque=tau.torque[i]), 0.01, 30, method=method)
+        one = rb.simulate(
+            rb.State.create(rb.box(1.0, sizes[i]), angular_velocity=w[i]),
+            rb.Forces(torque=tau.torque[i]),
+            0.01,
+            30,
+            method=method,
+        )
         np.testing.assert_allclose(traj.orientation[:, i], one.orientation, rtol=1e-13, atol=1e-14)
     eager = batch
     for _ in range(3):
         eager = rb.step(eager, tau, 0.01, method)
-    jitted = jax.jit(lambda s: rb.step(rb.step(rb.step(s, tau, 0.01, method), tau, 0.01, method), tau, 0.01, method))(batch)
+    jitted = jax.jit(
+        lambda s: rb.step(rb.step(rb.step(s, tau, 0.01, method), tau, 0.01, method), tau, 0.01, method)
+    )(batch)
     np.testing.assert_allclose(jitted.orientation, eager.orientation, rtol=1e-14, atol=1e-15)
     np.testing.assert_allclose(traj.orientation[3], eager.orientation, rtol=1e-14, atol=1e-15)
 
@@ -173,8 +212,15 @@ def test_gradients_through_simulate():
         traj = rb.simulate(s, rb.Forces(torque=torque), 0.01, 20, save_every=20)
         return rb.orientation(traj)[-1]
 
-    check_grads(jax.jit(final_angle), (jnp.asarray(I_GENERIC), jnp.asarray(W0), F.torque), order=1,
-                modes=("fwd", "rev"), eps=1e-5, atol=1e-6, rtol=1e-6)
+    check_grads(
+        jax.jit(final_angle),
+        (jnp.asarray(I_GENERIC), jnp.asarray(W0), F.torque),
+        order=1,
+        modes=("fwd", "rev"),
+        eps=1e-5,
+        atol=1e-6,
+        rtol=1e-6,
+    )
 
 
 def test_invalid_arguments_raise():
@@ -186,7 +232,11 @@ def test_invalid_arguments_raise():
     with pytest.raises(ValueError, match="unknown method"):
         rb.step(s, None, 0.01, "leapfrog-ish")
     with pytest.raises(ValueError, match="broadcast"):
-        rb.step(rb.State.create(rb.sphere(1.0, 1.0), angular_velocity=np.ones((4, 3))), rb.Forces(force=np.ones((5, 3))), 0.01)
+        rb.step(
+            rb.State.create(rb.sphere(1.0, 1.0), angular_velocity=np.ones((4, 3))),
+            rb.Forces(force=np.ones((5, 3))),
+            0.01,
+        )
     with pytest.raises(ValueError, match="time-series"):
         rb.simulate(s, rb.Forces(force=np.ones((7, 1, 3))), 0.01, 10)
     with pytest.raises(ValueError, match="steps"):

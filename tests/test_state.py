@@ -39,7 +39,9 @@ def test_quantities_equal_particle_sums(particle_body):
     np.testing.assert_allclose(rb.angular_velocity(s), w, rtol=TOL)
     np.testing.assert_allclose(rb.body_angular_velocity(s), R.T @ w, rtol=TOL, atol=TOL)
     np.testing.assert_allclose(rb.linear_momentum(s), (m[:, None] * vel).sum(0), rtol=TOL)
-    np.testing.assert_allclose(rb.angular_momentum(s), (m[:, None] * np.cross(r, vel)).sum(0), rtol=TOL, atol=TOL)
+    np.testing.assert_allclose(
+        rb.angular_momentum(s), (m[:, None] * np.cross(r, vel)).sum(0), rtol=TOL, atol=TOL
+    )
     np.testing.assert_allclose(rb.kinetic_energy(s), 0.5 * (m * (vel**2).sum(1)).sum(), rtol=TOL)
     # I_w = R I_L Rᵀ equals the inertia of the rotated particles
     np.testing.assert_allclose(rb.world_inertia(s), rb.from_particles(m, r)[0].inertia, rtol=1e-11, atol=TOL)
@@ -55,7 +57,13 @@ def test_matrix_state_agrees_with_state(particle_body):
     q = rb.quat_exp(jnp.array([0.3, -1.2, 2.0]))
     s = rb.State.create(body, orientation=q, angular_velocity=[0.5, -1.0, 2.0], velocity=[1.0, 0, 0])
     ms = rb.MatrixState.create(body, orientation=q, angular_velocity=[0.5, -1.0, 2.0], velocity=[1.0, 0, 0])
-    for f in [rb.kinetic_energy, rb.angular_momentum, rb.angular_velocity, rb.world_inertia, rb.rotation_matrix]:
+    for f in [
+        rb.kinetic_energy,
+        rb.angular_momentum,
+        rb.angular_velocity,
+        rb.world_inertia,
+        rb.rotation_matrix,
+    ]:
         np.testing.assert_allclose(f(ms), f(s), rtol=TOL, atol=TOL)
     back = rb.to_state(rb.to_matrix_state(s))
     assert float(rb.quat_angle(back.orientation, s.orientation)) < 1e-7  # arccos-free angle, round-off level
@@ -89,7 +97,11 @@ def test_batched_state_with_shared_body():
     s = rb.State.create(body, angular_velocity=w)
     assert s.batch_shape == (6,) and body.batch_shape == ()
     for i in range(6):
-        np.testing.assert_allclose(rb.kinetic_energy(s)[i], rb.kinetic_energy(rb.State.create(body, angular_velocity=w[i])), rtol=1e-15)
+        np.testing.assert_allclose(
+            rb.kinetic_energy(s)[i],
+            rb.kinetic_energy(rb.State.create(body, angular_velocity=w[i])),
+            rtol=1e-15,
+        )
 
 
 def test_pytrees_work_under_jit_vmap_grad():
@@ -103,7 +115,13 @@ def test_pytrees_work_under_jit_vmap_grad():
     leaves = jax.tree_util.tree_leaves(rb.State.create(body))
     assert len(leaves) == 7  # mass, inertia, inverse inertia, x, v, q, L
     # zero angular velocity at the identity: gradient finite
-    assert np.all(np.isfinite(jax.grad(lambda w: rb.angular_velocity(rb.State.create(body, angular_velocity=w)).sum())(jnp.zeros(3))))
+    assert np.all(
+        np.isfinite(
+            jax.grad(lambda w: rb.angular_velocity(rb.State.create(body, angular_velocity=w)).sum())(
+                jnp.zeros(3)
+            )
+        )
+    )
 
 
 @pytest.mark.parametrize(
