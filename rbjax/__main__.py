@@ -1,0 +1,7 @@
+"""``python -m rbjax``: see :mod:`rbjax._cli`."""
+
+import sys
+
+from ._cli import main
+
+sys.exit(main())
