@@ -39,10 +39,10 @@ def _scripts() -> list[Path]:
     return sorted(p for p in d.glob("*.py") if not p.name.startswith("_"))
 
 
-def _demo(args: argparse.Namespace) -> int:
+def _demo(argv: list[str]) -> int:
     from . import _demo
 
-    return int(_demo.main(args.demo_args) or 0)
+    return int(_demo.main(argv) or 0)
 
 
 def _bench(args: argparse.Namespace) -> int:
@@ -85,10 +85,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="{demo,bench,fit}", parser_class=_Parser)
     sub.required = True
 
-    demo = sub.add_parser("demo", parents=[common], help="run the README demo (T-handle flips)",
-                          description="Run the README demo; arguments after 'demo' go to it.")
-    demo.add_argument("demo_args", nargs=argparse.REMAINDER, help="arguments passed on to the demo")
-    demo.set_defaults(func=_demo)
+    # listed for --help only: main() hands everything after 'demo' to the demo's own parser
+    # (argparse.REMAINDER would not pass on leading options such as --bodies)
+    sub.add_parser("demo", help="run the README demo: tumbling boxes and a T-handle ('demo --help')")
 
     bench = sub.add_parser("bench", parents=[common], help="run the benchmarks in benchmarks/",
                            description=f"Run benchmark scripts from {benchmarks_dir()}.")
@@ -108,6 +107,9 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv
     try:
+        rest = [a for a in argv if a != "--debug"]
+        if rest[:1] == ["demo"]:
+            return _demo(rest[1:])
         args = build_parser().parse_args(argv)
         return args.func(args)
     except KeyboardInterrupt:

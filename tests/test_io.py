@@ -29,8 +29,10 @@ def _state(dtype, batch=(3,)):
     q = rng.normal(size=batch + (4,))
     q /= np.linalg.norm(q, axis=-1, keepdims=True)
     return rb.State.create(
-        body, position=jnp.asarray(rng.normal(size=batch + (3,)), dtype),
-        velocity=jnp.asarray(rng.normal(size=batch + (3,)), dtype), orientation=jnp.asarray(q, dtype),
+        body,
+        position=jnp.asarray(rng.normal(size=batch + (3,)), dtype),
+        velocity=jnp.asarray(rng.normal(size=batch + (3,)), dtype),
+        orientation=jnp.asarray(q, dtype),
         angular_velocity=jnp.asarray(rng.normal(size=batch + (3,)), dtype),
     )
 
@@ -44,7 +46,9 @@ def test_round_trip_is_bitwise(tmp_path, dtype):
         "one_body": _state(dtype, batch=()),
         "traj": traj,
         "matrix": rb.to_matrix_state(s),
-        "particles": rb.ParticleState.create(jnp.asarray([1.0, 2.0], dtype), position=jnp.ones((2, 3))),
+        "particles": rb.ParticleState.create(
+            jnp.asarray([1.0, 2.0], dtype), position=jnp.ones((2, 3), dtype)
+        ),
         "body": s.body,
         "forces_torque_only": rb.Forces(torque=jnp.ones((3, 3), dtype)),
     }
