@@ -54,6 +54,17 @@ from ._state import (
     State as State,
 )
 
+# isort: split
+# --- tools: saving/loading, chunked long runs, checked mode ---
+from ._checked import Checks as Checks
+from ._chunked import simulate_chunked as simulate_chunked
+from ._io import ChunkWriter as ChunkWriter
+from ._io import load as load
+from ._io import read_metadata as read_metadata
+from ._io import save as save
+
+# --- end tools ---
+
 __version__ = "0.1.0"
 
 
@@ -64,3 +75,10 @@ def methods(state_type: type | None = None) -> dict[str, _methods.Method]:
     step relative to ``"euler"``.
     """
     return _methods.available(state_type)
+
+
+# Every public name imported above (computed, so each area's export block needs no second edit).
+__all__ = sorted(
+    name for name, value in list(globals().items())
+    if not name.startswith("_") and name != "annotations" and not isinstance(value, type(_methods))
+)

@@ -1,11 +1,7 @@
-"""``python -m rbjax demo``."""
+"""``python -m rbjax``: see :mod:`rbjax._cli`."""
 
 import sys
 
-from ._demo import main
+from ._cli import main
 
-if __name__ == "__main__":
-    args = sys.argv[1:]
-    if args[:1] == ["demo"]:
-        args = args[1:]
-    sys.exit(main(args))
+sys.exit(main())

@@ -177,7 +177,10 @@ def box(mass: ArrayLike, size: ArrayLike) -> Body:
 
 
 def sphere(mass: ArrayLike, radius: ArrayLike) -> Body:
-    """Solid sphere of ``radius`` (m): ``I = 2/5 m r² · 1``."""
+    """Solid sphere of ``radius`` (m): ``I = 2/5 m r² · 1``.
+
+    ``mass`` (kg) and ``radius`` broadcast to the batch shape ``B`` of the body.
+    """
     m, r = _as_float(mass), _as_float(radius)
     i = 0.4 * m * r**2
     return Body(m, _diag(i, i, i))

@@ -43,7 +43,7 @@ def safe_norm(x: ArrayLike, axis: int = -1, keepdims: bool = False) -> Array:
     """Euclidean norm ``‖x‖`` along ``axis`` whose gradient is 0, not NaN, at ``x = 0``.
 
     Uses the double-``where`` pattern: the square root never sees a zero that
-    would be differentiated.
+    would be differentiated. ``x``: ``(..., n, ...)``; returns ``x``'s shape without ``axis``.
     """
     x = jnp.asarray(x)
     sq = jnp.sum(x * x, axis=axis, keepdims=keepdims)
@@ -101,7 +101,10 @@ def quat_multiply(p: ArrayLike, q: ArrayLike) -> Array:
 
 
 def quat_conjugate(q: ArrayLike) -> Array:
-    """Conjugate ``q* = [w, -x, -y, -z]``; the inverse rotation for a unit ``q``."""
+    """Conjugate ``q* = [w, -x, -y, -z]``; the inverse rotation for a unit ``q``.
+
+    ``q``: ``(..., 4)``; returns ``(..., 4)``.
+    """
     q = jnp.asarray(q)
     return jnp.concatenate([q[..., :1], -q[..., 1:]], axis=-1)
 
@@ -183,6 +186,7 @@ def quat_exp(rotvec: ArrayLike) -> Array:
 
     ``exp(θ n) = [cos(θ/2), sin(θ/2) n]``. Near ``θ = 0`` a Taylor series replaces
     ``sin(θ/2)/θ``, so the value and every gradient are finite at zero rotation.
+``rotvec``: ``(..., 3)``; returns ``(..., 4)``.
     """
     v = jnp.asarray(rotvec)
     th2 = jnp.sum(v * v, axis=-1, keepdims=True)
@@ -197,7 +201,7 @@ def quat_log(q: ArrayLike) -> Array:
     """Logarithm: unit quaternion → rotation vector ``θ n`` with ``θ ∈ [0, π]``.
 
     ``q`` and ``-q`` give the same result (the shorter rotation). Finite
-    gradients at the identity.
+    gradients at the identity. ``q``: ``(..., 4)``; returns ``(..., 3)``.
     """
     q = jnp.asarray(q)
     q = jnp.where(q[..., :1] < 0, -q, q)
@@ -214,7 +218,8 @@ def quat_angle(p: ArrayLike, q: ArrayLike) -> Array:
     """Angle (radians, in ``[0, π]``) of the rotation taking ``p`` to ``q``.
 
     ``2 atan2(‖vec(p* ⊗ q)‖, |scal(p* ⊗ q)|)``; insensitive to the sign of either
-    quaternion, accurate for small angles (unlike ``arccos``).
+    quaternion, accurate for small angles (unlike ``arccos``). ``p``, ``q``:
+``(..., 4)``, broadcast; returns ``(...)``.
     """
     d = quat_multiply(quat_conjugate(p), q)
     return 2 * jnp.arctan2(safe_norm(d[..., 1:]), jnp.abs(d[..., 0]))

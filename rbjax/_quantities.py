@@ -137,7 +137,10 @@ def kinetic_energy(state: AnyState) -> Array:
 
 
 def to_matrix_state(state: State) -> MatrixState:
-    """Convert ``(x, v, q, L)`` to ``(x, v, R, ω)`` (same motion, no validation)."""
+    """Convert ``(x, v, q, L)`` to ``(x, v, R, ω)`` (same motion, no validation).
+
+    ``R = R(q)`` (body to world, ``(*B, 3, 3)``), ``ω = I_w⁻¹ L`` (world frame).
+    """
     R, w = rotation_matrix(state), angular_velocity(state)
     return new_unchecked(
         MatrixState, body=state.body, position=state.position, velocity=state.velocity,
@@ -146,7 +149,10 @@ def to_matrix_state(state: State) -> MatrixState:
 
 
 def to_state(state: MatrixState) -> State:
-    """Convert ``(x, v, R, ω)`` to ``(x, v, q, L)`` (same motion, no validation)."""
+    """Convert ``(x, v, R, ω)`` to ``(x, v, q, L)`` (same motion, no validation).
+
+    ``q`` from ``R`` (body to world, ``(*B, 4)``), ``L = I_w ω`` (world frame).
+    """
     q, L = orientation(state), angular_momentum(state)
     return new_unchecked(
         State, body=state.body, position=state.position, velocity=state.velocity,

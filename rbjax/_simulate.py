@@ -11,7 +11,7 @@ import numpy as np
 from jax import Array
 from jax.typing import ArrayLike
 
-from . import _methods
+from . import _checked, _methods
 from ._batching import batch_shape
 from ._pytree import replace
 from ._simulate_support import constant_fields
@@ -90,6 +90,7 @@ def simulate(
     *,
     save_every: int = 1,
     t0: ArrayLike = 0.0,
+    checked: bool | _checked.Checks = False,
 ) -> AnyState:
     """Integrate ``steps`` steps of ``dt`` with ``lax.scan`` and return the trajectory.
 
@@ -107,6 +108,11 @@ def simulate(
         method: integrator name (static).
         save_every: keep every ``save_every``-th state (static); must divide ``steps``.
         t0: start time (s).
+        checked: ``True`` or an :class:`rbjax.Checks` to test every step for a
+            non-finite state or an orientation off the unit sphere, and every saved
+            frame for an energy jump, raising an error that names the step and the
+            body's batch index (works under ``jit``; see :class:`rbjax.Checks`).
+            ``False`` (default) compiles no checks at all.
 
     Returns:
         The trajectory, the same pytree type as ``state`` with a leading time axis
@@ -117,6 +123,11 @@ def simulate(
 
     A new callable ``forces`` object compiles anew (it is a static argument).
     """
+    return _run(state, forces, dt, steps, method, save_every=save_every, t0=t0, checked=checked)
+
+
+def _run(state, forces, dt, steps, method, *, save_every, t0, checked, step_offset=0):
+    """``simulate`` after its signature; ``step_offset`` numbers steps in checked-mode errors."""
     _methods.get(method, type(state))
     if not isinstance(steps, (int, np.integer)) or steps < 0:
         raise ValueError(f"steps must be a non-negative int, got {steps!r}")
@@ -132,14 +143,23 @@ def simulate(
         series, force_fn, forces = False, forces, None
     else:
         raise TypeError(f"forces must be Forces, a callable (state, t) -> Forces, or None; got {type(forces)}")
-    return _simulate(
+    checks = _checked.resolve(checked, state)
+    out = _simulate(
         state, forces, jnp.asarray(dt), jnp.asarray(t0),
         steps=int(steps), method=method, save_every=int(save_every), series=series, force_fn=force_fn,
+        checks=checks,
+    )
+    if checks is None:
+        return out
+    traj, rec = out
+    return _checked.raise_on_failure(
+        traj, rec, checks, method=method, batch_shape=state.batch_shape, steps=int(steps),
+        step_offset=step_offset,
     )
 
 
-@functools.partial(jax.jit, static_argnames=("steps", "method", "save_every", "series", "force_fn"))
-def _simulate(state, forces, dt, t0, *, steps, method, save_every, series, force_fn):
+@functools.partial(jax.jit, static_argnames=("steps", "method", "save_every", "series", "force_fn", "checks"))
+def _simulate(state, forces, dt, t0, *, steps, method, save_every, series, force_fn, checks=None):
     step_fn = _methods.get(method, type(state))
     dtype = state.dtype
     dt, t0 = dt.astype(dtype), t0.astype(dtype)
@@ -147,7 +167,9 @@ def _simulate(state, forces, dt, t0, *, steps, method, save_every, series, force
     strip = lambda s: replace(s, **{k: None for k in consts})  # noqa: E731
     n_out = steps // save_every
 
-    def one(dyn, k_and_f):
+    # the checked-mode record rides in the carry; None (an empty pytree) when off
+    def one(carry, k_and_f):
+        dyn, rec = carry
         k, f = k_and_f
         s = replace(dyn, **consts)
         if series:
@@ -156,16 +178,23 @@ def _simulate(state, forces, dt, t0, *, steps, method, save_every, series, force
             fn = force_fn
         else:
             fn = as_force_fn(forces)
-        return strip(step_fn(s, fn, t0 + k.astype(dtype) * dt, dt)), None
+        new = step_fn(s, fn, t0 + k.astype(dtype) * dt, dt)
+        if checks is not None:
+            rec = _checked.after_step(rec, new, k + 1, checks, steps)
+        return (strip(new), rec), None
 
-    def chunk(dyn, xs):
-        dyn, _ = jax.lax.scan(one, dyn, xs)
-        return dyn, dyn
+    def chunk(carry, xs):
+        (dyn, rec), _ = jax.lax.scan(one, carry, xs)
+        if checks is not None:
+            rec = _checked.after_save(rec, replace(dyn, **consts), xs[0][-1] + 1, checks, steps)
+        return (dyn, rec), dyn
 
     ks = jnp.arange(steps).reshape(n_out, save_every)
     fs = jax.tree.map(lambda a: a.reshape((n_out, save_every) + a.shape[1:]), forces) if series else None
     dyn0 = strip(state)
-    _, traj = jax.lax.scan(chunk, dyn0, (ks, fs))
+    rec0 = None if checks is None else _checked.init_record(state, checks)
+    (_, rec), traj = jax.lax.scan(chunk, (dyn0, rec0), (ks, fs))
     traj = jax.tree.map(lambda a0, a: jnp.concatenate([a0[None], a]), dyn0, traj)
-    return replace(traj, **consts)
+    traj = replace(traj, **consts)
+    return traj if checks is None else (traj, rec)
 

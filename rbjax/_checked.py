@@ -1,0 +1,218 @@
+"""Checked mode for ``simulate``: runtime sanity checks that work under ``jit``.
+
+With ``checked=True`` (or a :class:`Checks`) the scan carries a small record of
+the first failure: the step, the body's flat batch index and what went wrong.
+Each step tests every body for a non-finite state and for an orientation off
+the unit sphere (``|‖q‖ - 1|``, or ``max |RᵀR - 1|`` for a rotation matrix);
+each saved frame tests for an energy jump. After the scan a single
+:func:`equinox.error_if` raises if anything failed. The step and body reach the
+message through equinox's message index: the messages are a lazy sequence
+that formats the one it is asked for, so the run costs one integer, not one
+string per step.
+
+Off (the default) none of this is traced: the compiled program is the one
+without checks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._pytree import core_ndim_of
+from ._quantities import kinetic_energy
+from ._simulate_support import constant_fields
+from ._state import MatrixState, State, quat_tolerance
+
+__all__ = ["Checks", "resolve", "init_record", "after_step", "after_save", "raise_on_failure"]
+
+_KINDS = ("non_finite", "orientation", "energy")
+
+
+@dataclasses.dataclass(frozen=True)
+class Checks:
+    """What ``simulate(..., checked=Checks(...))`` tests, and how strictly.
+
+    Attributes:
+        energy_factor: fail when a body's kinetic energy ``½ m ‖v‖² + ½ ω·L``
+            (J) at a saved frame exceeds ``energy_factor`` times the largest
+            value it had at any earlier saved frame (the initial state included).
+            The running maximum, not the previous frame, so a body passing
+            through rest (a ball at the top of its arc) is not flagged.
+            ``None`` turns the energy check off.
+        energy_floor: ignore energy jumps while that running maximum is at or
+            below this (J). The default 0 skips bodies that start exactly at rest;
+            raise it when bodies start almost at rest and are then driven hard.
+        quat_tol: fail when ``|‖q‖ - 1|`` (``State``) or ``max |RᵀR - 1|``
+            (``MatrixState``) exceeds this; ``None`` means
+            :func:`rbjax._state.quat_tolerance` of the state's dtype (``1e-6`` in
+            float64, ``~1.5e-5`` in float32), the tolerance applied to inputs.
+
+    Non-finite states (any NaN or inf in a changing field) always fail.
+    ``checked=True`` means ``Checks()``. Hashable: it is part of the compiled
+    program.
+    """
+
+    energy_factor: float | None = 100.0
+    energy_floor: float = 0.0
+    quat_tol: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.energy_factor is not None and not self.energy_factor > 1:
+            raise ValueError(f"Checks: energy_factor must be > 1 or None, got {self.energy_factor}")
+        if not self.energy_floor >= 0:
+            raise ValueError(f"Checks: energy_floor must be >= 0, got {self.energy_floor}")
+        if self.quat_tol is not None and not self.quat_tol > 0:
+            raise ValueError(f"Checks: quat_tol must be > 0 or None, got {self.quat_tol}")
+
+
+def resolve(checked: bool | Checks, state: Any) -> Checks | None:
+    """``None`` when off; otherwise a :class:`Checks` with the tolerance filled in."""
+    if checked is False or checked is None:
+        return None
+    if checked is True:
+        checked = Checks()
+    if not isinstance(checked, Checks):
+        raise TypeError(f"checked must be a bool or rbjax.Checks, got {type(checked)}")
+    tol = checked.quat_tol if checked.quat_tol is not None else quat_tolerance(state.dtype)
+    return dataclasses.replace(checked, quat_tol=float(tol), energy_floor=float(checked.energy_floor))
+
+
+def _index_dtype() -> Any:
+    return jnp.int64 if jax.config.jax_enable_x64 else jnp.int32
+
+
+def _encodes_body(steps: int, n_bodies: int) -> bool:
+    """Whether ``(step, body, kind)`` fits the index integer (int32 without x64)."""
+    limit = np.iinfo(np.int64 if jax.config.jax_enable_x64 else np.int32).max
+    return (steps + 1) * max(n_bodies, 1) * len(_KINDS) < limit
+
+
+def init_record(state: Any, checks: Checks) -> dict[str, Any]:
+    """Empty failure record; ``emax`` starts at the initial kinetic energy per body."""
+    energy = jnp.broadcast_to(kinetic_energy(state), state.batch_shape)
+    return {
+        "failed": jnp.zeros((), bool),
+        "code": jnp.zeros((), _index_dtype()),
+        "emax": energy,
+    }
+
+
+def _per_body_any(x: Any, core: int, batch: tuple[int, ...]) -> jax.Array:
+    return jnp.broadcast_to(jnp.any(x, axis=tuple(range(x.ndim - core, x.ndim))), batch)
+
+
+def _record(rec: dict, bad_kind: jax.Array, step: Any, steps: int) -> dict:
+    """Record the first failing body (flat index) if nothing failed before.
+
+    ``bad_kind``: ``(*B,)`` int, ``len(_KINDS)`` where the body is sound.
+    """
+    flat = bad_kind.reshape(-1)
+    n = flat.shape[0]
+    bad = flat < len(_KINDS)
+    body = jnp.argmax(bad)
+    idt = rec["code"].dtype
+    step = jnp.asarray(step).astype(idt)
+    with_body = _encodes_body(steps, n)
+    where = step * n + body.astype(idt) if with_body else step
+    code = where * len(_KINDS) + flat[body].astype(idt)
+    new = jnp.any(bad) & ~rec["failed"]
+    return {
+        **rec,
+        "failed": rec["failed"] | new,
+        "code": jnp.where(new, code, rec["code"]),
+    }
+
+
+def after_step(rec: dict, state: Any, step: Any, checks: Checks, steps: int) -> dict:
+    """Test the state reached by step number ``step`` (1-based) for every body."""
+    batch = state.batch_shape
+    consts = constant_fields(state)
+    cores = core_ndim_of(state)
+    nonfinite = jnp.zeros(batch, bool)
+    for name in type(state)._rbjax_data_fields:
+        if name in consts:
+            continue
+        nonfinite = nonfinite | _per_body_any(~jnp.isfinite(getattr(state, name)), cores[name], batch)
+    if isinstance(state, State):
+        q = state.orientation
+        off = jnp.abs(jnp.sqrt(jnp.sum(q * q, axis=-1)) - 1) > checks.quat_tol
+    elif isinstance(state, MatrixState):
+        R = state.rotation
+        gram = jnp.swapaxes(R, -1, -2) @ R - jnp.eye(3, dtype=R.dtype)
+        off = jnp.max(jnp.abs(gram), axis=(-1, -2)) > checks.quat_tol
+    else:
+        off = jnp.zeros(batch, bool)
+    kind = jnp.where(nonfinite, 0, jnp.where(off, 1, len(_KINDS)))
+    return _record(rec, kind, step, steps)
+
+
+def after_save(rec: dict, state: Any, step: Any, checks: Checks, steps: int) -> dict:
+    """Test the saved frame at step ``step`` for an energy jump; update the running maximum."""
+    if checks.energy_factor is None:
+        return rec
+    energy = jnp.broadcast_to(kinetic_energy(state), state.batch_shape)
+    emax = rec["emax"]
+    floor = jnp.asarray(checks.energy_floor, emax.dtype)
+    jump = (emax > floor) & (energy > jnp.asarray(checks.energy_factor, emax.dtype) * emax)
+    rec = _record(rec, jnp.where(jump, 2, len(_KINDS)), step, steps)
+    return {**rec, "emax": jnp.maximum(emax, energy)}
+
+
+@dataclasses.dataclass(frozen=True)
+class _Messages:
+    """The error messages, one per possible index, formatted when asked for.
+
+    Equinox picks ``msgs[index]`` on the host after the run; this sequence is
+    hashable (equinox treats it as static) and never materialised.
+    """
+
+    method: str
+    batch_shape: tuple[int, ...]
+    steps: int
+    step_offset: int
+    checks: Checks
+
+    def __len__(self) -> int:
+        return (self.steps + 1) * max(int(np.prod(self.batch_shape, dtype=np.int64)), 1) * len(_KINDS)
+
+    def __getitem__(self, index: int) -> str:
+        n = int(np.prod(self.batch_shape, dtype=np.int64))
+        where, kind = divmod(int(index), len(_KINDS))
+        if _encodes_body(self.steps, n):
+            step, flat = divmod(where, max(n, 1))
+            index = tuple(int(i) for i in np.unravel_index(flat, self.batch_shape))
+            body = f"body {index}" if self.batch_shape else "the body"
+        else:
+            step, body = where, "a body (index not recorded: steps x bodies overflows int32; enable x64)"
+        step += self.step_offset
+        what = {
+            0: "the state became non-finite (NaN or inf)",
+            1: (
+                "the orientation left the unit sphere / SO(3) by more than "
+                f"quat_tol={self.checks.quat_tol:.3g}"
+            ),
+            2: (
+                f"the kinetic energy jumped by more than energy_factor={self.checks.energy_factor:g} "
+                "times its largest earlier saved value"
+            ),
+        }[kind]
+        return (
+            f"rbjax.simulate(checked=...): at step {step} (time t0 + {step}·dt), {body}"
+            f"{' of batch shape ' + str(self.batch_shape) if self.batch_shape else ''}: {what}. "
+            f"Method {self.method!r}: try a smaller dt or a more stable method; see rbjax.Checks."
+        )
+
+
+def raise_on_failure(
+    traj: Any, rec: dict, checks: Checks, *, method: str, batch_shape: tuple[int, ...], steps: int,
+    step_offset: int = 0,
+) -> Any:
+    """``traj`` unchanged, or an equinox runtime error naming the step and body."""
+    msgs = _Messages(method, tuple(batch_shape), int(steps), int(step_offset), checks)
+    return eqx.branched_error_if(traj, rec["failed"], rec["code"], msgs)

@@ -1,0 +1,124 @@
+"""Command line: ``python -m rbjax {demo,bench,fit}``.
+
+Errors print one line, ``rbjax: error: ...``, on stderr and exit with status 2;
+``--debug`` shows the traceback instead.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+from pathlib import Path
+
+__all__ = ["main", "benchmarks_dir"]
+
+
+class CLIError(Exception):
+    """A user-facing error: printed as one line, exit status 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # type: ignore[override]
+        # argparse prints a usage block; one line with a pointer to --help reads better
+        raise CLIError(f"{message} (see '{self.prog} --help')")
+
+
+def benchmarks_dir() -> Path:
+    """The repository's ``benchmarks/`` folder, next to the ``rbjax`` package."""
+    return Path(__file__).resolve().parent.parent / "benchmarks"
+
+
+def _scripts() -> list[Path]:
+    d = benchmarks_dir()
+    if not d.is_dir():
+        raise CLIError(
+            f"no benchmarks folder at {d}: the benchmarks ship with the source repository, "
+            "not with an installed wheel"
+        )
+    return sorted(p for p in d.glob("*.py") if not p.name.startswith("_"))
+
+
+def _demo(argv: list[str]) -> int:
+    from . import _demo
+
+    return int(_demo.main(argv) or 0)
+
+
+def _bench(args: argparse.Namespace) -> int:
+    scripts = _scripts()
+    if args.list:
+        for p in scripts:
+            print(p.stem)
+        return 0
+    if args.names:
+        by_name = {p.stem: p for p in scripts}
+        unknown = [n for n in args.names if n.removesuffix(".py") not in by_name]
+        if unknown:
+            raise CLIError(f"unknown benchmark(s) {unknown}; available: {sorted(by_name)}")
+        scripts = [by_name[n.removesuffix(".py")] for n in args.names]
+    if not scripts:
+        raise CLIError(f"no benchmark scripts in {benchmarks_dir()}")
+    failed = []
+    for p in scripts:
+        cmd = [sys.executable, str(p)] + (["--quick"] if args.quick else [])
+        print(f"== {p.stem}: {' '.join(cmd[1:])}", flush=True)
+        if subprocess.run(cmd, check=False).returncode != 0:
+            failed.append(p.stem)
+    if failed:
+        raise CLIError(f"benchmark(s) failed: {failed}")
+    return 0
+
+
+def _fit(args: argparse.Namespace) -> int:
+    raise CLIError("'fit' is not yet available in this build of rbjax")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``argparse`` parser of ``python -m rbjax`` (subcommands demo, bench, fit)."""
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--debug", action="store_true", help="show the full traceback on errors")
+    parser = _Parser(
+        prog="python -m rbjax", parents=[common],
+        description="rbjax: batched, differentiable rigid-body dynamics in JAX.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="{demo,bench,fit}", parser_class=_Parser)
+    sub.required = True
+
+    # listed for --help only: main() hands everything after 'demo' to the demo's own parser
+    # (argparse.REMAINDER would not pass on leading options such as --bodies)
+    sub.add_parser("demo", help="run the README demo: tumbling boxes and a T-handle ('demo --help')")
+
+    bench = sub.add_parser("bench", parents=[common], help="run the benchmarks in benchmarks/",
+                           description=f"Run benchmark scripts from {benchmarks_dir()}.")
+    bench.add_argument("names", nargs="*", help="benchmark names (file stems); default: all")
+    bench.add_argument("--quick", action="store_true", help="small sizes, for a smoke run")
+    bench.add_argument("--list", action="store_true", help="list the benchmarks and exit")
+    bench.set_defaults(func=_bench)
+
+    fit = sub.add_parser("fit", parents=[common], help="fit an inertia tensor to recorded motion (not yet)",
+                         description="Fit an inertia tensor to recorded motion (not yet available).")
+    fit.set_defaults(func=_fit)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``python -m rbjax``; returns the exit status."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv
+    try:
+        rest = [a for a in argv if a != "--debug"]
+        if rest[:1] == ["demo"]:
+            return _demo(rest[1:])
+        args = build_parser().parse_args(argv)
+        return args.func(args)
+    except KeyboardInterrupt:
+        print("rbjax: interrupted", file=sys.stderr)
+        return 130
+    except Exception as e:
+        if debug:
+            raise
+        text = " ".join(str(e).split()) or type(e).__name__
+        kind = "" if isinstance(e, CLIError) else f"{type(e).__name__}: "
+        print(f"rbjax: error: {kind}{text}", file=sys.stderr)
+        return 2

@@ -1,0 +1,122 @@
+"""Checked mode: failures name the step and the body, sound runs are unchanged, off is free."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import rbjax as rb
+
+DT = 0.01
+N = 5
+
+
+def _state(dtype=jnp.float64):
+    rng = np.random.default_rng(11)
+    body = rb.box(
+        jnp.asarray(rng.uniform(0.5, 2, N), dtype), jnp.asarray(rng.uniform(0.3, 1.5, (N, 3)), dtype)
+    )
+    return rb.State.create(body, angular_velocity=jnp.asarray(rng.normal(size=(N, 3)), dtype))
+
+
+def _nan_force_on(body: int, from_step: int):
+    """Force that turns NaN on one body from the step starting at t = from_step·dt (0-based)."""
+
+    def forces(state, t):
+        bad = jnp.where(t > (from_step - 0.5) * DT, jnp.nan, 0.0).astype(state.dtype)
+        return rb.Forces(force=jnp.zeros(state.position.shape, state.dtype).at[body, 0].set(bad))
+
+    return forces
+
+
+NAN_ON_3_AT_7 = _nan_force_on(3, 7)
+
+
+def test_nan_names_step_and_body_eagerly_and_under_jit():
+    s = _state()
+    # the step from t = 7 dt (0-based step 7) produces the state at t = 8 dt: "step 8", body 3
+    want = r"at step 8 \(time t0 \+ 8·dt\), body \(3,\) of batch shape \(5,\): the state became non-finite"
+    with pytest.raises(Exception, match=want):
+        rb.simulate(s, NAN_ON_3_AT_7, DT, 20, "euler", checked=True)
+    with pytest.raises(Exception, match=want):
+        jax.block_until_ready(
+            jax.jit(lambda s: rb.simulate(s, NAN_ON_3_AT_7, DT, 20, "euler", checked=True))(s)
+        )
+    # the saved frames do not matter: the step is exact even between saves
+    with pytest.raises(Exception, match=want):
+        rb.simulate(s, NAN_ON_3_AT_7, DT, 20, "euler", save_every=5, checked=True)
+    # unchecked, the same run silently returns NaN for body 3 from frame 8 on, and only there
+    traj = rb.simulate(s, NAN_ON_3_AT_7, DT, 20, "euler")
+    bad = ~np.isfinite(np.asarray(traj.velocity)).all(axis=-1)
+    assert np.argwhere(bad)[0].tolist() == [8, 3] and bad[:, [0, 1, 2, 4]].sum() == 0
+
+
+def test_chunked_errors_name_the_absolute_step():
+    s = _state()
+    with pytest.raises(Exception, match=r"at step 8 \(time t0 \+ 8·dt\), body \(3,\)"):
+        rb.simulate_chunked(s, NAN_ON_3_AT_7, DT, 20, "euler", chunk_steps=5, progress=False, checked=True)
+
+
+def test_explicit_euler_blow_up_in_the_matrix_form():
+    # (x, v, R, ω) Euler with ω dt ~ 10: R + ω̃R dt is far from SO(3) and two Newton–Schulz
+    # iterations cannot restore it, so step 1 already leaves SO(3) (unchecked: it later overflows)
+    m = rb.to_matrix_state(_state())
+    w = rb.angular_velocity(m)
+    fast = rb._pytree.replace(m, angular_velocity=w.at[2].multiply(1e3))  # only body 2 spins fast
+    with pytest.raises(Exception, match=r"at step 1 .*body \(2,\).*left the unit sphere / SO\(3\)"):
+        rb.simulate(fast, None, DT, 50, "euler", checked=True)
+
+
+def test_energy_jump_is_reported_at_the_saved_step():
+    s = _state()
+
+    def kick(state, t):  # impulse on body 1 in step 12: |ΔL| = 1e4·dt·√3 ≈ 170 against |L| ~ 1
+        on = jnp.where(jnp.abs(t - 12 * DT) < 0.5 * DT, 1e4, 0.0).astype(state.dtype)
+        return rb.Forces(torque=jnp.zeros(state.position.shape, state.dtype).at[1].set(on))
+
+    with pytest.raises(
+        Exception, match=r"at step 15 .*body \(1,\).*kinetic energy jumped by more than energy_factor=100"
+    ):
+        rb.simulate(s, kick, DT, 30, "euler", save_every=5, checked=True)
+    # a looser factor lets the same run through: the check is the only thing that failed
+    traj = rb.simulate(s, kick, DT, 30, "euler", save_every=5, checked=rb.Checks(energy_factor=1e9))
+    assert np.isfinite(np.asarray(traj.angular_momentum)).all()
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_sound_runs_pass_and_equal_the_unchecked_result(dtype):
+    s = _state(dtype)
+    gravity = rb.Forces.gravity(s)  # from rest translationally: energy starts at rotation only
+    # the matrix form in float64 only, to keep compilations few
+    for state in (s,) if dtype == jnp.float32 else (rb.to_matrix_state(s),):
+        plain = rb.simulate(state, gravity, DT, 40, "euler", save_every=4)
+        checked = rb.simulate(state, gravity, DT, 40, "euler", save_every=4, checked=True)
+        # the checks only read the state: bitwise the same trajectory
+        for a, b in zip(jax.tree.leaves(plain), jax.tree.leaves(checked), strict=True):
+            assert a.dtype == b.dtype and np.asarray(a).tobytes() == np.asarray(b).tobytes()
+    # a particle dropped from exact rest: E = 0 initially is not above the floor, then grows ∝ t²
+    p = rb.ParticleState.create(jnp.ones(3, dtype))
+    rb.simulate(p, rb.Forces.gravity(p), DT, 40, "euler", checked=True)
+
+
+def test_off_compiles_no_checks():
+    s = _state()
+
+    def jaxpr(checked):
+        return str(jax.make_jaxpr(lambda s: rb.simulate(s, None, DT, 10, "euler", checked=checked))(s))
+
+    off, on = jaxpr(False), jaxpr(True)
+    assert "callback" not in off and "cond" not in off and "is_finite" not in off
+    assert "callback" in on and "is_finite" in on
+    # off is the default: the same program, not merely an equivalent one
+    assert off == str(jax.make_jaxpr(lambda s: rb.simulate(s, None, DT, 10, "euler"))(s))
+
+
+def test_checks_validation():
+    for bad in (dict(energy_factor=1.0), dict(energy_floor=-1.0), dict(quat_tol=0.0)):
+        with pytest.raises(ValueError, match="Checks:"):
+            rb.Checks(**bad)
+    with pytest.raises(TypeError, match="checked must be a bool or rbjax.Checks"):
+        rb.simulate(_state(), None, DT, 2, checked="yes")
