@@ -13,7 +13,7 @@ One step of ``dt`` (forces evaluated once, at the old state):
 Order 1. Conserves nothing exactly: it is stable at large steps and high spin
 because it **dissipates** rotational energy (and ``|L|``) — backward-Euler-like
 damping of the tumbling modes; a body spinning about a principal axis keeps
-its spin. Cost ≈ 1.5x ``"euler"``. Choose it for games and interactive
+its spin. Cost ≈ 3x ``"euler"`` (measured). Choose it for games and interactive
 simulation where stability at a fixed large step matters more than accuracy;
 never for long-horizon physics or energy studies.
 """
@@ -51,6 +51,6 @@ register(
         order=1,
         steps={State: implicit_gyroscopic, MatrixState: via_state(implicit_gyroscopic)},
         conserves="nothing; dissipates rotational energy and |L| (stable at large dt)",
-        cost=1.5,
+        cost=3.2,
     )
 )

@@ -16,8 +16,8 @@ symplectic in translation). Its rotation ``exp(ω dt)`` with ``ω`` frozen over
 the step (Lie–Euler) keeps ``|L|`` in body axes, but torque-free the map agrees
 with explicit Euler to ``O(dt²)`` per step, so the rotational energy of a
 tumbling body grows as Euler's does (measured in tests/test_stability.py).
-Cost ≈ 1.3x ``"euler"`` (one sincos more). Choose it where a game engine would:
-cheap, robust, one force evaluation per step, first order.
+Cost ≈ 1.5x ``"euler"`` (measured, benchmarks/integrator_cost.py). Choose it where
+a game engine would: cheap, robust, one force evaluation per step, first order.
 """
 
 from __future__ import annotations
@@ -76,6 +76,6 @@ register(
             ParticleState: batch(semi_implicit_particles),
         },
         conserves="torque-free: L exactly, |L| in body axes; energy drifts O(dt) (particles: bounded)",
-        cost=1.3,
+        cost=1.5,
     )
 )
