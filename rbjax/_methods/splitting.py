@@ -1,0 +1,114 @@
+"""Symplectic splitting of the free rotor about the principal axes, Strang-composed with kicks.
+
+One step of ``h`` (McLachlan 1993; Touma & Wisdom 1994; Reich 1994;
+Dullweber, Leimkuhler & McLachlan 1997)::
+
+    kick(h/2) ∘ drift(h) ∘ kick(h/2)
+
+* kick: ``v += F/m h/2``, ``L += τ h/2`` (world), forces at the step's start
+  (``t``) and end (``t + h``, after the drift): two force evaluations per step.
+* drift: ``x += v h`` and the free rotor. In the principal frame (axes ``P``,
+  moments ``d₁ ≤ d₂ ≤ d₃``) the rotational energy ``Σ m_i²/(2 d_i)`` is split
+  into its three terms; the flow of each is an exact rotation about one
+  principal axis by ``θ = m_i/d_i · t`` (orientation ``R_p ← R_p Rot_i(θ)``,
+  principal-frame momentum ``m ← Rot_i(-θ) m``). They are composed
+  symmetrically, ``R₁(h/2) R₂(h/2) R₃(h) R₂(h/2) R₁(h/2)``. World ``L`` is
+  untouched by the drift.
+
+Order 2 (symmetric composition). Torque-free: ``L`` (world) is bitwise exact,
+``|L|`` exact, ``|q| = 1`` by construction (products of unit quaternions,
+re-normalised against round-off), and the method is symplectic, so the energy
+error stays bounded (``O(h²)``) with no drift over any horizon. Particles get
+velocity Verlet. Cost ≈ 5x ``"euler"`` (measured: five sincos, two force
+evaluations, sub-steps materialised; see :func:`free_rotor`).
+Choose it for long or stiff (fast-spinning, anisotropic) runs, Dzhanibekov
+flips, and anything where energy must not drift.
+
+The principal frame is computed from the body by :func:`._common.principal_frame`
+(``eigh`` outside the differentiated path, gradients by perturbation theory,
+finite for spheres and symmetric tops; hoisted out of ``simulate``'s loop).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from .._batching import lift
+from .._math import cross, quat_conjugate, quat_multiply, quat_normalize, quat_rotate
+from .._pytree import replace
+from .._state import MatrixState, ParticleState, State
+from . import Method, register
+from ._common import kick, principal_frame, via_state
+
+# (principal axis, fraction of h) of the symmetric composition
+_SEQUENCE = ((0, 0.5), (1, 0.5), (2, 1.0), (1, 0.5), (0, 0.5))
+
+
+def _rotate_about(qp, m, d, e, h):
+    """Exact flow of ``m_i²/(2 d_i)`` over ``h`` about the principal axis ``e = e_i``.
+
+    Angle ``θ = h m_i/d_i``; ``qp ← qp ⊗ (cos θ/2, sin θ/2 e)``,
+    ``m ← Rot_e(-θ) m = c m - s e × m + (1 - c)(e·m) e``.
+    """
+    me = jnp.sum(e * m)
+    theta = h * me / jnp.sum(e * d)
+    c2, s2 = jnp.cos(theta / 2), jnp.sin(theta / 2)
+    c, s = 1 - 2 * s2 * s2, 2 * s2 * c2
+    qp = quat_multiply(qp, jnp.concatenate([c2[None], s2 * e]))
+    return qp, c * m - s * cross(e, m) + (1 - c) * me * e
+
+
+def free_rotor(q, L, inertia, h):
+    """Orientation after the split free-rotor flow of time ``h`` (world ``L`` unchanged)."""
+    d, p = principal_frame(inertia)
+    qp = quat_multiply(q, p)  # principal frame -> world
+    m = quat_rotate(quat_conjugate(qp), L)
+    # Whole vectors with a one-hot axis ``e``, not per-component updates: chained
+    # scalar components made XLA:CPU fuse the five sub-steps into one kernel
+    # that recomputed each sub-step for each of its three consumers (3⁵ times the
+    # work: 125 ms instead of ~1 ms per step of 10⁴ bodies).
+    eye = jnp.eye(3, dtype=m.dtype)
+    for axis, frac in _SEQUENCE:
+        qp, m = _rotate_about(qp, m, d, eye[axis], frac * h)
+        qp, m = jax.lax.optimization_barrier((qp, m))
+    return quat_normalize(quat_multiply(qp, quat_conjugate(p)))
+
+
+def _drift(s: State, h) -> State:
+    q = free_rotor(s.orientation, s.angular_momentum, s.body.inertia, h)
+    return replace(s, position=s.position + s.velocity * h, orientation=q)
+
+
+def _drift_particles(s: ParticleState, h) -> ParticleState:
+    return replace(s, position=s.position + s.velocity * h)
+
+
+def _kick_particles(s: ParticleState, f, h) -> ParticleState:
+    return s if f.force is None else replace(s, velocity=s.velocity + f.force / s.mass * h)
+
+
+def _strang(kick_fn, drift_fn):
+    def step(state, force_fn, t, dt):
+        s = lift(kick_fn)(state, force_fn(state, t), dt / 2)
+        s = lift(drift_fn)(s, dt)
+        return lift(kick_fn)(s, force_fn(s, t + dt), dt / 2)
+
+    return step
+
+
+splitting_state = _strang(kick, _drift)
+
+register(
+    Method(
+        name="splitting",
+        order=2,
+        steps={
+            State: splitting_state,
+            MatrixState: via_state(splitting_state),
+            ParticleState: _strang(_kick_particles, _drift_particles),
+        },
+        conserves="torque-free: L exactly, |L|, |q|; symplectic: energy error bounded, no drift",
+        cost=5.1,
+    )
+)
