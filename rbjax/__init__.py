@@ -54,6 +54,9 @@ from ._state import (
     State as State,
 )
 
+# exact torque-free solution (ground truth for integrator tests and benchmarks)
+from ._torque_free import torque_free as torque_free
+
 __version__ = "0.1.0"
 
 
