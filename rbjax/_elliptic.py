@@ -58,6 +58,8 @@ __all__ = [
     "ellipk",
     "ellippi",
     "ellippi_complete",
+    "jacobi_from_agm",
+    "jacobi_half_period",
     "pi_complete",
     "pi_reduced",
 ]
@@ -75,6 +77,15 @@ def _floored(mc: Array) -> Array:
     # a where, not clip/maximum: those halve the gradient at equality (m = 0 is mc = 1)
     f = mc_floor(mc.dtype)
     return jnp.where(mc < f, f, mc)
+
+
+def _sqrt0(x: Array) -> Array:
+    """``sqrt`` with slope 0 instead of ``inf`` at 0 (``0 · inf`` would make a NaN tangent).
+
+    Carlson's integrals get exact zeros as arguments (``R_F(0, k'², 1) = K``).
+    """
+    pos = x > 0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1.0)), 0.0)
 
 
 def _asfloat(*xs: ArrayLike) -> list[Array]:
@@ -136,7 +147,11 @@ def ellipj(u: ArrayLike, m: ArrayLike, mc: ArrayLike | None = None) -> tuple[Arr
     """
     _, mc = _complement(m, mc)
     u, mc = _asfloat(u, mc)
-    a_s, c_s = agm_sequence(mc)
+    return jacobi_from_agm(u, mc, *agm_sequence(mc))
+
+
+def jacobi_from_agm(u: Array, mc: Array, a_s: Array, c_s: Array) -> tuple[Array, Array, Array, Array]:
+    """:func:`ellipj` given the (per-parameter) AGM sequences, to reuse them across many ``u``."""
     K = (math.pi / 2) / a_s[-1]
     turns = jnp.round(u / (4 * K))
     phi = (2.0**_AGM_STEPS) * a_s[-1] * (u - 4 * K * turns)
@@ -152,6 +167,32 @@ def ellipj(u: ArrayLike, m: ArrayLike, mc: ArrayLike | None = None) -> tuple[Arr
     # dn² = cn² + k'² sn²: no cancellation, and > 0 for k' > 0 (finite gradients)
     dn = jnp.sqrt(cn * cn + _floored(mc) * sn * sn)
     return sn, cn, dn, phi + 2 * math.pi * turns
+
+
+def jacobi_half_period(u: Array, mc: Array, a_s: Array, c_s: Array) -> tuple[Array, Array, Array]:
+    """``sn, cn, dn`` for ``|u| ≤ K/2``, with ``cn`` and ``dn`` *relatively* accurate as ``m → 1``.
+
+    Near ``m = 1`` the Landen recurrence feeds ``asin`` arguments within ``~k'`` of
+    1, so ``cn ≈ dn ≈ sech u`` carry an absolute error ``~eps/√k'``: a relative
+    error ``~1e-7`` at ``u = 11``, ``k' = 1e-15``. For ``mc < 1e-17`` the first-order
+    expansion in ``mc`` (A&S 16.15) is used instead:
+    ``sn = tanh u + mc/4 (sinh u cosh u - u) sech² u``,
+    ``cn = sech u - mc/4 (sinh u cosh u - u) tanh u sech u``,
+    ``dn = sech u + mc/4 (sinh u cosh u + u) tanh u sech u``;
+    for ``|u| ≤ K/2`` its first-order term is ``≤ k'`` relative, so the neglected
+    second-order one is ``≤ mc`` relative: below rounding.
+    """
+    sn, cn, dn, _ = jacobi_from_agm(u, mc, a_s, c_s)
+    tiny = mc < 1e-17
+    us = jnp.where(tiny, u, 0.0)
+    ch, th = jnp.cosh(us), jnp.tanh(us)
+    sech = 1 / ch
+    q = jnp.where(tiny, mc, 0.0) / 4
+    sh_ch = th * ch * ch
+    sn1 = th + q * (sh_ch - us) * sech * sech
+    cn1 = sech - q * (sh_ch - us) * th * sech
+    dn1 = sech + q * (sh_ch + us) * th * sech
+    return jnp.where(tiny, sn1, sn), jnp.where(tiny, cn1, cn), jnp.where(tiny, dn1, dn)
 
 
 def _rc1(e: Array) -> Array:
@@ -180,7 +221,7 @@ def carlson_rf(x: ArrayLike, y: ArrayLike, z: ArrayLike) -> Array:
 
     def step(_, xyz):
         x, y, z = xyz
-        sx, sy, sz = jnp.sqrt(x), jnp.sqrt(y), jnp.sqrt(z)
+        sx, sy, sz = _sqrt0(x), _sqrt0(y), _sqrt0(z)
         lam = sx * sy + sy * sz + sz * sx
         return (x + lam) / 4, (y + lam) / 4, (z + lam) / 4
 
@@ -207,7 +248,7 @@ def carlson_rj(x: ArrayLike, y: ArrayLike, z: ArrayLike, p: ArrayLike) -> Array:
 
     def step(_, carry):
         x, y, z, p, total, scale = carry  # scale = 4^{-k}
-        sx, sy, sz, sp = jnp.sqrt(x), jnp.sqrt(y), jnp.sqrt(z), jnp.sqrt(p)
+        sx, sy, sz, sp = _sqrt0(x), _sqrt0(y), _sqrt0(z), jnp.sqrt(p)
         lam = sx * sy + sy * sz + sz * sx
         d = (sp + sx) * (sp + sy) * (sp + sz)
         total = total + scale * _rc1(scale**3 * delta / (d * d)) / d

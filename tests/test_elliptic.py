@@ -85,7 +85,8 @@ def _scipy_pi(n, phi, m):
     """Π(n; φ|m) from scipy's Carlson functions (valid where n s² is modest)."""
     j = np.round(phi / np.pi)
     s, c = np.sin(phi - np.pi * j), np.cos(phi - np.pi * j)
-    inc = s * sp.elliprf(c * c, 1 - m * s * s, 1) + n / 3 * s**3 * sp.elliprj(c * c, 1 - m * s * s, 1, 1 - n * s * s)
+    d2 = 1 - m * s * s
+    inc = s * sp.elliprf(c * c, d2, 1) + n / 3 * s**3 * sp.elliprj(c * c, d2, 1, 1 - n * s * s)
     return inc + 2 * j * (sp.elliprf(0, 1 - m, 1) + n / 3 * sp.elliprj(0, 1 - m, 1, 1 - n))
 
 
