@@ -298,14 +298,18 @@ def torque_free(state: State | MatrixState, t: ArrayLike) -> Any:
     3e-10     1e-7                 1e-6
     3e-12     5e-5                 2e-4
     3e-14     2e-2                 4e-3
-    2e-16     4e-2                 O(1)
+    2e-16     4e-2                 4e-2
     ========  ===================  ============================
 
     Exactly on the separatrix (``1 - m`` rounds to 0) ``1 - m`` is floored at
     ``1e-300`` (float32: ``1e-36``): the result is the periodic orbit of period
     ``~4·log(4/1e-150)/λ``, which follows the separatrix for ``~345/|λ|`` s and
-    never returns ``NaN``. A pure spin about the middle axis is kept steady
-    (exactly) rather than being made to tumble by rounding.
+    never returns ``NaN``. A pure spin about the middle axis (exactly on it in
+    the principal frame) is kept steady; one rounded off the axis by ~1e-16 (e.g.
+    by a rotated frame) tumbles away as ``e^{λt}``, as the true solution does.
+
+    Speed (CPU, 2 shared cores, float64): 1e4 random bodies at 100 times in
+    ~1.1 s after a ~3 s compile (~1.1 µs per body-sample, ~5 µs per body setup).
     """
     if not isinstance(state, (State, MatrixState)):
         raise TypeError(f"torque_free: state must be State or MatrixState, got {type(state).__name__}")
