@@ -64,6 +64,8 @@ from ._io import read_metadata as read_metadata
 from ._io import save as save
 
 # --- end tools ---
+# exact torque-free solution (ground truth for integrator tests and benchmarks)
+from ._torque_free import torque_free as torque_free
 
 __version__ = "0.1.0"
 
