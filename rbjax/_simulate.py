@@ -13,6 +13,7 @@ from jax.typing import ArrayLike
 
 from . import _methods
 from ._batching import batch_shape
+from ._forces import ForceModel
 from ._pytree import replace
 from ._simulate_support import constant_fields
 from ._state import AnyState, ForceLike, Forces
@@ -56,7 +57,7 @@ def step(state: AnyState, forces: ForceLike, dt: ArrayLike, method: str = "euler
     Returns the new state, of the same type and shape. Pure; ``jit`` it with
     ``static_argnames="method"``.
     """
-    fn = _methods.get(method, type(state))
+    fn = method if callable(method) else _methods.get(method, type(state))
     _check_dt(dt)
     if isinstance(forces, Forces):
         batch_shape(state, forces)
@@ -117,7 +118,8 @@ def simulate(
 
     A new callable ``forces`` object compiles anew (it is a static argument).
     """
-    _methods.get(method, type(state))
+    if not callable(method):  # a callable is a step fn, e.g. a Scene's specialised kernel
+        _methods.get(method, type(state))
     if not isinstance(steps, (int, np.integer)) or steps < 0:
         raise ValueError(f"steps must be a non-negative int, got {steps!r}")
     if not isinstance(save_every, (int, np.integer)) or save_every < 1 or steps % save_every:
@@ -128,6 +130,8 @@ def simulate(
         series = _is_time_series(forces, state, steps)
         if not series:
             batch_shape(state, forces)
+    elif isinstance(forces, ForceModel):
+        series, force_fn = False, None  # a pytree: its arrays are traced data, not static
     elif forces is None or callable(forces):
         series, force_fn, forces = False, forces, None
     else:
@@ -140,7 +144,7 @@ def simulate(
 
 @functools.partial(jax.jit, static_argnames=("steps", "method", "save_every", "series", "force_fn"))
 def _simulate(state, forces, dt, t0, *, steps, method, save_every, series, force_fn):
-    step_fn = _methods.get(method, type(state))
+    step_fn = method if callable(method) else _methods.get(method, type(state))
     dtype = state.dtype
     dt, t0 = dt.astype(dtype), t0.astype(dtype)
     consts = {k: getattr(state, k) for k in constant_fields(state)}
