@@ -38,9 +38,14 @@ KINDS = ("particles", "isotropic", "axisymmetric", "general")
 
 
 def _axis_from_quat(q: Any) -> Any:
-    """``n = R e_z``: the body z axis in the world, third column of ``quat_to_matrix(q)``."""
+    """``n = R(q̂) e_z``: the body z axis in the world for ``q̂ = q/‖q‖``.
+
+    The homogeneous form ``(2(xz + wy), 2(yz - wx), w² - x² - y² + z²) / ‖q‖²`` is
+    a unit vector also at a Runge–Kutta stage, where ``‖q‖ = 1 + O(dt²)``.
+    """
     w, x, y, z = q[0], q[1], q[2], q[3]
-    return jnp.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)])
+    n = jnp.stack([2 * (x * z + w * y), 2 * (y * z - w * x), w * w - x * x - y * y + z * z])
+    return n / jnp.sum(q * q)
 
 
 def _axisym_inv(body: Any, n: Any, u: Any) -> Any:
@@ -50,12 +55,17 @@ def _axisym_inv(body: Any, n: Any, u: Any) -> Any:
 
 
 def omega_of(s: State, kind: str) -> Any:
-    """World ``ω`` of one body in the ``(x, v, q, L)`` form, by the kind's algebra."""
+    """World ``ω = R I⁻¹ Rᵀ L`` of one body in the ``(x, v, q, L)`` form, by the kind's algebra.
+
+    ``R`` is the rotation of ``q̂ = q/‖q‖`` for every kind, so the kinds agree to
+    round-off also at Runge–Kutta stages, where ``q`` is off the unit sphere by
+    ``O(dt²)``.
+    """
     if kind == "isotropic":
         return s.body.inverse_inertia[0, 0] * s.angular_momentum
     if kind == "axisymmetric":
         return _axisym_inv(s.body, _axis_from_quat(s.orientation), s.angular_momentum)
-    return _omega_world(s)
+    return _omega_world(replace(s, orientation=quat_normalize(s.orientation)))
 
 
 def _rates(s: Any, f: Forces, kind: str) -> dict[str, Any]:
