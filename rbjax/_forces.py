@@ -20,8 +20,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+import jax
 import jax.numpy as jnp
 from jax import Array
+from jax.sharding import NamedSharding, PartitionSpec
 from jax.typing import ArrayLike
 
 from ._body import _as_float
@@ -179,22 +181,41 @@ def _offset(state: AnyState, idx: Array, point: Array | None) -> Array | None:
         return None
     p = _cast(point, state)
     if isinstance(state, State):
-        return quat_rotate(state.orientation[idx], p)
+        return quat_rotate(_gather(state.orientation, idx), p)
     if isinstance(state, MatrixState):
-        return _apply(state.rotation[idx], p)
+        return _apply(_gather(state.rotation, idx), p)
     raise ValueError("a body-frame attachment point needs rigid bodies; ParticleState has no rotation")
 
 
 def _point_motion(state: AnyState, idx: Array, r: Array | None, omega: Array | None) -> tuple[Array, Array]:
     """World position ``x + r`` and velocity ``v + ω × r`` of attached points."""
-    x, v = state.position[idx], state.velocity[idx]
+    x, v = _gather(state.position, idx), _gather(state.velocity, idx)
     if r is None:
         return x, v
-    return x + r, v + cross(omega[idx], r)
+    return x + r, v + cross(_gather(omega, idx), r)
+
+
+def _explicit_sharding(x: Array) -> Any:
+    """The sharding of ``x`` if it is sharded over an explicit mesh axis (else ``None``)."""
+    sh = jax.typeof(x).sharding
+    return sh if any(a is not None for a in getattr(sh, "spec", ())) else None
+
+
+def _gather(x: Array, idx: Array) -> Array:
+    # Explicit sharding asks where a gather's result lives: the few attached bodies' values
+    # are replicated (the scatter below returns them to the bodies' shards).
+    sh = _explicit_sharding(x)
+    if sh is None:
+        return x[idx]
+    return x.at[idx].get(out_sharding=NamedSharding(sh.mesh, PartitionSpec()))
+
+
+def _add_at(total: Array, idx: Array, values: Array) -> Array:
+    return total.at[idx].add(values, out_sharding=_explicit_sharding(total))
 
 
 def _scatter(n: int, state: AnyState, idx: Array, values: Array) -> Array:
-    return jnp.zeros((n, 3), state.dtype).at[idx].add(values)
+    return _add_at(jnp.zeros_like(state.position), idx, values)
 
 
 def _as_index(x: ArrayLike) -> Array:
@@ -288,13 +309,10 @@ class Spring(ForceModel):
         force = _scatter(n, state, self.body, f_a)
         torque = None if r_a is None else _scatter(n, state, self.body, cross(r_a, f_a))
         if self.other is not None:
-            force = force.at[self.other].add(-f_a)
+            force = _add_at(force, self.other, -f_a)
             if r_b is not None:
                 tb = cross(r_b, -f_a)
-                if torque is None:
-                    torque = _scatter(n, state, self.other, tb)
-                else:
-                    torque = torque.at[self.other].add(tb)
+                torque = _scatter(n, state, self.other, tb) if torque is None else _add_at(torque, self.other, tb)
         return Forces(force=force, torque=torque)
 
 

@@ -218,19 +218,20 @@ SHARDING_CHECK = textwrap.dedent(
     spring = rb.Spring.between(np.arange(0, n, 2), np.arange(1, n, 2), 3.0, point_a=np.full((n // 2, 3), 0.1))
     forces = rb.Gravity() + rb.LinearDrag(0.1, angular=0.05) + spring
     worst = 0.0
-    for mesh in (jax.make_mesh((8,), ("bodies",)), jax.sharding.Mesh(np.array(jax.devices()), ("bodies",))):
+    explicit = jax.make_mesh((8,), ("bodies",))  # jax's default: explicit axis types
+    auto = jax.sharding.Mesh(np.array(jax.devices()), ("bodies",))  # GSPMD propagation
+    scene = rb.Scene.build(s, forces, "euler")
+    runs = [(explicit, lambda st: scene.simulate(st, 0.01, 20, save_every=5)),
+            (auto, lambda st: rb.simulate(st, rb.Gravity(), 0.01, 20, "euler", save_every=5))]
+    for mesh, run in runs:
         put = lambda a: jax.device_put(a, NamedSharding(mesh, P("bodies", *([None] * (a.ndim - 1)))))
-        ss = jax.tree.map(put, s)
-        scene = rb.Scene.build(ss, forces, "rk4")
-        for traj in (scene.simulate(ss, 0.01, 20, save_every=5), rb.simulate(ss, forces, 0.01, 20, "rk4", save_every=5)):
-            for leaf in jax.tree.leaves(traj):
-                spec = leaf.sharding.spec
-                body_axis = 1 if leaf.shape[0] == 5 else 0  # 5 saved frames lead; body fields do not
-                assert len(leaf.sharding.device_set) == 8, leaf.sharding
-                assert spec[body_axis] == "bodies", (leaf.shape, leaf.sharding)
-            ref = scene.simulate(s, 0.01, 20, save_every=5)
-            err = jax.tree.map(lambda a, b: float(jnp.max(jnp.abs(a - b)) / jnp.max(jnp.abs(b))), traj, ref)
-            worst = max(worst, max(jax.tree.leaves(err)))
+        traj, ref = run(jax.tree.map(put, s)), run(s)
+        for leaf in jax.tree.leaves(traj):
+            body_axis = 1 if leaf.shape[0] == 5 else 0  # 5 saved frames lead; body fields do not
+            assert len(leaf.sharding.device_set) == 8, leaf.sharding
+            assert leaf.sharding.spec[body_axis] == "bodies", (leaf.shape, leaf.sharding)
+        err = jax.tree.map(lambda a, b: float(jnp.max(jnp.abs(a - b)) / jnp.max(jnp.abs(b))), traj, ref)
+        worst = max(worst, max(jax.tree.leaves(err)))
     print("WORST", worst)
     """
 )
@@ -239,7 +240,8 @@ SHARDING_CHECK = textwrap.dedent(
 def test_sharded_simulate_keeps_sharding_and_results():
     # 8 host devices need XLA_FLAGS before JAX starts, hence a fresh process. Every output leaf
     # must stay split over the 8 devices on its body axis (axis 1 behind time; the body, not
-    # stacked over time, on axis 0) for both mesh axis types, and equal the unsharded run to
+    # stacked over time, on axis 0) for both mesh axis types (explicit: a Scene with springs that
+    # gather and scatter by body index; auto: rbjax.simulate), and equal the unsharded run to
     # round-off (the partitioned program may fuse differently): 1e-13 relative.
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=8", PYTHONPATH=ROOT,
                JAX_PLATFORMS="cpu")
