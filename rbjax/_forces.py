@@ -268,20 +268,48 @@ class Spring(ForceModel):
                 object.__setattr__(self, name, _as_float(v))
 
     @classmethod
-    def to_anchor(cls, body: ArrayLike, anchor: ArrayLike, stiffness: ArrayLike, *,
-                  point: ArrayLike | None = None, rest_length: ArrayLike = 0.0,
-                  damping: ArrayLike | None = None) -> Spring:
+    def to_anchor(
+        cls,
+        body: ArrayLike,
+        anchor: ArrayLike,
+        stiffness: ArrayLike,
+        *,
+        point: ArrayLike | None = None,
+        rest_length: ArrayLike = 0.0,
+        damping: ArrayLike | None = None,
+    ) -> Spring:
         """Springs from body points (body frame; ``None`` = COM) to world ``anchor`` points."""
-        return cls(body=body, stiffness=stiffness, point=point, anchor=anchor,
-                   rest_length=rest_length, damping=damping)
+        return cls(
+            body=body,
+            stiffness=stiffness,
+            point=point,
+            anchor=anchor,
+            rest_length=rest_length,
+            damping=damping,
+        )
 
     @classmethod
-    def between(cls, body_a: ArrayLike, body_b: ArrayLike, stiffness: ArrayLike, *,
-                point_a: ArrayLike | None = None, point_b: ArrayLike | None = None,
-                rest_length: ArrayLike = 0.0, damping: ArrayLike | None = None) -> Spring:
+    def between(
+        cls,
+        body_a: ArrayLike,
+        body_b: ArrayLike,
+        stiffness: ArrayLike,
+        *,
+        point_a: ArrayLike | None = None,
+        point_b: ArrayLike | None = None,
+        rest_length: ArrayLike = 0.0,
+        damping: ArrayLike | None = None,
+    ) -> Spring:
         """Springs between points on two bodies (each in its own body frame; ``None`` = COM)."""
-        return cls(body=body_a, stiffness=stiffness, point=point_a, anchor=point_b, other=body_b,
-                   rest_length=rest_length, damping=damping)
+        return cls(
+            body=body_a,
+            stiffness=stiffness,
+            point=point_a,
+            anchor=point_b,
+            other=body_b,
+            rest_length=rest_length,
+            damping=damping,
+        )
 
     def __call__(self, state: AnyState, t: Array) -> Forces:
         n = _check_flat("Spring", state)
@@ -312,7 +340,9 @@ class Spring(ForceModel):
             force = _add_at(force, self.other, -f_a)
             if r_b is not None:
                 tb = cross(r_b, -f_a)
-                torque = _scatter(n, state, self.other, tb) if torque is None else _add_at(torque, self.other, tb)
+                torque = (
+                    _scatter(n, state, self.other, tb) if torque is None else _add_at(torque, self.other, tb)
+                )
         return Forces(force=force, torque=torque)
 
 

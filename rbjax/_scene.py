@@ -40,14 +40,14 @@ from ._state import AnyState, MatrixState, ParticleState, State
 
 __all__ = ["Scene", "body_kind", "register_kernel"]
 
-# (method, kind, state type) -> batch step fn(state, force_fn, t, dt, torque_free)
+# (method, kind, state type) -> batch step fn(state, force_fn, t, dt, kind, torque_free)
 _KERNELS: dict[tuple[str, str, type], Callable[..., Any]] = {}
 
 
 def register_kernel(method: str, kind: str, state_type: type, step: Callable[..., Any]) -> None:
     """Register a specialised batch step for ``(method, kind, state_type)``.
 
-    ``step(state, force_fn, t, dt, torque_free) -> state`` must give the
+    ``step(state, force_fn, t, dt, kind, torque_free) -> state`` must give the
     registered general method's result to round-off for every body of ``kind``
     (see :mod:`rbjax._specialise` for the algebra each kind allows). A scene
     uses it instead of the general step of ``method``.
@@ -122,8 +122,14 @@ class Scene:
     torque_free: bool = static_field(default=False)
 
     @classmethod
-    def build(cls, state: AnyState, forces: ForceModel | None = None, method: str = "rk4", *,
-              kind: str | None = None) -> Scene:
+    def build(
+        cls,
+        state: AnyState,
+        forces: ForceModel | None = None,
+        method: str = "rk4",
+        *,
+        kind: str | None = None,
+    ) -> Scene:
         """Scene for ``state``'s bodies under ``forces`` (``None``: free motion), integrated by ``method``.
 
         ``kind`` overrides the detected body kind (``"general"`` forces the
@@ -175,8 +181,9 @@ class Scene:
         self._check(state)
         return _step_fn(state, self.forces, dt, self.kernel, t=t)
 
-    def simulate(self, state: AnyState, dt: ArrayLike, steps: int, *, save_every: int = 1,
-                 t0: ArrayLike = 0.0) -> AnyState:
+    def simulate(
+        self, state: AnyState, dt: ArrayLike, steps: int, *, save_every: int = 1, t0: ArrayLike = 0.0
+    ) -> AnyState:
         """Trajectory of ``steps`` steps, every ``save_every``-th state kept; as :func:`rbjax.simulate`.
 
         Returns the state type with a leading time axis of length

@@ -102,10 +102,13 @@ def simulate(
             * a :class:`Forces` with a leading time axis, ``(steps, *B, 3)``, one
               per step (held constant within the step);
             * a callable ``(state, t) -> Forces`` on the whole batch;
+            * a force model (:class:`rbjax.ForceModel`, e.g. ``Gravity() + LinearDrag(0.1)``),
+              whose arrays are traced data (changing them does not recompile);
             * ``None``.
         dt: step (s), > 0; differentiable.
         steps: number of steps (static).
-        method: integrator name (static).
+        method: integrator name (static), or a hashable batch step function
+            ``(state, force_fn, t, dt) -> state`` such as a :class:`rbjax.Scene`'s kernel.
         save_every: keep every ``save_every``-th state (static); must divide ``steps``.
         t0: start time (s).
 

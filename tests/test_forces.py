@@ -14,7 +14,9 @@ G = 9.81
 def _particles(m, x0=None, v0=None):
     n = len(m)
     return rb.ParticleState.create(
-        jnp.asarray(m), position=np.zeros((n, 3)) if x0 is None else x0, velocity=np.zeros((n, 3)) if v0 is None else v0
+        jnp.asarray(m),
+        position=np.zeros((n, 3)) if x0 is None else x0,
+        velocity=np.zeros((n, 3)) if v0 is None else v0,
     )
 
 
@@ -70,7 +72,9 @@ def test_spring_damper_to_anchor_is_a_damped_oscillator():
     a = np.array([[1.0, 2.0, 3.0], [-1.0, 0.0, 0.0]])
     x0 = a + np.array([[1.0, -0.5, 0.2], [l0[1] + 0.5, 0.0, 0.0]])
     v0 = np.array([[0.0, 1.0, 0.0], [0.3, 0.0, 0.0]])
-    spring = rb.Spring.to_anchor(np.arange(2), a, jnp.asarray(k), rest_length=jnp.asarray(l0), damping=jnp.asarray(c))
+    spring = rb.Spring.to_anchor(
+        np.arange(2), a, jnp.asarray(k), rest_length=jnp.asarray(l0), damping=jnp.asarray(c)
+    )
     p = _particles(m, x0=x0, v0=v0)
     dt, steps = 0.01, 300
     tr = rb.Scene.build(p, spring, "rk4").simulate(p, dt, steps, save_every=steps)
@@ -78,7 +82,9 @@ def test_spring_damper_to_anchor_is_a_damped_oscillator():
     g = c / (2 * m)
     wd = np.sqrt(k / m - g**2)
     d0 = x0 - a - np.array([[0, 0, 0], [l0[1], 0, 0]])
-    d = np.exp(-g * t)[:, None] * (d0 * np.cos(wd * t)[:, None] + (v0 + g[:, None] * d0) / wd[:, None] * np.sin(wd * t)[:, None])
+    d = np.exp(-g * t)[:, None] * (
+        d0 * np.cos(wd * t)[:, None] + (v0 + g[:, None] * d0) / wd[:, None] * np.sin(wd * t)[:, None]
+    )
     np.testing.assert_allclose(tr.position[-1], a + d + np.array([[0, 0, 0], [l0[1], 0, 0]]), atol=1e-8)
 
 
@@ -98,14 +104,20 @@ def test_two_body_spring_conserves_momenta_and_energy():
     # Total angular momentum (spin + x × m v) and energy are quadratic: RK4 keeps them to
     # O(dt^4 T); with dt = 2e-3 over 2 s the drift is ~1e-10, tolerance 1e-8 relative.
     # (A symplectic method would bound the energy error for all time; none is registered here.)
-    body = rb.Body(jnp.array([1.0, 2.5]), jnp.stack([jnp.diag(jnp.array([0.3, 0.4, 0.5])), jnp.diag(jnp.array([1.0, 0.8, 0.6]))]))
+    body = rb.Body(
+        jnp.array([1.0, 2.5]),
+        jnp.stack([jnp.diag(jnp.array([0.3, 0.4, 0.5])), jnp.diag(jnp.array([1.0, 0.8, 0.6]))]),
+    )
     s = rb.State.create(
-        body, position=np.array([[0.0, 0.0, 0.0], [1.5, 0.2, -0.1]]),
+        body,
+        position=np.array([[0.0, 0.0, 0.0], [1.5, 0.2, -0.1]]),
         velocity=np.array([[0.1, 0.5, -0.2], [0.0, -0.3, 0.4]]),
         angular_velocity=np.array([[1.0, -0.5, 2.0], [0.3, 0.2, -1.0]]),
         orientation=np.array([[1.0, 0, 0, 0], [np.cos(0.4), np.sin(0.4), 0, 0]]),
     )
-    spring = rb.Spring.between([0], [1], [30.0], point_a=[[0.2, 0.1, -0.3]], point_b=[[-0.1, 0.4, 0.2]], rest_length=1.0)
+    spring = rb.Spring.between(
+        [0], [1], [30.0], point_a=[[0.2, 0.1, -0.3]], point_b=[[-0.1, 0.4, 0.2]], rest_length=1.0
+    )
     tr = rb.Scene.build(s, spring, "rk4").simulate(s, 2e-3, 1000, save_every=50)
     P = np.sum(np.asarray(rb.linear_momentum(tr)), axis=1)
     np.testing.assert_allclose(P, np.broadcast_to(P[0], P.shape), atol=1e-12)
@@ -190,7 +202,9 @@ def test_custom_force_is_differentiable_in_its_params():
     # exact on quadratics); gravity's g gives the same derivative per unit mass times m.
     m, T = 2.0, 1.0
     p = _particles([m])
-    custom = rb.CustomForce(lambda s, t, f: rb.Forces(force=jnp.broadcast_to(f, s.position.shape)), jnp.zeros(3))
+    custom = rb.CustomForce(
+        lambda s, t, f: rb.Forces(force=jnp.broadcast_to(f, s.position.shape)), jnp.zeros(3)
+    )
 
     def final_z(params):
         scene = rb.Scene.build(p, rb.CustomForce(custom.fn, params), "rk4")
@@ -198,7 +212,11 @@ def test_custom_force_is_differentiable_in_its_params():
 
     grad = jax.grad(final_z)(jnp.zeros(3))
     np.testing.assert_allclose(grad, [0.0, 0.0, T**2 / (2 * m)], rtol=1e-12, atol=1e-15)
-    dz_dg = jax.grad(lambda g: rb.Scene.build(p, rb.Gravity(g), "rk4").simulate(p, 0.1, 10, save_every=10).position[-1, 0, 2])
+    dz_dg = jax.grad(
+        lambda g: (
+            rb.Scene.build(p, rb.Gravity(g), "rk4").simulate(p, 0.1, 10, save_every=10).position[-1, 0, 2]
+        )
+    )
     np.testing.assert_allclose(dz_dg(jnp.zeros(3)), [0.0, 0.0, T**2 / 2], rtol=1e-12, atol=1e-15)
 
 

@@ -66,8 +66,12 @@ def test_body_kind_detection():
 # * matrix form, RK4: stage matrices R + h/2 k are off SO(3) by O(dt²), where R I Rᵀ and the
 #   closed forms differ at O(dt²) per stage: both are RK4 (order 4) but differ at the size of the
 #   truncation error, 5e-7 here: 2e-6.
-TOL = {("quaternion", "euler"): 1e-13, ("quaternion", "rk4"): 1e-13,
-       ("matrix", "euler"): 1e-10, ("matrix", "rk4"): 2e-6}
+TOL = {
+    ("quaternion", "euler"): 1e-13,
+    ("quaternion", "rk4"): 1e-13,
+    ("matrix", "euler"): 1e-10,
+    ("matrix", "rk4"): 2e-6,
+}
 
 
 @pytest.mark.parametrize("method", ["euler", "rk4"])
@@ -127,9 +131,10 @@ def test_particles_match_general_path_and_sphere_translation():
 
 def test_mixed_batch_equals_per_body_runs():
     # Boxes, a sphere, a cylinder and a body made of point masses in one general batch, against
-    # each body run alone (where it gets its own specialised kernel). Round-off: 1e-13 relative.
-    masses, points = jnp.array([1.0, 2.0, 0.5, 1.5]), jnp.array(
-        [[0.3, 0.0, 0.1], [-0.2, 0.4, 0.0], [0.0, -0.3, 0.5], [0.1, 0.1, -0.4]]
+    # each body run alone (one compiled program for the four). Round-off: 1e-13 relative.
+    masses, points = (
+        jnp.array([1.0, 2.0, 0.5, 1.5]),
+        jnp.array([[0.3, 0.0, 0.1], [-0.2, 0.4, 0.0], [0.0, -0.3, 0.5], [0.1, 0.1, -0.4]]),
     )
     cloud, _ = rb.from_particles(masses, points)
     parts = [rb.box(1.0, jnp.array([1.0, 2.0, 0.5])), rb.sphere(2.0, 0.4), rb.cylinder(1.5, 0.3, 1.2), cloud]
@@ -142,13 +147,16 @@ def test_mixed_batch_equals_per_body_runs():
     got = scene.simulate(s, 0.01, 100, save_every=50)
     for i, b in enumerate(parts):
         one = rb.State.create(
-            rb.Body(b.mass[None], b.inertia[None]), orientation=QUATS[i : i + 1],
-            angular_velocity=OMEGA[i : i + 1], velocity=VEL[i : i + 1],
+            rb.Body(b.mass[None], b.inertia[None]),
+            orientation=QUATS[i : i + 1],
+            angular_velocity=OMEGA[i : i + 1],
+            velocity=VEL[i : i + 1],
         )
-        alone = rb.Scene.build(one, forces, "rk4")
+        alone = rb.Scene.build(one, forces, "rk4", kind="general")
         ref = alone.simulate(one, 0.01, 100, save_every=50)
-        assert _max_rel(jax.tree.map(lambda a: a[:, i : i + 1], rb._pytree.replace(got, body=None)),
-                        rb._pytree.replace(ref, body=None)) < 1e-13, alone.kind
+        mine = rb._pytree.replace(got, body=None)
+        mine = jax.tree.map(lambda a, i=i: a[:, i : i + 1], mine)
+        assert _max_rel(mine, rb._pytree.replace(ref, body=None)) < 1e-13, i
 
 
 def _count_eqns(jaxpr):
@@ -243,10 +251,12 @@ def test_sharded_simulate_keeps_sharding_and_results():
     # stacked over time, on axis 0) for both mesh axis types (explicit: a Scene with springs that
     # gather and scatter by body index; auto: rbjax.simulate), and equal the unsharded run to
     # round-off (the partitioned program may fuse differently): 1e-13 relative.
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=8", PYTHONPATH=ROOT,
-               JAX_PLATFORMS="cpu")
-    out = subprocess.run([sys.executable, "-c", SHARDING_CHECK], env=env, capture_output=True, text=True,
-                         timeout=300)
+    env = dict(
+        os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=8", PYTHONPATH=ROOT, JAX_PLATFORMS="cpu"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", SHARDING_CHECK], env=env, capture_output=True, text=True, timeout=300
+    )
     assert out.returncode == 0, out.stderr[-3000:]
     worst = float(out.stdout.split("WORST")[-1])
     assert worst < 1e-13
