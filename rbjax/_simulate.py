@@ -13,6 +13,7 @@ from jax.typing import ArrayLike
 
 from . import _checked, _methods
 from ._batching import batch_shape
+from ._forces import ForceModel
 from ._pytree import replace
 from ._simulate_support import constant_fields
 from ._state import AnyState, ForceLike, Forces
@@ -56,7 +57,7 @@ def step(state: AnyState, forces: ForceLike, dt: ArrayLike, method: str = "euler
     Returns the new state, of the same type and shape. Pure; ``jit`` it with
     ``static_argnames="method"``.
     """
-    fn = _methods.get(method, type(state))
+    fn = method if callable(method) else _methods.get(method, type(state))
     _check_dt(dt)
     if isinstance(forces, Forces):
         batch_shape(state, forces)
@@ -102,10 +103,13 @@ def simulate(
             * a :class:`Forces` with a leading time axis, ``(steps, *B, 3)``, one
               per step (held constant within the step);
             * a callable ``(state, t) -> Forces`` on the whole batch;
+            * a force model (:class:`rbjax.ForceModel`, e.g. ``Gravity() + LinearDrag(0.1)``),
+              whose arrays are traced data (changing them does not recompile);
             * ``None``.
         dt: step (s), > 0; differentiable.
         steps: number of steps (static).
-        method: integrator name (static).
+        method: integrator name (static), or a hashable batch step function
+            ``(state, force_fn, t, dt) -> state`` such as a :class:`rbjax.Scene`'s kernel.
         save_every: keep every ``save_every``-th state (static); must divide ``steps``.
         t0: start time (s).
         checked: ``True`` or an :class:`rbjax.Checks` to test every step for a
@@ -128,7 +132,8 @@ def simulate(
 
 def _run(state, forces, dt, steps, method, *, save_every, t0, checked, step_offset=0):
     """``simulate`` after its signature; ``step_offset`` numbers steps in checked-mode errors."""
-    _methods.get(method, type(state))
+    if not callable(method):  # a callable is a step fn, e.g. a Scene's specialised kernel
+        _methods.get(method, type(state))
     if not isinstance(steps, (int, np.integer)) or steps < 0:
         raise ValueError(f"steps must be a non-negative int, got {steps!r}")
     if not isinstance(save_every, (int, np.integer)) or save_every < 1 or steps % save_every:
@@ -139,6 +144,8 @@ def _run(state, forces, dt, steps, method, *, save_every, t0, checked, step_offs
         series = _is_time_series(forces, state, steps)
         if not series:
             batch_shape(state, forces)
+    elif isinstance(forces, ForceModel):
+        series, force_fn = False, None  # a pytree: its arrays are traced data, not static
     elif forces is None or callable(forces):
         series, force_fn, forces = False, forces, None
     else:
@@ -160,7 +167,7 @@ def _run(state, forces, dt, steps, method, *, save_every, t0, checked, step_offs
 
 @functools.partial(jax.jit, static_argnames=("steps", "method", "save_every", "series", "force_fn", "checks"))
 def _simulate(state, forces, dt, t0, *, steps, method, save_every, series, force_fn, checks=None):
-    step_fn = _methods.get(method, type(state))
+    step_fn = method if callable(method) else _methods.get(method, type(state))
     dtype = state.dtype
     dt, t0 = dt.astype(dtype), t0.astype(dtype)
     consts = {k: getattr(state, k) for k in constant_fields(state)}

@@ -1,0 +1,194 @@
+"""``Scene``: bodies, force models and a method, compiled to only what they use.
+
+A scene decides, once, from concrete inputs, what its step needs:
+
+* ``kind`` ``"particles"`` (a :class:`ParticleState`: no rotation at all),
+  ``"isotropic"`` (every ``I = i·1``: ``ω = L/i``, no gyroscopic term, no
+  principal-frame work), ``"axisymmetric"`` (every ``I = diag(a, a, c)``:
+  closed forms with the symmetry axis ``n = R e_z``) or ``"general"``; a mixed
+  batch takes the most general kind any of its bodies needs;
+* ``torque_free``: the force model returns ``torque=None`` (found by tracing it
+  once with :func:`jax.eval_shape`), so no torque is accumulated or integrated.
+
+These are static fields; ``Body`` is untouched. The specialised kernels
+(:mod:`rbjax._specialise`) exist for ``"euler"`` and ``"rk4"``; another method
+registers its own with :func:`register_kernel` (the hook for ``"splitting"`` and
+other methods of :mod:`rbjax._methods`), and otherwise runs its general step,
+which still skips rotation for particles and torque for torque-free forces
+(``Forces.torque is None`` is structural).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+from jax.typing import ArrayLike
+
+from . import _methods, _specialise
+from ._body import Body, _is_concrete
+from ._forces import ForceModel, ForceSum
+from ._pytree import pytree_dataclass, static_field
+from ._simulate import simulate as _simulate_fn
+from ._simulate import step as _step_fn
+from ._state import AnyState, MatrixState, ParticleState, State
+
+__all__ = ["Scene", "body_kind", "register_kernel"]
+
+# (method, kind, state type) -> batch step fn(state, force_fn, t, dt, kind, torque_free)
+_KERNELS: dict[tuple[str, str, type], Callable[..., Any]] = {}
+
+
+def register_kernel(method: str, kind: str, state_type: type, step: Callable[..., Any]) -> None:
+    """Register a specialised batch step for ``(method, kind, state_type)``.
+
+    ``step(state, force_fn, t, dt, kind, torque_free) -> state`` must give the
+    registered general method's result to round-off for every body of ``kind``
+    (see :mod:`rbjax._specialise` for the algebra each kind allows). A scene
+    uses it instead of the general step of ``method``.
+    """
+    if kind not in _specialise.KINDS:
+        raise ValueError(f"kind must be one of {_specialise.KINDS}, got {kind!r}")
+    _KERNELS[(method, kind, state_type)] = step
+
+
+for _name in ("euler", "rk4"):
+    for _kind in ("isotropic", "axisymmetric", "general"):
+        for _type in (State, MatrixState):
+            register_kernel(_name, _kind, _type, _specialise.explicit_step(_name))
+
+
+def body_kind(body: Body) -> str:
+    """``"isotropic"``, ``"axisymmetric"`` (about body z) or ``"general"`` for a concrete batch.
+
+    A body counts as isotropic / axisymmetric when its off-diagonal entries and
+    the differences of the equal moments are below ``16 eps`` of its largest
+    moment (round-off of the constructors); the specialised algebra then agrees
+    with the general one to round-off. Traced bodies are ``"general"``.
+    """
+    if not _is_concrete(body.inertia):
+        return "general"
+    I = np.asarray(body.inertia)
+    tol = 16 * np.finfo(I.dtype).eps * np.max(np.abs(I), axis=(-1, -2))
+    off = np.max(np.abs(I - I * np.eye(3)), axis=(-1, -2))
+    d = np.diagonal(I, axis1=-2, axis2=-1)
+    diagonal = off <= tol
+    axisym = diagonal & (np.abs(d[..., 0] - d[..., 1]) <= tol)
+    if np.all(axisym & (np.abs(d[..., 0] - d[..., 2]) <= tol)):
+        return "isotropic"
+    return "axisymmetric" if np.all(axisym) else "general"
+
+
+@dataclasses.dataclass(frozen=True)
+class _Kernel:
+    """The scene's batch step as a hashable static value for ``simulate``'s jit cache."""
+
+    method: str
+    kind: str
+    torque_free: bool
+
+    def __call__(self, state: AnyState, force_fn: Any, t: Array, dt: Array) -> AnyState:
+        fn = _KERNELS.get((self.method, self.kind, type(state)))
+        if fn is not None:
+            return fn(state, force_fn, t, dt, self.kind, self.torque_free)
+        return _methods.get(self.method, type(state))(state, force_fn, t, dt)
+
+
+@pytree_dataclass
+class Scene:
+    """Bodies under force models, integrated by one method, specialised on their structure.
+
+    Attributes:
+        body: the batch's :class:`Body` (``None`` for particles). A state passed
+            to :meth:`step` / :meth:`simulate` must carry bodies of this kind.
+        forces: a :class:`ForceModel` (e.g. ``Gravity() + LinearDrag(0.1)``); its
+            arrays are leaves, its composition is static.
+        method: integrator name (static).
+        kind: ``"particles"``, ``"isotropic"``, ``"axisymmetric"`` or ``"general"`` (static).
+        torque_free: the forces never produce a torque (static).
+
+    Build with :meth:`Scene.build`, which decides ``kind`` and ``torque_free``.
+    """
+
+    body: Body | None
+    forces: ForceModel
+    method: str = static_field(default="rk4")
+    kind: str = static_field(default="general")
+    torque_free: bool = static_field(default=False)
+
+    @classmethod
+    def build(
+        cls,
+        state: AnyState,
+        forces: ForceModel | None = None,
+        method: str = "rk4",
+        *,
+        kind: str | None = None,
+    ) -> Scene:
+        """Scene for ``state``'s bodies under ``forces`` (``None``: free motion), integrated by ``method``.
+
+        ``kind`` overrides the detected body kind (``"general"`` forces the
+        general path, e.g. to compare; a more special kind than the bodies have
+        raises ``ValueError``). Traces ``forces`` once on ``state`` to check
+        its output shapes and learn whether it returns a torque.
+        """
+        _methods.get(method, type(state))
+        forces = ForceSum(()) if forces is None else forces
+        if not isinstance(forces, ForceModel):
+            raise TypeError(f"forces must be a ForceModel, e.g. Gravity() + LinearDrag(0.1); got {forces!r}")
+        detected = "particles" if isinstance(state, ParticleState) else body_kind(state.body)
+        if kind is not None:
+            order = _specialise.KINDS
+            if kind not in order or (detected == "particles") != (kind == "particles"):
+                raise ValueError(f"kind {kind!r} does not apply to {type(state).__name__}")
+            if order.index(kind) < order.index(detected):
+                raise ValueError(f"kind {kind!r} is more special than the bodies ({detected!r})")
+            detected = kind
+        out = jax.eval_shape(forces, state, jnp.zeros((), state.dtype))
+        for name in ("force", "torque"):
+            v = getattr(out, name)
+            if v is not None and jnp.broadcast_shapes(v.shape, state.position.shape) != state.position.shape:
+                raise ValueError(
+                    f"forces returned {name} of shape {v.shape}; it must broadcast to {state.position.shape}"
+                )
+        torque_free = out.torque is None
+        if not torque_free and isinstance(state, ParticleState):
+            raise ValueError("forces return a torque, but particles cannot take one")
+        body = None if isinstance(state, ParticleState) else state.body
+        return cls(body=body, forces=forces, method=method, kind=detected, torque_free=torque_free)
+
+    @property
+    def kernel(self) -> _Kernel:
+        return _Kernel(self.method, self.kind, self.torque_free)
+
+    def _check(self, state: AnyState) -> None:
+        if (self.kind == "particles") != isinstance(state, ParticleState):
+            raise ValueError(f"a {self.kind!r} scene cannot step a {type(state).__name__}")
+        if self.kind in ("particles", "general") or state.body is self.body:
+            return
+        found = body_kind(state.body)
+        rank = _specialise.KINDS.index
+        if _is_concrete(state.body.inertia) and rank(found) > rank(self.kind):
+            raise ValueError(f"this scene is specialised for {self.kind!r} bodies; the state's are {found!r}")
+
+    def step(self, state: AnyState, dt: ArrayLike, t: ArrayLike = 0.0) -> AnyState:
+        """One step of ``dt`` seconds from time ``t``; as :func:`rbjax.step` with the scene's forces."""
+        self._check(state)
+        return _step_fn(state, self.forces, dt, self.kernel, t=t)
+
+    def simulate(
+        self, state: AnyState, dt: ArrayLike, steps: int, *, save_every: int = 1, t0: ArrayLike = 0.0
+    ) -> AnyState:
+        """Trajectory of ``steps`` steps, every ``save_every``-th state kept; as :func:`rbjax.simulate`.
+
+        Returns the state type with a leading time axis of length
+        ``steps // save_every + 1`` (initial state first); ``body`` is not stacked.
+        A batch sharded over devices on its body axis stays sharded.
+        """
+        self._check(state)
+        return _simulate_fn(state, self.forces, dt, steps, self.kernel, save_every=save_every, t0=t0)

@@ -1,0 +1,146 @@
+"""Per-body kernels specialised on a scene's static body structure.
+
+A body's inertia decides how much rotational work a step needs:
+
+* ``"isotropic"`` (``I = i·1``: spheres, cubes): ``I_w = R I Rᵀ = i·1`` in every
+  orientation, so ``ω = L / i`` needs no rotation of ``L`` into the body frame,
+  and the gyroscopic term ``ω × I_w ω = i ω × ω`` vanishes.
+* ``"axisymmetric"`` (``I = diag(a, a, c)``, symmetry axis body z: cylinders,
+  spinning tops): with ``n = R e_z`` (third column of ``R``),
+  ``I_w = a·1 + (c - a) n nᵀ``, ``I_w⁻¹ = 1/a + (1/c - 1/a) n nᵀ`` and
+  ``ω × I_w ω = (c - a)(n·ω)(ω × n)``: a dot product instead of two rotations.
+* ``"general"``: the full ``ω = R I⁻¹ Rᵀ L`` of :func:`rbjax.derivative`.
+
+The rates below are :func:`rbjax.derivative` with that algebra, returning
+``None`` for a field that does not change (``v`` without force, ``L`` or ``ω``
+of an isotropic body without torque), so the explicit Euler and RK4 steps here
+skip its update entirely. They reproduce ``method="euler"`` / ``"rk4"`` of
+:mod:`rbjax._methods` to round-off (tested), the same update formulas in the
+same order with ``ω`` evaluated more cheaply.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any
+
+import jax.numpy as jnp
+
+from ._batching import lift
+from ._math import cross, orthonormalize, quat_multiply, quat_normalize, skew
+from ._pytree import replace
+from ._quantities import _omega_world
+from ._state import Forces, MatrixState, State, _apply
+
+__all__ = ["KINDS", "explicit_step"]
+
+KINDS = ("particles", "isotropic", "axisymmetric", "general")
+
+
+def _axis_from_quat(q: Any) -> Any:
+    """``n = R(q̂) e_z``: the body z axis in the world for ``q̂ = q/‖q‖``.
+
+    The homogeneous form ``(2(xz + wy), 2(yz - wx), w² - x² - y² + z²) / ‖q‖²`` is
+    a unit vector also at a Runge–Kutta stage, where ``‖q‖ = 1 + O(dt²)``.
+    """
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    n = jnp.stack([2 * (x * z + w * y), 2 * (y * z - w * x), w * w - x * x - y * y + z * z])
+    return n / jnp.sum(q * q)
+
+
+def _axisym_inv(body: Any, n: Any, u: Any) -> Any:
+    """``I_w⁻¹ u = u/a + (1/c - 1/a)(n·u) n`` for ``I = diag(a, a, c)``."""
+    a_inv, c_inv = body.inverse_inertia[0, 0], body.inverse_inertia[2, 2]
+    return a_inv * u + (c_inv - a_inv) * jnp.dot(n, u) * n
+
+
+def omega_of(s: State, kind: str) -> Any:
+    """World ``ω = R I⁻¹ Rᵀ L`` of one body in the ``(x, v, q, L)`` form, by the kind's algebra.
+
+    ``R`` is the rotation of ``q̂ = q/‖q‖`` for every kind, so the kinds agree to
+    round-off also at Runge–Kutta stages, where ``q`` is off the unit sphere by
+    ``O(dt²)``.
+    """
+    if kind == "isotropic":
+        return s.body.inverse_inertia[0, 0] * s.angular_momentum
+    if kind == "axisymmetric":
+        return _axisym_inv(s.body, _axis_from_quat(s.orientation), s.angular_momentum)
+    return _omega_world(replace(s, orientation=quat_normalize(s.orientation)))
+
+
+def _rates(s: Any, f: Forces, kind: str) -> dict[str, Any]:
+    """``d/dt`` of each changing field of one body; ``None`` where it is zero by structure."""
+    out: dict[str, Any] = {
+        "position": s.velocity,
+        "velocity": None if f.force is None else f.force / s.body.mass,
+    }
+    if isinstance(s, State):
+        w = omega_of(s, kind)
+        out["orientation"] = 0.5 * quat_multiply(jnp.concatenate([jnp.zeros_like(w[:1]), w]), s.orientation)
+        out["angular_momentum"] = f.torque
+        return out
+    R, w = s.rotation, s.angular_velocity
+    out["rotation"] = skew(w) @ R
+    if kind == "isotropic":
+        # gyroscopic term i ω × ω = 0; I_w⁻¹ = 1/i
+        out["angular_velocity"] = None if f.torque is None else s.body.inverse_inertia[0, 0] * f.torque
+        return out
+    if kind == "axisymmetric":
+        n = R[:, 2]
+        a, c = s.body.inertia[0, 0], s.body.inertia[2, 2]
+        gyro = (c - a) * jnp.dot(n, w) * cross(w, n)
+        tau = -gyro if f.torque is None else f.torque - gyro
+        out["angular_velocity"] = _axisym_inv(s.body, n, tau)
+        return out
+    I_w = R @ s.body.inertia @ R.T
+    I_w_inv = R @ s.body.inverse_inertia @ R.T
+    tau = -cross(w, _apply(I_w, w)) if f.torque is None else f.torque - cross(w, _apply(I_w, w))
+    out["angular_velocity"] = _apply(I_w_inv, tau)
+    return out
+
+
+def _rates_batch(state: Any, forces: Forces, kind: str) -> dict[str, Any]:
+    return lift(functools.partial(_rates, kind=kind))(state, forces)
+
+
+def _axpy(state: Any, h: Any, k: dict[str, Any]) -> Any:
+    return replace(state, **{n: getattr(state, n) + h * r for n, r in k.items() if r is not None})
+
+
+def _project(state: Any) -> Any:
+    if isinstance(state, State):
+        return replace(state, orientation=quat_normalize(state.orientation))
+    return replace(state, rotation=orthonormalize(state.rotation))
+
+
+def _drop_torque(forces: Forces, torque_free: bool) -> Forces:
+    return Forces(force=forces.force) if torque_free else forces
+
+
+def euler(state: Any, force_fn: Any, t: Any, dt: Any, kind: str, torque_free: bool) -> Any:
+    """Explicit Euler ``y ← y + dt f(y)``, then ``q`` normalised / ``R`` re-orthonormalised."""
+    k = _rates_batch(state, _drop_torque(force_fn(state, t), torque_free), kind)
+    return _project(_axpy(state, dt, k))
+
+
+def rk4(state: Any, force_fn: Any, t: Any, dt: Any, kind: str, torque_free: bool) -> Any:
+    """Classical RK4 as :mod:`rbjax._methods.rk4`, with the kind's rates."""
+    f = lambda s, tt: _rates_batch(s, _drop_torque(force_fn(s, tt), torque_free), kind)  # noqa: E731
+    k1 = f(state, t)
+    k2 = f(_axpy(state, dt / 2, k1), t + dt / 2)
+    k3 = f(_axpy(state, dt / 2, k2), t + dt / 2)
+    k4 = f(_axpy(state, dt, k3), t + dt)
+    incr = {n: None if k1[n] is None else (k1[n] + 2 * k2[n] + 2 * k3[n] + k4[n]) / 6 for n in k1}
+    return _project(_axpy(state, dt, incr))
+
+
+_EXPLICIT = {"euler": euler, "rk4": rk4}
+
+
+def explicit_step(method: str) -> Any:
+    """The specialised step of ``method`` (``"euler"``, ``"rk4"``) or ``None``."""
+    return _EXPLICIT.get(method)
+
+
+# MatrixState shares the algebra; listed for the dispatcher.
+SUPPORTED_STATES = (State, MatrixState)
