@@ -90,6 +90,7 @@ def simulate(
     *,
     save_every: int = 1,
     t0: ArrayLike = 0.0,
+    checkpoint: int | None = None,
 ) -> AnyState:
     """Integrate ``steps`` steps of ``dt`` with ``lax.scan`` and return the trajectory.
 
@@ -107,6 +108,14 @@ def simulate(
         method: integrator name (static).
         save_every: keep every ``save_every``-th state (static); must divide ``steps``.
         t0: start time (s).
+        checkpoint: segment length in steps for gradient checkpointing (static),
+            or ``None``. Reverse mode then stores only the state at each segment
+            boundary and recomputes one segment's forward pass while
+            differentiating it: memory ``O(steps/checkpoint + checkpoint)``
+            states instead of ``O(steps)``, for about one extra forward pass
+            (``checkpoint ≈ √steps`` minimises memory). Must divide ``steps`` and
+            either divide ``save_every`` or be a multiple of it. Values and
+            gradients are unchanged (to round-off). See :func:`_checkpointed_scan`.
 
     Returns:
         The trajectory, the same pytree type as ``state`` with a leading time axis
@@ -123,6 +132,7 @@ def simulate(
     if not isinstance(save_every, (int, np.integer)) or save_every < 1 or steps % save_every:
         raise ValueError(f"save_every must be a positive int dividing steps={steps}, got {save_every!r}")
     _check_dt(dt)
+    _check_checkpoint(checkpoint, steps, save_every)
     force_fn = None
     if isinstance(forces, Forces):
         series = _is_time_series(forces, state, steps)
@@ -135,11 +145,14 @@ def simulate(
     return _simulate(
         state, forces, jnp.asarray(dt), jnp.asarray(t0),
         steps=int(steps), method=method, save_every=int(save_every), series=series, force_fn=force_fn,
+        checkpoint=None if checkpoint is None else int(checkpoint),
     )
 
 
-@functools.partial(jax.jit, static_argnames=("steps", "method", "save_every", "series", "force_fn"))
-def _simulate(state, forces, dt, t0, *, steps, method, save_every, series, force_fn):
+@functools.partial(
+    jax.jit, static_argnames=("steps", "method", "save_every", "series", "force_fn", "checkpoint")
+)
+def _simulate(state, forces, dt, t0, *, steps, method, save_every, series, force_fn, checkpoint=None):
     step_fn = _methods.get(method, type(state))
     dtype = state.dtype
     dt, t0 = dt.astype(dtype), t0.astype(dtype)
@@ -158,14 +171,55 @@ def _simulate(state, forces, dt, t0, *, steps, method, save_every, series, force
             fn = as_force_fn(forces)
         return strip(step_fn(s, fn, t0 + k.astype(dtype) * dt, dt)), None
 
+    # checkpoint segments inside a saved chunk, or whole chunks grouped into segments
+    inner = checkpoint if checkpoint is not None and checkpoint < save_every else None
+    outer = checkpoint // save_every if checkpoint is not None and checkpoint >= save_every else None
+
     def chunk(dyn, xs):
-        dyn, _ = jax.lax.scan(one, dyn, xs)
+        dyn, _ = _checkpointed_scan(one, dyn, xs, inner)
         return dyn, dyn
 
     ks = jnp.arange(steps).reshape(n_out, save_every)
     fs = jax.tree.map(lambda a: a.reshape((n_out, save_every) + a.shape[1:]), forces) if series else None
     dyn0 = strip(state)
-    _, traj = jax.lax.scan(chunk, dyn0, (ks, fs))
+    _, traj = _checkpointed_scan(chunk, dyn0, (ks, fs), outer)
     traj = jax.tree.map(lambda a0, a: jnp.concatenate([a0[None], a]), dyn0, traj)
     return replace(traj, **consts)
 
+
+
+# --- gradient checkpointing (the ``checkpoint=`` option of ``simulate``) ---
+
+
+def _check_checkpoint(checkpoint: Any, steps: int, save_every: int) -> None:
+    if checkpoint is None:
+        return
+    if not isinstance(checkpoint, (int, np.integer)) or checkpoint < 1 or steps % checkpoint:
+        raise ValueError(
+            f"checkpoint must be None or a positive int dividing steps={steps}, got {checkpoint!r}"
+        )
+    if save_every % checkpoint and checkpoint % save_every:
+        raise ValueError(
+            f"checkpoint={checkpoint} must divide save_every={save_every} or be a multiple of it"
+        )
+
+
+def _checkpointed_scan(f, carry, xs, segment: int | None):
+    """``lax.scan(f, carry, xs)``, rematerialised in segments of ``segment`` iterations.
+
+    The scan is split into an outer scan over segments whose body, an inner scan
+    over one segment, is wrapped in ``jax.checkpoint``: reverse mode saves only
+    the carry entering each segment and recomputes the segment's residuals when
+    it reaches it. ``segment=None`` is the plain scan.
+    """
+    if segment is None:
+        return jax.lax.scan(f, carry, xs)
+    n = jax.tree.leaves(xs)[0].shape[0]
+    split = lambda a: a.reshape((n // segment, segment) + a.shape[1:])  # noqa: E731
+
+    @jax.checkpoint
+    def run_segment(c, seg_xs):
+        return jax.lax.scan(f, c, seg_xs)
+
+    carry, ys = jax.lax.scan(run_segment, carry, jax.tree.map(split, xs))
+    return carry, jax.tree.map(lambda a: a.reshape((n,) + a.shape[2:]), ys)
