@@ -9,7 +9,8 @@ inside is written for one body and lifted with :func:`rbjax._batching.lift`.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 __all__ = ["Method", "register", "get", "available"]
 
