@@ -9,127 +9,56 @@ from __future__ import annotations
 from . import _methods
 from ._body import (
     TRIANGLE_RTOL as TRIANGLE_RTOL,
-)
-from ._body import (
     Body as Body,
-)
-from ._body import (
     box as box,
-)
-from ._body import (
     cylinder as cylinder,
-)
-from ._body import (
     ellipsoid as ellipsoid,
-)
-from ._body import (
     from_particles as from_particles,
-)
-from ._body import (
     parallel_axis as parallel_axis,
-)
-from ._body import (
     rotate_inertia as rotate_inertia,
-)
-from ._body import (
     sphere as sphere,
 )
 from ._dynamics import derivative as derivative
-
-# --- differentiable trajectories and inertia fitting ---
-from ._fit import FitResult as FitResult
-from ._fit import fit_inertia as fit_inertia
-from ._fit import fit_inertia_linear as fit_inertia_linear
-from ._inertia_param import (
-    inertia_from_params as inertia_from_params,
-)
-from ._inertia_param import (
-    params_from_inertia as params_from_inertia,
-)
-from ._inertia_param import (
-    second_moment as second_moment,
-)
 from ._math import (
     cross as cross,
-)
-from ._math import (
     matrix_to_quat as matrix_to_quat,
-)
-from ._math import (
     orthonormalize as orthonormalize,
-)
-from ._math import (
     quat_angle as quat_angle,
-)
-from ._math import (
     quat_conjugate as quat_conjugate,
-)
-from ._math import (
     quat_exp as quat_exp,
-)
-from ._math import (
     quat_log as quat_log,
-)
-from ._math import (
     quat_multiply as quat_multiply,
-)
-from ._math import (
     quat_normalize as quat_normalize,
-)
-from ._math import (
     quat_rotate as quat_rotate,
-)
-from ._math import (
     quat_to_matrix as quat_to_matrix,
-)
-from ._math import (
     safe_norm as safe_norm,
-)
-from ._math import (
     skew as skew,
 )
 from ._quantities import (
     angular_momentum as angular_momentum,
-)
-from ._quantities import (
     angular_velocity as angular_velocity,
-)
-from ._quantities import (
     body_angular_velocity as body_angular_velocity,
-)
-from ._quantities import (
     kinetic_energy as kinetic_energy,
-)
-from ._quantities import (
     linear_momentum as linear_momentum,
-)
-from ._quantities import (
     orientation as orientation,
-)
-from ._quantities import (
     rotation_matrix as rotation_matrix,
-)
-from ._quantities import (
     to_matrix_state as to_matrix_state,
-)
-from ._quantities import (
     to_state as to_state,
-)
-from ._quantities import (
     world_inertia as world_inertia,
 )
-from ._simulate import simulate as simulate
-from ._simulate import step as step
+from ._simulate import simulate as simulate, step as step
+
+# --- differentiable trajectories and inertia fitting ---
+from ._fit import FitResult as FitResult, fit_inertia as fit_inertia, fit_inertia_linear as fit_inertia_linear
+from ._inertia_param import (
+    inertia_from_params as inertia_from_params,
+    params_from_inertia as params_from_inertia,
+    second_moment as second_moment,
+)
 from ._state import (
     Forces as Forces,
-)
-from ._state import (
     MatrixState as MatrixState,
-)
-from ._state import (
     ParticleState as ParticleState,
-)
-from ._state import (
     State as State,
 )
 

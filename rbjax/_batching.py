@@ -11,8 +11,7 @@ Arguments that are not rbjax pytrees (``dt``, ``t``) are always shared.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Any
+from typing import Any, Callable
 
 import jax
 

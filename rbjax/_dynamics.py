@@ -20,7 +20,7 @@ from ._batching import lift
 from ._math import cross, quat_multiply, skew
 from ._pytree import replace
 from ._quantities import _omega_world
-from ._state import AnyState, Forces, ParticleState, State, _apply
+from ._state import AnyState, Forces, MatrixState, ParticleState, State, _apply
 
 __all__ = ["derivative"]
 

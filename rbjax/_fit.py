@@ -192,7 +192,7 @@ def _identifiability(MtM: np.ndarray, tol: float, torque_free: bool) -> None:
     # a readable basis: reduced row echelon form of the span (entries that move together)
     terms = []
     for v in _rref_columns(basis):
-        parts = [f"{c:+.2f}·{n}" for c, n in zip(v, _ENTRIES) if abs(c) > 1e-3]
+        parts = [f"{c:+.2f}·{n}" for c, n in zip(v, _ENTRIES, strict=True) if abs(c) > 1e-3]
         terms.append(" ".join(parts))
     raise ValueError(
         "fit_inertia: too little excitation to identify the inertia. Relative singular values of "

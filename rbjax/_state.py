@@ -6,8 +6,7 @@ All vectors are in the world frame unless a name says otherwise; SI units
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Any, Union
+from typing import Any, Callable, Union
 
 import jax.numpy as jnp
 import numpy as np
@@ -130,7 +129,7 @@ class State:
         velocity: ArrayLike | None = None,
         orientation: ArrayLike | None = None,
         angular_velocity: ArrayLike | None = None,
-    ) -> State:
+    ) -> "State":
         """State from kinematic quantities; missing ones are zero / identity.
 
         ``angular_velocity`` ``ω`` is in the world frame (rad/s); the stored
@@ -197,7 +196,7 @@ class MatrixState:
         velocity: ArrayLike | None = None,
         orientation: ArrayLike | None = None,
         angular_velocity: ArrayLike | None = None,
-    ) -> MatrixState:
+    ) -> "MatrixState":
         """State from kinematic quantities, as :meth:`State.create`.
 
         ``orientation`` is a unit quaternion ``[w, x, y, z]`` or a ``(3, 3)``
@@ -256,7 +255,7 @@ class ParticleState:
         *,
         position: ArrayLike | None = None,
         velocity: ArrayLike | None = None,
-    ) -> ParticleState:
+    ) -> "ParticleState":
         """Particles from mass (kg) and optional position and velocity (zeros)."""
         m = _as_float(mass)
         dtype = _dtype_of(None, m, position, velocity)
@@ -306,19 +305,19 @@ class Forces:
         _check_vectors("Forces", force=self.force, torque=self.torque)
 
     @classmethod
-    def at_point(cls, force: ArrayLike, point: ArrayLike, state: AnyState) -> Forces:
+    def at_point(cls, force: ArrayLike, point: ArrayLike, state: AnyState) -> "Forces":
         """Force ``F`` applied at world point ``p``: torque ``τ = (p - x) × F``."""
         f = _as_float(force)
         return cls(force=f, torque=cross(jnp.asarray(point) - state.position, f))
 
     @classmethod
-    def gravity(cls, state: AnyState, g: ArrayLike = (0.0, 0.0, -9.81)) -> Forces:
+    def gravity(cls, state: AnyState, g: ArrayLike = (0.0, 0.0, -9.81)) -> "Forces":
         """Uniform gravity ``F = m g`` (world frame, m/s²), no torque."""
         m = state.mass if isinstance(state, ParticleState) else state.body.mass
         g = jnp.asarray(g, dtype=state.dtype)
         return cls(force=jnp.broadcast_to(m[..., None] * g, state.position.shape))
 
-    def __add__(self, other: Forces) -> Forces:
+    def __add__(self, other: "Forces") -> "Forces":
         def add(a: Array | None, b: Array | None) -> Array | None:
             if a is None:
                 return b

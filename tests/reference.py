@@ -8,7 +8,7 @@ than one implementation against itself.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from typing import Callable
 
 import numpy as np
 from scipy.integrate import solve_ivp

@@ -19,7 +19,7 @@ W0 = np.array([0.3, 3.0, 0.4])  # near the intermediate axis: a tumble that exci
 
 def _record(times, torque=None, I=I_TRUE, w0=W0):
     q, w = reference_rotation(I, np.array([1.0, 0, 0, 0]), w0, times, torque_world=torque)
-    wb = np.stack([qrot(qi * np.array([1, -1, -1, -1]), wi) for qi, wi in zip(q, w)])
+    wb = np.stack([qrot(qi * np.array([1, -1, -1, -1]), wi) for qi, wi in zip(q, w, strict=True)])
     return q, wb
 
 
@@ -27,7 +27,7 @@ def _noisy(q, wb, rng, sq=1e-3, sw=0.01):
     rv = rng.normal(0, sq, wb.shape)
     ang = np.linalg.norm(rv, axis=1, keepdims=True)
     dq = np.concatenate([np.cos(ang / 2), np.sin(ang / 2) * rv / ang], axis=1)
-    qn = np.stack([qmul(a, b) for a, b in zip(q, dq)])
+    qn = np.stack([qmul(a, b) for a, b in zip(q, dq, strict=True)])
     return qn / np.linalg.norm(qn, axis=1, keepdims=True), wb + rng.normal(0, sw, wb.shape)
 
 
@@ -90,7 +90,8 @@ def test_known_torques_give_absolute_inertia():
 def test_batch_compiles_once_and_matches_single_fits():
     rng = np.random.default_rng(5)
     bodies = [I_TRUE, np.diag([1.0, 1.5, 2.2]), np.diag([2.0, 1.1, 2.9])]
-    recs = [_record(T_FAST, I=I, w0=w) for I, w in zip(bodies, [W0, [2.0, 0.5, 1.0], [0.4, 2.5, 0.6]])]
+    spins = [W0, [2.0, 0.5, 1.0], [0.4, 2.5, 0.6]]
+    recs = [_record(T_FAST, I=I, w0=w) for I, w in zip(bodies, spins, strict=True)]
     qs = np.stack([_noisy(q, wb, rng)[0] for q, wb in recs])
     before = _fit._fit_batch._cache_size()
     res = rb.fit_inertia(T_FAST, qs, segments=2)

@@ -41,7 +41,7 @@ def _args(seed=0, w0=(0.4, 2.0, -0.3), r0=(0.2, -0.1, 0.3), I=(1.0, 2.0, 2.6, 0.
 @pytest.mark.parametrize("method", METHODS)
 def test_fwd_and_rev_match_finite_differences(method):
     # a random projection makes a scalar loss touching every output component
-    proj = jnp.asarray(np.random.default_rng(1).normal(size=21))
+    proj = jnp.asarray(np.random.default_rng(1).normal(size=18))
     loss = lambda *a: jnp.dot(proj, _final(method, *a))  # noqa: E731
     # float64 central differences with step 1e-4 (check_grads default): truncation ~1e-8
     # relative; check_grads' default float64 tolerance (1e-5) has a wide margin
@@ -51,7 +51,7 @@ def test_fwd_and_rev_match_finite_differences(method):
     a = _args()
     Jf = jax.jacfwd(f, argnums=(0, 1))(a[5], a[1])
     Jr = jax.jacrev(f, argnums=(0, 1))(a[5], a[1])
-    for x, y in zip(Jf, Jr):
+    for x, y in zip(Jf, Jr, strict=True):
         np.testing.assert_allclose(x, y, rtol=1e-10, atol=1e-12)
 
 
@@ -95,12 +95,13 @@ def test_checkpointing_gives_the_same_gradient(method):
     def loss(ck, *x):
         return jnp.sum(_final(method, *x, checkpoint=ck, steps=steps) ** 2)
 
-    g0 = jax.grad(lambda *x: loss(None, *x), argnums=tuple(range(9)))(*a)
-    for ck in (4, 12):
-        g = jax.grad(lambda *x: loss(ck, *x), argnums=tuple(range(9)))(*a)
-        for x, y in zip(jax.tree.leaves(g), jax.tree.leaves(g0)):
-            # the same arithmetic recomputed: equal up to XLA re-association, ~1e-15 relative
-            np.testing.assert_allclose(x, y, rtol=1e-12, atol=1e-14)
+    # inertia, initial rotation, initial spin, torque series, dt
+    args = (1, 2, 5, 7, 8)
+    g0 = jax.grad(lambda *x: loss(None, *x), argnums=args)(*a)
+    g = jax.grad(lambda *x: loss(12, *x), argnums=args)(*a)
+    for x, y in zip(jax.tree.leaves(g), jax.tree.leaves(g0), strict=True):
+        # the same arithmetic recomputed: equal up to XLA re-association, ~1e-15 relative
+        np.testing.assert_allclose(x, y, rtol=1e-12, atol=1e-14)
 
 
 def test_checkpoint_with_save_every_and_bad_values():
@@ -117,11 +118,13 @@ def test_checkpoint_with_save_every_and_bad_values():
 
 def test_checkpoint_reduces_compiled_memory():
     def loss(w, ck):
-        s = rb.State.create(rb.box(1.0, jnp.array([1.0, 2.0, 3.0])), angular_velocity=jnp.broadcast_to(w, (64, 3)))
-        return jnp.sum(rb.simulate(s, None, 1e-3, 4096, "rk4", save_every=4096, checkpoint=ck).angular_momentum)
+        body = rb.box(1.0, jnp.array([1.0, 2.0, 3.0]))
+        s = rb.State.create(body, angular_velocity=jnp.broadcast_to(w, (64, 3)))
+        q = rb.simulate(s, None, 1e-3, 4096, "rk4", save_every=4096, checkpoint=ck).orientation
+        return jnp.sum(q[-1] * jnp.arange(4.0))  # torque-free L is constant: use the orientation
 
     w = jnp.array([0.1, 2.0, 0.1])
-    mem = {ck: jax.jit(jax.grad(loss), static_argnums=1).lower(w, ck).compile().memory_analysis().temp_size_in_bytes
-           for ck in (None, 64)}
+    mem = {ck: jax.jit(jax.grad(loss), static_argnums=1).lower(w, ck).compile().memory_analysis()
+           .temp_size_in_bytes for ck in (None, 64)}
     # 4096 steps stored vs 64 boundaries + one 64-step segment: at least 10x less
     assert mem[64] * 10 < mem[None], mem

@@ -9,8 +9,7 @@ inside is written for one body and lifted with :func:`rbjax._batching.lift`.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
-from typing import Any
+from typing import Any, Callable
 
 __all__ = ["Method", "register", "get", "available"]
 
