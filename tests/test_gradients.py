@@ -119,12 +119,12 @@ def test_checkpoint_with_save_every_and_bad_values():
 def test_checkpoint_reduces_compiled_memory():
     def loss(w, ck):
         body = rb.box(1.0, jnp.array([1.0, 2.0, 3.0]))
-        s = rb.State.create(body, angular_velocity=jnp.broadcast_to(w, (64, 3)))
-        q = rb.simulate(s, None, 1e-3, 4096, "rk4", save_every=4096, checkpoint=ck).orientation
+        s = rb.State.create(body, angular_velocity=jnp.broadcast_to(w, (8, 3)))
+        q = rb.simulate(s, None, 1e-3, 1024, "rk4", save_every=1024, checkpoint=ck).orientation
         return jnp.sum(q[-1] * jnp.arange(4.0))  # torque-free L is constant: use the orientation
 
     w = jnp.array([0.1, 2.0, 0.1])
     mem = {ck: jax.jit(jax.grad(loss), static_argnums=1).lower(w, ck).compile().memory_analysis()
-           .temp_size_in_bytes for ck in (None, 64)}
-    # 4096 steps stored vs 64 boundaries + one 64-step segment: at least 10x less
-    assert mem[64] * 10 < mem[None], mem
+           .temp_size_in_bytes for ck in (None, 32)}
+    # 1024 steps stored vs 32 boundaries + one 32-step segment: ~16x less; assert 5x
+    assert mem[32] * 5 < mem[None], mem
