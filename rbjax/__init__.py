@@ -106,6 +106,15 @@ from ._quantities import (
 )
 from ._simulate import simulate as simulate
 from ._simulate import step as step
+from ._simulate import simulate as simulate, step as step
+
+# --- differentiable trajectories and inertia fitting ---
+from ._fit import FitResult as FitResult, fit_inertia as fit_inertia, fit_inertia_linear as fit_inertia_linear
+from ._inertia_param import (
+    inertia_from_params as inertia_from_params,
+    params_from_inertia as params_from_inertia,
+    second_moment as second_moment,
+)
 from ._state import (
     Forces as Forces,
 )

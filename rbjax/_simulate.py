@@ -92,6 +92,7 @@ def simulate(
     save_every: int = 1,
     t0: ArrayLike = 0.0,
     checked: bool | _checked.Checks = False,
+    checkpoint: int | None = None,
 ) -> AnyState:
     """Integrate ``steps`` steps of ``dt`` with ``lax.scan`` and return the trajectory.
 
@@ -117,6 +118,14 @@ def simulate(
             frame for an energy jump, raising an error that names the step and the
             body's batch index (works under ``jit``; see :class:`rbjax.Checks`).
             ``False`` (default) compiles no checks at all.
+        checkpoint: segment length in steps for gradient checkpointing (static),
+            or ``None``. Reverse mode then stores only the state at each segment
+            boundary and recomputes one segment's forward pass while
+            differentiating it: memory ``O(steps/checkpoint + checkpoint)``
+            states instead of ``O(steps)``, for about one extra forward pass
+            (``checkpoint ≈ √steps`` minimises memory). Must divide ``steps`` and
+            either divide ``save_every`` or be a multiple of it. Values and
+            gradients are unchanged (to round-off). See :func:`_checkpointed_scan`.
 
     Returns:
         The trajectory, the same pytree type as ``state`` with a leading time axis
@@ -127,10 +136,12 @@ def simulate(
 
     A new callable ``forces`` object compiles anew (it is a static argument).
     """
-    return _run(state, forces, dt, steps, method, save_every=save_every, t0=t0, checked=checked)
+    return _run(
+        state, forces, dt, steps, method, save_every=save_every, t0=t0, checked=checked, checkpoint=checkpoint
+    )
 
 
-def _run(state, forces, dt, steps, method, *, save_every, t0, checked, step_offset=0):
+def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoint=None, step_offset=0):
     """``simulate`` after its signature; ``step_offset`` numbers steps in checked-mode errors."""
     if not callable(method):  # a callable is a step fn, e.g. a Scene's specialised kernel
         _methods.get(method, type(state))
@@ -139,6 +150,7 @@ def _run(state, forces, dt, steps, method, *, save_every, t0, checked, step_offs
     if not isinstance(save_every, (int, np.integer)) or save_every < 1 or steps % save_every:
         raise ValueError(f"save_every must be a positive int dividing steps={steps}, got {save_every!r}")
     _check_dt(dt)
+    _check_checkpoint(checkpoint, steps, save_every)
     force_fn = None
     if isinstance(forces, Forces):
         series = _is_time_series(forces, state, steps)
@@ -154,7 +166,7 @@ def _run(state, forces, dt, steps, method, *, save_every, t0, checked, step_offs
     out = _simulate(
         state, forces, jnp.asarray(dt), jnp.asarray(t0),
         steps=int(steps), method=method, save_every=int(save_every), series=series, force_fn=force_fn,
-        checks=checks,
+        checks=checks, checkpoint=None if checkpoint is None else int(checkpoint),
     )
     if checks is None:
         return out
@@ -165,8 +177,13 @@ def _run(state, forces, dt, steps, method, *, save_every, t0, checked, step_offs
     )
 
 
-@functools.partial(jax.jit, static_argnames=("steps", "method", "save_every", "series", "force_fn", "checks"))
-def _simulate(state, forces, dt, t0, *, steps, method, save_every, series, force_fn, checks=None):
+@functools.partial(
+    jax.jit,
+    static_argnames=("steps", "method", "save_every", "series", "force_fn", "checks", "checkpoint"),
+)
+def _simulate(
+    state, forces, dt, t0, *, steps, method, save_every, series, force_fn, checks=None, checkpoint=None
+):
     step_fn = method if callable(method) else _methods.get(method, type(state))
     dtype = state.dtype
     dt, t0 = dt.astype(dtype), t0.astype(dtype)
@@ -190,8 +207,12 @@ def _simulate(state, forces, dt, t0, *, steps, method, save_every, series, force
             rec = _checked.after_step(rec, new, k + 1, checks, steps)
         return (strip(new), rec), None
 
+    # checkpoint segments inside a saved chunk, or whole chunks grouped into segments
+    inner = checkpoint if checkpoint is not None and checkpoint < save_every else None
+    outer = checkpoint // save_every if checkpoint is not None and checkpoint >= save_every else None
+
     def chunk(carry, xs):
-        (dyn, rec), _ = jax.lax.scan(one, carry, xs)
+        (dyn, rec), _ = _checkpointed_scan(one, carry, xs, inner)
         if checks is not None:
             rec = _checked.after_save(rec, replace(dyn, **consts), xs[0][-1] + 1, checks, steps)
         return (dyn, rec), dyn
@@ -200,8 +221,45 @@ def _simulate(state, forces, dt, t0, *, steps, method, save_every, series, force
     fs = jax.tree.map(lambda a: a.reshape((n_out, save_every) + a.shape[1:]), forces) if series else None
     dyn0 = strip(state)
     rec0 = None if checks is None else _checked.init_record(state, checks)
-    (_, rec), traj = jax.lax.scan(chunk, (dyn0, rec0), (ks, fs))
+    (_, rec), traj = _checkpointed_scan(chunk, (dyn0, rec0), (ks, fs), outer)
     traj = jax.tree.map(lambda a0, a: jnp.concatenate([a0[None], a]), dyn0, traj)
     traj = replace(traj, **consts)
     return traj if checks is None else (traj, rec)
 
+
+
+# --- gradient checkpointing (the ``checkpoint=`` option of ``simulate``) ---
+
+
+def _check_checkpoint(checkpoint: Any, steps: int, save_every: int) -> None:
+    if checkpoint is None:
+        return
+    if not isinstance(checkpoint, (int, np.integer)) or checkpoint < 1 or steps % checkpoint:
+        raise ValueError(
+            f"checkpoint must be None or a positive int dividing steps={steps}, got {checkpoint!r}"
+        )
+    if save_every % checkpoint and checkpoint % save_every:
+        raise ValueError(
+            f"checkpoint={checkpoint} must divide save_every={save_every} or be a multiple of it"
+        )
+
+
+def _checkpointed_scan(f, carry, xs, segment: int | None):
+    """``lax.scan(f, carry, xs)``, rematerialised in segments of ``segment`` iterations.
+
+    The scan is split into an outer scan over segments whose body, an inner scan
+    over one segment, is wrapped in ``jax.checkpoint``: reverse mode saves only
+    the carry entering each segment and recomputes the segment's residuals when
+    it reaches it. ``segment=None`` is the plain scan.
+    """
+    if segment is None:
+        return jax.lax.scan(f, carry, xs)
+    n = jax.tree.leaves(xs)[0].shape[0]
+    split = lambda a: a.reshape((n // segment, segment) + a.shape[1:])  # noqa: E731
+
+    @jax.checkpoint
+    def run_segment(c, seg_xs):
+        return jax.lax.scan(f, c, seg_xs)
+
+    carry, ys = jax.lax.scan(run_segment, carry, jax.tree.map(split, xs))
+    return carry, jax.tree.map(lambda a: a.reshape((n,) + a.shape[2:]), ys)

@@ -1,0 +1,74 @@
+"""Unconstrained parameters for physically consistent inertia tensors.
+
+Every rigid body's inertia about its centre of mass is
+``I = tr(Σ) 1 - Σ`` with ``Σ = ∫ r rᵀ dm`` the (positive semi-definite)
+second-moment matrix; conversely ``Σ = ½ tr(I) 1 - I``. ``I`` is physically
+consistent (positive definite and meeting the triangle inequalities
+``Ij + Ik ≥ Ii``) exactly when ``Σ`` is positive semi-definite, and strictly so
+when ``Σ`` is positive definite. Writing ``Σ = L Lᵀ`` with ``L`` lower triangular
+and ``L_ii = exp(θ_i)`` (log-Cholesky; Rucker & Wensing, "Smooth Parameterization
+of Rigid-Body Inertia", IEEE RA-L 2022) makes every ``θ ∈ ℝ⁶`` a valid inertia and
+every valid inertia reachable exactly once: an unconstrained, smooth
+parametrisation for gradient-based fitting.
+
+Parameter order: ``θ = (log L00, log L11, log L22, L10, L20, L21)``. Units: ``L``
+in ``√(kg) m``, so ``I`` in kg m².
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jax import Array
+from jax.typing import ArrayLike
+
+__all__ = ["inertia_from_params", "params_from_inertia", "second_moment"]
+
+
+def _lower(theta: Array) -> Array:
+    z = jnp.zeros_like(theta[..., 0])
+    d0, d1, d2 = jnp.exp(theta[..., 0]), jnp.exp(theta[..., 1]), jnp.exp(theta[..., 2])
+    l10, l20, l21 = theta[..., 3], theta[..., 4], theta[..., 5]
+    return jnp.stack(
+        [jnp.stack([d0, z, z], -1), jnp.stack([l10, d1, z], -1), jnp.stack([l20, l21, d2], -1)], -2
+    )
+
+
+def inertia_from_params(theta: ArrayLike) -> Array:
+    """Inertia tensor ``(..., 3, 3)`` (body frame, kg m²) from log-Cholesky ``θ`` ``(..., 6)``.
+
+    ``L = [[e^θ0, 0, 0], [θ3, e^θ1, 0], [θ4, θ5, e^θ2]]``, ``Σ = L Lᵀ``,
+    ``I = tr(Σ) 1 - Σ``. Always symmetric positive definite with strict triangle
+    inequalities (for finite ``θ``); smooth, so gradients flow to ``θ``.
+    """
+    theta = jnp.asarray(theta)
+    if theta.shape[-1:] != (6,):
+        raise ValueError(f"inertia_from_params: theta must end in (6,), got shape {theta.shape}")
+    L = _lower(theta)
+    sigma = L @ jnp.swapaxes(L, -1, -2)
+    tr = jnp.trace(sigma, axis1=-2, axis2=-1)
+    return tr[..., None, None] * jnp.eye(3, dtype=sigma.dtype) - sigma
+
+
+def second_moment(inertia: ArrayLike) -> Array:
+    """Second-moment matrix ``Σ = ½ tr(I) 1 - I`` ``(..., 3, 3)`` of an inertia tensor."""
+    I = jnp.asarray(inertia)
+    tr = jnp.trace(I, axis1=-2, axis2=-1)
+    return 0.5 * tr[..., None, None] * jnp.eye(3, dtype=I.dtype) - I
+
+
+def params_from_inertia(inertia: ArrayLike) -> Array:
+    """Log-Cholesky parameters ``θ`` ``(..., 6)`` of a physically consistent inertia ``(..., 3, 3)``.
+
+    Inverse of :func:`inertia_from_params`: ``Σ = ½ tr(I) 1 - I = L Lᵀ``
+    (Cholesky), ``θ = (log diag L, L10, L20, L21)``. An inertia that is not
+    strictly consistent (``Σ`` not positive definite: a flat plate, a rod, or
+    an impossible tensor) gives NaN; check it with :class:`rbjax.Body` first.
+    """
+    L = jnp.linalg.cholesky(second_moment(inertia))
+    return jnp.stack(
+        [
+            jnp.log(L[..., 0, 0]), jnp.log(L[..., 1, 1]), jnp.log(L[..., 2, 2]),
+            L[..., 1, 0], L[..., 2, 0], L[..., 2, 1],
+        ],
+        axis=-1,
+    )
