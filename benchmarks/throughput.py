@@ -254,10 +254,11 @@ def main(argv=None) -> int:
     p.add_argument("--quick", action="store_true", help="small sizes, < 1 minute")
     p.add_argument("--methods", default="all", help="comma-separated rbjax methods (default: all registered)")
     p.add_argument("--no-peers", action="store_true", help="skip MuJoCo and MJX")
-    p.add_argument("--json", default=os.path.join(ROOT, "benchmarks", "results", "throughput.json"))
+    p.add_argument("--json", default=None, help="output (default results/throughput[_quick].json)")
     args = p.parse_args(argv)
-    if args.quick and args.json.endswith("throughput.json"):
-        args.json = args.json[: -len(".json")] + "_quick.json"
+    if args.json is None:
+        name = "throughput_quick.json" if args.quick else "throughput.json"
+        args.json = os.path.join(ROOT, "benchmarks", "results", name)
     sizes = [100, 10_000] if args.quick else [1, 10, 100, 1_000, 10_000, 100_000, 1_000_000]
     methods = list(rb.methods(rb.State)) if args.methods == "all" else args.methods.split(",")
     dtypes = [np.float32] if args.quick else [np.float32, np.float64]

@@ -463,7 +463,7 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--problems",
         default="all",
-        help="comma-separated subset of " + ",".join(problems()) + " (--quick: t_handle,thruster)",
+        help="comma-separated subset of " + ",".join(problems()) + " (--quick: thruster)",
     )
     ap.add_argument("--out", default=os.path.join(ROOT, "benchmarks", "results"), help="output folder")
     ap.add_argument("--no-diffrax", action="store_true", help="skip the diffrax peer")
@@ -471,7 +471,7 @@ def main(argv=None) -> int:
 
     probs = problems()
     if args.problems == "all" and args.quick:
-        args.problems = "t_handle,thruster"  # one torque-free, one callable-force problem
+        args.problems = "thruster"  # the richest code path: an orientation-dependent force callable
     if args.problems != "all":
         probs = {k: probs[k] for k in args.problems.split(",")}
     if args.quick:
