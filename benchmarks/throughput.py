@@ -174,6 +174,8 @@ def mujoco_xml(n: int, integrator: str) -> str:
     return (
         f'<mujoco><option timestep="{DT}" integrator="{integrator}" gravity="0 0 0">'
         '<flag contact="disable" constraint="disable"/></option>'
+        # the default arena runs out by N ~ 1e4 free bodies; ~10 kB per body is ample
+        f'<size memory="{max(16, n // 100)}M"/>'
         f"<worldbody>{bodies}</worldbody></mujoco>"
     )
 
@@ -257,6 +259,7 @@ def main(argv=None) -> int:
     p.add_argument("--quick", action="store_true", help="small sizes, < 1 minute")
     p.add_argument("--methods", default="all", help="comma-separated rbjax methods (default: all registered)")
     p.add_argument("--no-peers", action="store_true", help="skip MuJoCo and MJX")
+    p.add_argument("--dtypes", default=None, help="comma-separated, e.g. float32 (default: float32,float64)")
     p.add_argument("--json", default=None, help="output (default results/throughput[_quick].json)")
     args = p.parse_args(argv)
     if args.json is None:
@@ -265,6 +268,8 @@ def main(argv=None) -> int:
     sizes = [100, 10_000] if args.quick else [1, 10, 100, 1_000, 10_000, 100_000, 1_000_000]
     methods = list(rb.methods(rb.State)) if args.methods == "all" else args.methods.split(",")
     dtypes = [np.float32] if args.quick else [np.float32, np.float64]
+    if args.dtypes:
+        dtypes = [np.dtype(d).type for d in args.dtypes.split(",")]
     budget = 1e6 if args.quick else 2e7  # body-steps per timed run
     peers = {}
     if not args.no_peers:
@@ -274,7 +279,7 @@ def main(argv=None) -> int:
                 peers[mod] = True
             except Exception as e:  # noqa: BLE001  (an optional peer may fail to import in many ways)
                 print(f"{mod} unavailable ({type(e).__name__}: {e}); pip install -e '.[bench]'")
-    mj_sizes = [n for n in sizes if n <= (100 if args.quick else 100_000)]
+    mj_sizes = [n for n in sizes if n <= (100 if args.quick else 10_000)]
     mjx_sizes = [] if args.quick else [n for n in sizes if n <= 10_000]
 
     hw = measure_machine(args.quick)
@@ -356,7 +361,11 @@ def main(argv=None) -> int:
         for integ in ("Euler", "RK4"):
             for n in mj_sizes:
                 steps = int(max(2, min(500, budget / 20 // n)))
-                r = time_mujoco(n, integ, steps)
+                try:
+                    r = time_mujoco(n, integ, steps)
+                except Exception as e:  # noqa: BLE001  (a peer failing must not lose the rbjax rows)
+                    print(f"mujoco {integ} N={n}: failed ({e})", flush=True)
+                    continue
                 rows.append(
                     dict(
                         engine="mujoco",
@@ -372,7 +381,11 @@ def main(argv=None) -> int:
     if "mujoco.mjx" in peers:
         for n in mjx_sizes:
             steps = int(max(2, min(100, 2e4 // n)))
-            r = time_mjx(n, steps)
+            try:
+                r = time_mjx(n, steps)
+            except Exception as e:  # noqa: BLE001
+                print(f"mjx N={n}: failed ({e})", flush=True)
+                continue
             rows.append(
                 dict(
                     engine="mjx",
@@ -479,7 +492,7 @@ def table(rows, hw, goals) -> str:
         )
     out += [
         "",
-        "| peer | integrator | dtype | N | body-steps/s | rbjax same N (euler/rk4, same dtype) | ratio |",
+        "| peer | integrator | dtype | N | body-steps/s | rbjax, same N (dtype if run) | ratio |",
         "|---|---|---|---:|---:|---:|---:|",
     ]
     for r in rows:
@@ -488,6 +501,8 @@ def table(rows, hw, goals) -> str:
         m = "rk4" if r["method"] == "RK4" else "euler"
         dt = "float32" if r["engine"] == "mjx" and "32" in r["dtype"] else r["dtype"]
         ours = _rate(rows, engine="rbjax", method=m, dtype=dt, bodies=r["bodies"])
+        if ours is None:  # that dtype was not run (--dtypes): compare with what was
+            ours = _rate(rows, engine="rbjax", method=m, bodies=r["bodies"])
         out.append(
             f"| {r['engine']} | {r['method']} | {r['dtype']} | {r['bodies']:,} | "
             f"{r['body_steps_per_s']:.2e} | "
