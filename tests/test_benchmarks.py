@@ -1,0 +1,114 @@
+"""The benchmarks' --quick modes run and write well-formed, physically sane output.
+
+They check that the scripts keep working as rbjax changes (new methods appear
+automatically), not how fast anything is: timings on a shared machine are noise.
+Both quick runs start together (separate processes) to keep this file near a minute.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+
+import pytest
+
+ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
+BENCH = os.path.join(ROOT, "benchmarks")
+
+
+@pytest.fixture(scope="module")
+def quick_runs(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench")
+    env = dict(os.environ, PYTHONPATH=ROOT, JAX_PLATFORMS="cpu")
+    cmds = {
+        "work_precision": [
+            sys.executable,
+            os.path.join(BENCH, "work_precision.py"),
+            "--quick",
+            "--out",
+            str(out),
+        ],
+        "throughput": [
+            sys.executable,
+            os.path.join(BENCH, "throughput.py"),
+            "--quick",
+            "--json",
+            str(out / "throughput.json"),
+        ],
+    }
+    procs = {
+        k: subprocess.Popen(c, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        for k, c in cmds.items()
+    }
+    logs = {k: p.communicate(timeout=300)[0] for k, p in procs.items()}
+    for k, p in procs.items():
+        assert p.returncode == 0, f"{k} --quick failed:\n{logs[k][-3000:]}"
+    return out, logs
+
+
+def test_work_precision_quick_output(quick_runs):
+    import rbjax as rb
+
+    out, _ = quick_runs
+    data = json.loads((out / "work_precision_quick.json").read_text())
+    assert (out / "work_precision_quick.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    md = (out / "work_precision_quick.md").read_text()
+    assert "| 1e-3 |" in md and "| 1e-10 |" in md
+    for name, rows in data["results"].items():
+        methods = {r["method"] for r in rows if r["solver"] == "rbjax"}
+        assert methods == set(rb.methods(rb.State)), f"{name}: every registered method is benchmarked"
+        for r in rows:
+            assert r["time_per_body_s"] > 0 and r["compile_s"] > 0
+        rk4 = sorted(
+            (r["steps"], r["err_angle"])
+            for r in rows
+            if r["solver"] == "rbjax" and r["method"] == "rk4" and r["dtype"] == "float64"
+        )
+        errs = [e for _, e in rk4]
+        # RK4 is 4th order: each 4x refinement divides the error by ~256 in the asymptotic range; asking only
+        # for > 30x per 4x (order > 2.4) between the two finest float64 points leaves room for the
+        # pre-asymptotic regime of the separatrix problem while failing for any first- or second-order bug.
+        assert errs[-2] / errs[-1] > 30, f"{name}: rk4 angle errors {errs}"
+        assert all(a > b for a, b in zip(errs, errs[1:], strict=False)), (
+            f"{name}: rk4 error must fall as dt falls: {errs}"
+        )
+        # float32 cannot beat its own rounding: the best float32 angle error stays above ~eps32 = 1.2e-7
+        e32 = [r["err_angle"] for r in rows if r["solver"] == "rbjax" and r["dtype"] == "float32"]
+        assert min(e32) > 1e-8
+        peer = sorted((r["tol"], r["err_angle"]) for r in rows if r["solver"] == "diffrax")
+        if peer:  # a tighter tolerance gives a smaller error (1e-4 -> 1e-7: at least 10x)
+            assert peer[0][1] * 10 < peer[-1][1], f"{name}: diffrax errors {peer}"
+
+
+def test_throughput_quick_output(quick_runs):
+    import rbjax as rb
+
+    out, _ = quick_runs
+    data = json.loads((out / "throughput.json").read_text())
+    rows = data["rows"]
+    ours = [r for r in rows if r["engine"] == "rbjax"]
+    assert {r["method"] for r in ours} == set(rb.methods(rb.State))
+    for r in rows:
+        assert math.isfinite(r["body_steps_per_s"]) and r["body_steps_per_s"] > 0
+    for r in ours:
+        assert r["flops"] > 0 and 0 < r["roofline_fraction"]
+        # state read + written (13 values) and I_L^-1 read (9), 4 bytes each in float32
+        assert r["bytes_per_body_step"] == (2 * 13 + 9) * (4 if r["dtype"] == "float32" else 8)
+    assert data["hardware"]["bandwidth_Bps"] > 1e8 and data["hardware"]["flops_per_s"] > 1e8
+    assert {"euler_vs_numpy", "euler_vs_mujoco", "euler_bandwidth_fraction"} <= set(data["goals"])
+    assert (out / "throughput.md").read_text().count("| euler |") >= 2
+
+
+def test_run_all_lists_every_benchmark():
+    res = subprocess.run(
+        [sys.executable, os.path.join(BENCH, "run_all.py"), "--list"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    names = {os.path.basename(p) for p in res.stdout.split()}
+    assert {"work_precision.py", "throughput.py"} <= names and "run_all.py" not in names
+    assert not any(n.startswith("_") for n in names)
