@@ -70,8 +70,74 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _read_recording(path: Path) -> dict:
+    """times (T,), quaternions (T, 4) [w, x, y, z], optional gyro (T, 3) and torques (T, 3).
+
+    NPZ: arrays named ``times``, ``quaternions`` and optionally ``gyro``, ``torques``.
+    CSV (header row): ``t, qw, qx, qy, qz`` and optionally ``gx, gy, gz`` (body rad/s)
+    and ``tx, ty, tz`` (world N m).
+    """
+    import numpy as np
+
+    if not path.exists():
+        raise CLIError(f"no such file: {path}")
+    if path.suffix == ".npz":
+        with np.load(path) as z:
+            missing = {"times", "quaternions"} - set(z.files)
+            if missing:
+                raise CLIError(f"{path}: missing arrays {sorted(missing)} (found {z.files})")
+            return {k: np.asarray(z[k], np.float64) for k in ("times", "quaternions", "gyro", "torques") if k in z.files}
+    if path.suffix == ".csv":
+        data = np.genfromtxt(path, delimiter=",", names=True)
+        cols = [c.strip().lower() for c in (data.dtype.names or ())]
+        need = ["t", "qw", "qx", "qy", "qz"]
+        if any(c not in cols for c in need):
+            raise CLIError(f"{path}: CSV needs columns {need} (found {cols})")
+        col = lambda names: np.stack([np.asarray(data[data.dtype.names[cols.index(n)]], np.float64) for n in names], -1)  # noqa: E731
+        rec = {"times": col(["t"])[:, 0], "quaternions": col(["qw", "qx", "qy", "qz"])}
+        if all(c in cols for c in ("gx", "gy", "gz")):
+            rec["gyro"] = col(["gx", "gy", "gz"])
+        if all(c in cols for c in ("tx", "ty", "tz")):
+            rec["torques"] = col(["tx", "ty", "tz"])
+        return rec
+    raise CLIError(f"{path}: expected a .csv or .npz recording")
+
+
 def _fit(args: argparse.Namespace) -> int:
-    raise CLIError("'fit' is not yet available in this build of rbjax")
+    import json
+
+    import jax
+    import numpy as np
+
+    jax.config.update("jax_enable_x64", True)
+    from . import fit_inertia
+
+    rec = _read_recording(Path(args.recording))
+    try:
+        res = fit_inertia(rec["times"], rec["quaternions"], body_rates=rec.get("gyro"), torques=rec.get("torques"))
+    except ValueError as e:
+        raise CLIError(str(e)) from e
+    I = np.asarray(res.inertia)
+    out = {
+        "inertia": I.tolist(),
+        "principal_moments": np.asarray(res.principal_moments).tolist(),
+        "moment_std": np.asarray(res.moment_std).tolist(),
+        "principal_axes": np.asarray(res.principal_axes).tolist(),
+        "scale_fixed": bool(res.scale_fixed),
+        "converged": bool(res.converged),
+        "iterations": int(res.iterations),
+        "orientation_rms_rad": float(res.orientation_rms),
+    }
+    unit = "kg m²" if out["scale_fixed"] else "normalised to trace 1 (no torques: scale not identifiable)"
+    print(f"inertia ({unit}), body frame:")
+    for row in I:
+        print("  [" + "  ".join(f"{v: .6e}" for v in row) + "]")
+    print("principal moments: " + ", ".join(f"{m:.6e} ± {s:.1e}" for m, s in zip(out["principal_moments"], out["moment_std"])))
+    print(f"converged: {out['converged']} after {out['iterations']} iterations; orientation rms {out['orientation_rms_rad']:.2e} rad")
+    if args.out:
+        Path(args.out).write_text(json.dumps(out, indent=1))
+        print(f"saved: {args.out}")
+    return 0 if out["converged"] else 1
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -96,8 +162,11 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--list", action="store_true", help="list the benchmarks and exit")
     bench.set_defaults(func=_bench)
 
-    fit = sub.add_parser("fit", parents=[common], help="fit an inertia tensor to recorded motion (not yet)",
-                         description="Fit an inertia tensor to recorded motion (not yet available).")
+    fit = sub.add_parser("fit", parents=[common], help="fit an inertia tensor to recorded motion",
+                         description="Fit an inertia tensor to recorded motion. " + (_read_recording.__doc__ or ""),
+                         formatter_class=argparse.RawDescriptionHelpFormatter)
+    fit.add_argument("recording", help="a .csv or .npz recording (see above)")
+    fit.add_argument("--out", default=None, help="write the result as JSON to this path")
     fit.set_defaults(func=_fit)
     return parser
 
