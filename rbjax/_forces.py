@@ -48,7 +48,12 @@ __all__ = [
 
 
 class ForceModel:
-    """Base of force models: ``model(state, t) -> Forces`` (world frame), ``+`` composes."""
+    """Base of force models: ``model(state, t) -> Forces`` (world frame), ``+`` composes.
+
+    A model maps a state batch of shape ``B`` and a time ``t`` (s) to world-frame
+    :class:`rbjax.Forces` (force ``(*B, 3)`` in N on the centre of mass, torque
+    ``(*B, 3)`` in N m about it, either ``None`` when the model has none).
+    """
 
     def __call__(self, state: AnyState, t: Array) -> Forces:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -386,7 +391,11 @@ class Thruster(ForceModel):
 
 @pytree_dataclass
 class ConstantForce(ForceModel):
-    """Constant world-frame force ``(*B, 3)`` or ``(3,)`` (N) and torque (N m); either may be ``None``."""
+    """Constant world-frame force and torque: ``F(t) = F₀``, ``τ(t) = τ₀``.
+
+    ``force``: ``(*B, 3)`` or ``(3,)`` in N (on the centre of mass); ``torque``:
+    ``(*B, 3)`` or ``(3,)`` in N m (about it). Either may be ``None`` (absent).
+    """
 
     force: Array | None = None
     torque: Array | None = None

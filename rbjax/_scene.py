@@ -50,7 +50,8 @@ def register_kernel(method: str, kind: str, state_type: type, step: Callable[...
     ``step(state, force_fn, t, dt, kind, torque_free) -> state`` must give the
     registered general method's result to round-off for every body of ``kind``
     (see :mod:`rbjax._specialise` for the algebra each kind allows). A scene
-    uses it instead of the general step of ``method``.
+    uses it instead of the general step of ``method``. States keep their usual
+    shapes ``(*B, ...)`` and world frame; ``t`` and ``dt`` are in seconds.
     """
     if kind not in _specialise.KINDS:
         raise ValueError(f"kind must be one of {_specialise.KINDS}, got {kind!r}")
@@ -70,6 +71,8 @@ def body_kind(body: Body) -> str:
     the differences of the equal moments are below ``16 eps`` of its largest
     moment (round-off of the constructors); the specialised algebra then agrees
     with the general one to round-off. Traced bodies are ``"general"``.
+    ``body.inertia`` is ``(*B, 3, 3)`` in the body frame (kg m²); the answer
+    covers the whole batch (the most general kind any body needs).
     """
     if not _is_concrete(body.inertia):
         return "general"
