@@ -68,11 +68,16 @@ def main(argv: list[str] | None = None) -> int:
     state = _bodies(n, dtype)
     torque = rb.Forces(torque=jnp.full((n, 3), 0.01, dtype))
     dt = 1e-3
-    print(f"checked-mode cost: {n} bodies x {steps} steps, save_every={args.save_every}, "
-          f"{jnp.dtype(dtype).name}, {jax.devices()[0].platform}")
-    print(f"{'method':8s} {'off (body-steps/s)':>19s} {'on (body-steps/s)':>18s} {'on/off':>7s} "
-          f"{'off (per CPU s)':>16s} {'on (per CPU s)':>15s} {'on/off':>7s}")
+    print(
+        f"checked-mode cost: {n} bodies x {steps} steps, save_every={args.save_every}, "
+        f"{jnp.dtype(dtype).name}, {jax.devices()[0].platform}"
+    )
+    print(
+        f"{'method':8s} {'off (body-steps/s)':>19s} {'on (body-steps/s)':>18s} {'on/off':>7s} "
+        f"{'off (per CPU s)':>16s} {'on (per CPU s)':>15s} {'on/off':>7s}"
+    )
     for method in [m for m in ("euler", "rk4", "splitting") if m in rb.methods()]:
+
         def run(checked, method=method):
             return rb.simulate(state, torque, dt, steps, method, save_every=save_every, checked=checked)
 

@@ -68,10 +68,19 @@ def main():
     _, tb_first = timed(lambda: fit(qs, ws))
     resb, tb_fit = timed(lambda: fit(qs, ws))
     errs = [np.linalg.norm(resb.inertia[k] - r[0]) / np.linalg.norm(r[0]) for k, r in enumerate(recs)]
-    out = dict(duration_s=dur, rate_hz=rate, single_first_call_s=t_first, single_fit_s=t_fit,
-               single_error=float(err), single_iterations=int(res.iterations), batch=n_batch,
-               batch_first_call_s=tb_first, batch_fit_s=tb_fit, batch_median_error=float(np.median(errs)),
-               batch_converged=float(np.mean(resb.converged)))
+    out = dict(
+        duration_s=dur,
+        rate_hz=rate,
+        single_first_call_s=t_first,
+        single_fit_s=t_fit,
+        single_error=float(err),
+        single_iterations=int(res.iterations),
+        batch=n_batch,
+        batch_first_call_s=tb_first,
+        batch_fit_s=tb_fit,
+        batch_median_error=float(np.median(errs)),
+        batch_converged=float(np.mean(resb.converged)),
+    )
     for k, v in out.items():
         print(f"{k:>22}: {v:.4g}" if isinstance(v, float) else f"{k:>22}: {v}")
     with open(args.json, "w") as f:

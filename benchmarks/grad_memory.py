@@ -42,8 +42,11 @@ def main():
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--json", default="grad_memory.json")
     args = ap.parse_args()
-    cases = [(1000, 100, True), (4096, 100, True)] if args.quick else [
-        (1000, 1000, True), (10000, 1000, True), (100000, 1000, False)]
+    cases = (
+        [(1000, 100, True), (4096, 100, True)]
+        if args.quick
+        else [(1000, 1000, True), (10000, 1000, True), (100000, 1000, False)]
+    )
     w = jnp.array([0.1, 2.0, 0.1])
     rows = []
     print(f"{'steps':>8} {'bodies':>7} {'checkpoint':>10} {'temp MB':>10} {'grad s':>8} {'fwd s':>8}")

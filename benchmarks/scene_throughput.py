@@ -30,9 +30,7 @@ def _cases(n: int, dtype):
     w = jnp.asarray(rng.normal(size=(n, 3)), dtype)
     q = rng.normal(size=(n, 4))
     q = jnp.asarray(q / np.linalg.norm(q, axis=-1, keepdims=True), dtype)
-    spheres = rb.State.create(
-        rb.sphere(m, jnp.asarray(0.3, dtype)), velocity=v, angular_velocity=w, orientation=q
-    )
+    spheres = rb.State.create(rb.sphere(m, jnp.asarray(0.3, dtype)), velocity=v, angular_velocity=w, orientation=q)
     boxes = rb.State.create(
         rb.box(m, jnp.asarray(rng.uniform(0.2, 1.0, (n, 3)), dtype)),
         velocity=v,
@@ -74,18 +72,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="N = 1e4 only, few steps (< 30 s)")
     ap.add_argument("--method", default="rk4")
-    ap.add_argument(
-        "--out", default=os.path.join(os.path.dirname(__file__), "results", "scene_throughput.json")
-    )
+    ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "results", "scene_throughput.json"))
     args = ap.parse_args()
     sizes = [10_000] if args.quick else [10_000, 100_000]
     steps = 20 if args.quick else 100
     repeats = 2 if args.quick else 3
     rows = []
     print(f"method={args.method} float32 steps={steps} device={jax.devices()[0].device_kind}")
-    print(
-        f"{'case':36s} {'N':>8s} {'kind':>13s} {'torque':>6s} {'Mbody-steps/s':>14s} {'vs boxes+torque':>16s}"
-    )
+    print(f"{'case':36s} {'N':>8s} {'kind':>13s} {'torque':>6s} {'Mbody-steps/s':>14s} {'vs boxes+torque':>16s}")
     for n in sizes:
         results = []
         for name, state, forces, kind in _cases(n, jnp.float32):

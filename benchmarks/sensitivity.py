@@ -35,8 +35,10 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--json", default="sensitivity.json")
     args = ap.parse_args()
-    cases = {"major axis (stable)": jnp.array([0.01, 0.01, 2.0]),
-             "intermediate axis (separatrix)": jnp.array([0.01, 2.0, 0.01])}
+    cases = {
+        "major axis (stable)": jnp.array([0.01, 0.01, 2.0]),
+        "intermediate axis (separatrix)": jnp.array([0.01, 2.0, 0.01]),
+    }
     out = {}
     print(f"{'initial spin':>32} " + " ".join(f"T={T:>4}s" for T in (1, 5, 10, 20)))
     for name, w0 in cases.items():

@@ -78,10 +78,7 @@ def time_rbjax(state, method: str, steps: int, dt: float = DT) -> dict:
     peak = None
     if mem is not None:
         peak = (
-            mem.argument_size_in_bytes
-            + mem.output_size_in_bytes
-            + mem.temp_size_in_bytes
-            - mem.alias_size_in_bytes
+            mem.argument_size_in_bytes + mem.output_size_in_bytes + mem.temp_size_in_bytes - mem.alias_size_in_bytes
         ) / 2**20
     return dict(seconds=t, compile_s=t_compile, peak_mb=peak)
 
@@ -154,10 +151,7 @@ def time_jax_soa(state, steps, dt=DT):
 
 
 def time_numpy(state, steps, dt=DT):
-    arrs = [
-        np.asarray(a).T.copy()
-        for a in (state.position, state.velocity, state.orientation, state.angular_momentum)
-    ]
+    arrs = [np.asarray(a).T.copy() for a in (state.position, state.velocity, state.orientation, state.angular_momentum)]
     Iinv = np.moveaxis(np.asarray(state.body.inverse_inertia), 0, -1).copy()
     return best_time(lambda: numpy_euler_soa(*arrs, Iinv, arrs[0].dtype.type(dt), steps), repeats=2)
 
@@ -210,9 +204,7 @@ def time_mjx(n: int, steps: int) -> dict:
 
     compiled, t_compile = compile_timed(run, mx, batch)
     jax.block_until_ready(compiled(mx, batch))
-    return dict(
-        seconds=best_time(compiled, mx, batch, repeats=2), compile_s=t_compile, dtype=str(dx.qvel.dtype)
-    )
+    return dict(seconds=best_time(compiled, mx, batch, repeats=2), compile_s=t_compile, dtype=str(dx.qvel.dtype))
 
 
 # ----------------------------------------------------------------------------- roofline
@@ -398,8 +390,7 @@ def main(argv=None) -> int:
                 )
             )
             print(
-                f"mjx   Euler N={n:>8}: {n * steps / r['seconds']:.3e} body-steps/s, "
-                f"compile {r['compile_s']:.1f} s",
+                f"mjx   Euler N={n:>8}: {n * steps / r['seconds']:.3e} body-steps/s, compile {r['compile_s']:.1f} s",
                 flush=True,
             )
 
@@ -450,10 +441,7 @@ def evaluate_goals(rows, hw, methods) -> dict:
             (
                 r
                 for r in rows
-                if r["engine"] == "rbjax"
-                and r["method"] == m
-                and r["dtype"] == "float32"
-                and r["bodies"] == n
+                if r["engine"] == "rbjax" and r["method"] == m and r["dtype"] == "float32" and r["bodies"] == n
             ),
             None,
         )

@@ -322,10 +322,7 @@ def diffrax_curves(
             tt = jnp.asarray(tol, dtype)
             y, nsteps, ok = jax.block_until_ready(one(_flat(s1), s1.body, t1, tt, tt))
             if not bool(ok):
-                log(
-                    f"  diffrax {solver} {np.dtype(dtype).name} tol {tol:.0e}: "
-                    "failed (max_steps or dt underflow)"
-                )
+                log(f"  diffrax {solver} {np.dtype(dtype).name} tol {tol:.0e}: failed (max_steps or dt underflow)")
                 continue
             y0n = np.array(y[0], np.float64)
             y0n[6:10] /= np.linalg.norm(y0n[6:10])  # diffrax does not renormalise q; measure its direction
@@ -401,9 +398,7 @@ def summary(results: dict, probs: dict[str, Problem]) -> tuple[str, dict]:
             cell = lambda b: (f"{b[0]}", f"{b[1] * 1e6:.3g}") if b else ("unreached", "–")  # noqa: E731
             ratio = f"{d[1] / r[1]:.2f}x" if r and d else "–"
             verdicts[name][f"{level:.0e}"] = r is not None and (d is None or r[1] < d[1])
-            lines.append(
-                f"| 1e{int(np.log10(level))} | {' | '.join(cell(r))} | {' | '.join(cell(d))} | {ratio} |"
-            )
+            lines.append(f"| 1e{int(np.log10(level))} | {' | '.join(cell(r))} | {' | '.join(cell(d))} | {ratio} |")
     return "\n".join(lines) + "\n", verdicts
 
 
@@ -418,9 +413,7 @@ def plot(results: dict, probs: dict[str, Problem], path: str) -> None:
         ("err_omega", "relative ω error"),
         ("err_energy", "relative energy error"),
     ]
-    fig, axes = plt.subplots(
-        len(keys), len(results), figsize=(4.2 * len(results), 3.4 * len(keys)), squeeze=False
-    )
+    fig, axes = plt.subplots(len(keys), len(results), figsize=(4.2 * len(results), 3.4 * len(keys)), squeeze=False)
     colors = {}
     cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for j, (name, rows) in enumerate(results.items()):
@@ -431,9 +424,7 @@ def plot(results: dict, probs: dict[str, Problem], path: str) -> None:
                 pts = sorted(
                     (r["time_per_body_s"], r[key])
                     for r in rows
-                    if (r["solver"], r["method"], r["dtype"]) == (solver, m, d)
-                    and r[key] is not None
-                    and r[key] > 0
+                    if (r["solver"], r["method"], r["dtype"]) == (solver, m, d) and r[key] is not None and r[key] > 0
                 )
                 if not pts:
                     continue
@@ -502,9 +493,7 @@ def main(argv=None) -> int:
         for dtype in dtypes:
             rows += rbjax_curves(p, ref, dtype, n_batch, ks, args.quick, log)
             if not args.no_diffrax and dtype in tols:
-                rows += diffrax_curves(
-                    p, ref, dtype, n_batch, solvers, tols[dtype], max_steps, args.quick, log
-                )
+                rows += diffrax_curves(p, ref, dtype, n_batch, solvers, tols[dtype], max_steps, args.quick, log)
         results[name] = rows
 
     os.makedirs(args.out, exist_ok=True)

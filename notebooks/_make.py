@@ -173,9 +173,12 @@ carries leading batch dimensions, and each integrator is written for one body an
 Here: 10 000 random boxes (random sizes, masses, attitudes and spins) tumbling freely, in
 **float32** (the precision most users will run batches in).
 """),
-    md(SIZES_NOTE.format(
-        how="The histogram uses 10 000 bodies for 5 s; for the throughput curve raise `Ns` to "
-            "`[1e2, 1e3, 1e4, 1e5, 1e6]` and `steps` to 1000 on a bigger machine or a GPU.")),
+    md(
+        SIZES_NOTE.format(
+            how="The histogram uses 10 000 bodies for 5 s; for the throughput curve raise `Ns` to "
+            "`[1e2, 1e3, 1e4, 1e5, 1e6]` and `steps` to 1000 on a bigger machine or a GPU."
+        )
+    ),
     code("""
 import time
 
@@ -292,10 +295,13 @@ Which integrator, and which `dt`, reaches a given accuracy at the lowest cost? W
 attitude error at the final time against the exact solution `rb.torque_free`, and the measured
 wall time per body-step. float64 throughout.
 """),
-    md(SIZES_NOTE.format(
-        how="Here: 256 identical bodies, T = 4 s, three time steps per method. The full study "
+    md(
+        SIZES_NOTE.format(
+            how="Here: 256 identical bodies, T = 4 s, three time steps per method. The full study "
             "(10 000 bodies, three test problems, float32 and float64, diffrax as a peer) is "
-            "`python benchmarks/work_precision.py`; its plot is shown at the end if present.")),
+            "`python benchmarks/work_precision.py`; its plot is shown at the end if present."
+        )
+    ),
     code("""
 import time
 from pathlib import Path
@@ -418,9 +424,12 @@ same motion), so the fit returns `I / tr I` and `scale_fixed = False`.
 (Jacobi elliptic functions), not with the integrator the fit uses, so the fit's own
 discretisation error is part of what we test.
 """),
-    md(SIZES_NOTE.format(
-        how="The recording is 1 s at 200 Hz; for a real study use several seconds at 1 kHz "
-            "(`T`, `rate` below) — compile time then dominates the first call, ~1 min.")),
+    md(
+        SIZES_NOTE.format(
+            how="The recording is 1 s at 200 Hz; for a real study use several seconds at 1 kHz "
+            "(`T`, `rate` below) — compile time then dominates the first call, ~1 min."
+        )
+    ),
     code("""
 import jax
 import jax.numpy as jnp

@@ -35,6 +35,20 @@ from ._body import (
     sphere as sphere,
 )
 from ._dynamics import derivative as derivative
+
+# --- differentiable trajectories and inertia fitting ---
+from ._fit import FitResult as FitResult
+from ._fit import fit_inertia as fit_inertia
+from ._fit import fit_inertia_linear as fit_inertia_linear
+from ._inertia_param import (
+    inertia_from_params as inertia_from_params,
+)
+from ._inertia_param import (
+    params_from_inertia as params_from_inertia,
+)
+from ._inertia_param import (
+    second_moment as second_moment,
+)
 from ._math import (
     cross as cross,
 )
@@ -106,15 +120,6 @@ from ._quantities import (
 )
 from ._simulate import simulate as simulate
 from ._simulate import step as step
-from ._simulate import simulate as simulate, step as step
-
-# --- differentiable trajectories and inertia fitting ---
-from ._fit import FitResult as FitResult, fit_inertia as fit_inertia, fit_inertia_linear as fit_inertia_linear
-from ._inertia_param import (
-    inertia_from_params as inertia_from_params,
-    params_from_inertia as params_from_inertia,
-    second_moment as second_moment,
-)
 from ._state import (
     Forces as Forces,
 )
@@ -140,6 +145,7 @@ from ._io import save as save
 # --- end tools ---
 # exact torque-free solution (ground truth for integrator tests and benchmarks)
 from ._torque_free import torque_free as torque_free
+
 # --- scenes and force models (issue 6) ---
 # isort: split
 from ._forces import (
@@ -195,6 +201,7 @@ def methods(state_type: type | None = None) -> dict[str, _methods.Method]:
 
 # Every public name imported above (computed, so each area's export block needs no second edit).
 __all__ = sorted(
-    name for name, value in list(globals().items())
+    name
+    for name, value in list(globals().items())
     if not name.startswith("_") and name != "annotations" and not isinstance(value, type(_methods))
 )

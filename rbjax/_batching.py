@@ -11,7 +11,8 @@ Arguments that are not rbjax pytrees (``dt``, ``t``) are always shared.
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import jax
 

@@ -46,7 +46,10 @@ def _as_float(x: ArrayLike) -> Array:
 
 
 def _is_concrete(*xs: Any) -> bool:
-    return all(isinstance(x, (np.ndarray, np.generic, float, int, jax.Array)) and not isinstance(x, jax.core.Tracer) for x in xs)
+    return all(
+        isinstance(x, (np.ndarray, np.generic, float, int, jax.Array)) and not isinstance(x, jax.core.Tracer)
+        for x in xs
+    )
 
 
 def inverse_3x3(A: ArrayLike) -> Array:
@@ -68,9 +71,7 @@ def _check_body(mass: Array, inertia: Array) -> None:
     m = np.asarray(mass)
     I = np.asarray(inertia)
     if I.shape[-2:] != (3, 3) or I.shape[:-2] != m.shape:
-        raise ValueError(
-            f"Body: inertia must have shape mass.shape + (3, 3) = {m.shape + (3, 3)}, got {I.shape}"
-        )
+        raise ValueError(f"Body: inertia must have shape mass.shape + (3, 3) = {m.shape + (3, 3)}, got {I.shape}")
     if not np.all(np.isfinite(m)):
         raise ValueError(f"Body: mass must be finite, got {m[~np.isfinite(m)].ravel()[:3]}")
     if not np.all(np.isfinite(I)):
@@ -90,9 +91,7 @@ def _check_body(mass: Array, inertia: Array) -> None:
     moments = np.linalg.eigvalsh(0.5 * (I + np.swapaxes(I, -1, -2)))
     if np.any(moments[..., 0] <= 0):
         bad = np.atleast_2d(moments)[np.atleast_2d(moments)[:, 0] <= 0][0]
-        raise ValueError(
-            f"Body: inertia must be positive definite; principal moments {bad} include one <= 0"
-        )
+        raise ValueError(f"Body: inertia must be positive definite; principal moments {bad} include one <= 0")
     # sorted ascending: the binding inequality is I1 + I2 >= I3
     slack = moments[..., 0] + moments[..., 1] - moments[..., 2]
     if np.any(slack < -TRIANGLE_RTOL * np.sum(moments, axis=-1)):

@@ -193,10 +193,7 @@ class _Messages:
         step += self.step_offset
         what = {
             0: "the state became non-finite (NaN or inf)",
-            1: (
-                "the orientation left the unit sphere / SO(3) by more than "
-                f"quat_tol={self.checks.quat_tol:.3g}"
-            ),
+            1: (f"the orientation left the unit sphere / SO(3) by more than quat_tol={self.checks.quat_tol:.3g}"),
             2: (
                 f"the kinetic energy jumped by more than energy_factor={self.checks.energy_factor:g} "
                 "times its largest earlier saved value"
@@ -210,7 +207,13 @@ class _Messages:
 
 
 def raise_on_failure(
-    traj: Any, rec: dict, checks: Checks, *, method: str, batch_shape: tuple[int, ...], steps: int,
+    traj: Any,
+    rec: dict,
+    checks: Checks,
+    *,
+    method: str,
+    batch_shape: tuple[int, ...],
+    steps: int,
     step_offset: int = 0,
 ) -> Any:
     """``traj`` unchanged, or an equinox runtime error naming the step and body."""

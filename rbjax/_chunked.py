@@ -33,9 +33,7 @@ def _progress_bar(progress: bool, total: int) -> Any:
     try:
         from tqdm.auto import tqdm
     except ImportError:
-        warnings.warn(
-            "progress=True needs tqdm (pip install 'rbjax[demo]'); running without a bar", stacklevel=3
-        )
+        warnings.warn("progress=True needs tqdm (pip install 'rbjax[demo]'); running without a bar", stacklevel=3)
         return None
     return tqdm(total=total, unit="step", unit_scale=True, desc="rbjax.simulate_chunked")
 
@@ -43,10 +41,12 @@ def _progress_bar(progress: bool, total: int) -> Any:
 def _frames(traj: Any, sl: slice) -> Any:
     """Slice the time axis of the changing fields (``body`` is not stacked)."""
     consts = constant_fields(traj)
-    return replace(traj, **{
-        n: jax.tree.map(lambda a: a[sl], getattr(traj, n))
-        for n in type(traj)._rbjax_data_fields if n not in consts
-    })
+    return replace(
+        traj,
+        **{
+            n: jax.tree.map(lambda a: a[sl], getattr(traj, n)) for n in type(traj)._rbjax_data_fields if n not in consts
+        },
+    )
 
 
 def simulate_chunked(
@@ -97,9 +97,7 @@ def simulate_chunked(
     if chunk_steps is None:
         chunk_steps = -(-10_000 // save_every) * save_every
     if not isinstance(chunk_steps, (int, np.integer)) or chunk_steps < 1 or chunk_steps % save_every:
-        raise ValueError(
-            f"chunk_steps must be a positive multiple of save_every={save_every}, got {chunk_steps!r}"
-        )
+        raise ValueError(f"chunk_steps must be a positive multiple of save_every={save_every}, got {chunk_steps!r}")
     chunk_steps = int(min(chunk_steps, max(steps, save_every)))
     series = isinstance(forces, Forces) and _is_time_series(forces, state, steps)
     if writer is not None:
@@ -114,8 +112,15 @@ def simulate_chunked(
             n = min(chunk_steps, steps - done)
             f = jax.tree.map(lambda a, sl=slice(done, done + n): a[sl], forces) if series else forces
             traj = _run(
-                current, f, dt_arr, n, method, save_every=save_every, t0=t0_arr + done * dt_arr,
-                checked=checked, step_offset=done,
+                current,
+                f,
+                dt_arr,
+                n,
+                method,
+                save_every=save_every,
+                t0=t0_arr + done * dt_arr,
+                checked=checked,
+                step_offset=done,
             )
             part = traj if done == 0 else _frames(traj, slice(1, None))
             if writer is not None:
@@ -137,7 +142,11 @@ def simulate_chunked(
     if len(kept) == 1:
         return kept[0]
     consts = constant_fields(state)
-    return replace(kept[0], **{
-        name: jax.tree.map(lambda *a: jnp.concatenate(a), *(getattr(k, name) for k in kept))
-        for name in type(state)._rbjax_data_fields if name not in consts
-    })
+    return replace(
+        kept[0],
+        **{
+            name: jax.tree.map(lambda *a: jnp.concatenate(a), *(getattr(k, name) for k in kept))
+            for name in type(state)._rbjax_data_fields
+            if name not in consts
+        },
+    )

@@ -33,8 +33,7 @@ def _scripts() -> list[Path]:
     d = benchmarks_dir()
     if not d.is_dir():
         raise CLIError(
-            f"no benchmarks folder at {d}: the benchmarks ship with the source repository, "
-            "not with an installed wheel"
+            f"no benchmarks folder at {d}: the benchmarks ship with the source repository, not with an installed wheel"
         )
     return sorted(p for p in d.glob("*.py") if not p.name.startswith("_"))
 
@@ -86,7 +85,9 @@ def _read_recording(path: Path) -> dict:
             missing = {"times", "quaternions"} - set(z.files)
             if missing:
                 raise CLIError(f"{path}: missing arrays {sorted(missing)} (found {z.files})")
-            return {k: np.asarray(z[k], np.float64) for k in ("times", "quaternions", "gyro", "torques") if k in z.files}
+            return {
+                k: np.asarray(z[k], np.float64) for k in ("times", "quaternions", "gyro", "torques") if k in z.files
+            }
     if path.suffix == ".csv":
         data = np.genfromtxt(path, delimiter=",", names=True)
         cols = [c.strip().lower() for c in (data.dtype.names or ())]
@@ -132,8 +133,14 @@ def _fit(args: argparse.Namespace) -> int:
     print(f"inertia ({unit}), body frame:")
     for row in I:
         print("  [" + "  ".join(f"{v: .6e}" for v in row) + "]")
-    print("principal moments: " + ", ".join(f"{m:.6e} ± {s:.1e}" for m, s in zip(out["principal_moments"], out["moment_std"])))
-    print(f"converged: {out['converged']} after {out['iterations']} iterations; orientation rms {out['orientation_rms_rad']:.2e} rad")
+    print(
+        "principal moments: "
+        + ", ".join(f"{m:.6e} ± {s:.1e}" for m, s in zip(out["principal_moments"], out["moment_std"]))
+    )
+    print(
+        f"converged: {out['converged']} after {out['iterations']} iterations; "
+        f"orientation rms {out['orientation_rms_rad']:.2e} rad"
+    )
     if args.out:
         Path(args.out).write_text(json.dumps(out, indent=1))
         print(f"saved: {args.out}")
@@ -145,7 +152,8 @@ def build_parser() -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--debug", action="store_true", help="show the full traceback on errors")
     parser = _Parser(
-        prog="python -m rbjax", parents=[common],
+        prog="python -m rbjax",
+        parents=[common],
         description="rbjax: batched, differentiable rigid-body dynamics in JAX.",
     )
     sub = parser.add_subparsers(dest="command", metavar="{demo,bench,fit}", parser_class=_Parser)
@@ -155,16 +163,24 @@ def build_parser() -> argparse.ArgumentParser:
     # (argparse.REMAINDER would not pass on leading options such as --bodies)
     sub.add_parser("demo", help="run the README demo: tumbling boxes and a T-handle ('demo --help')")
 
-    bench = sub.add_parser("bench", parents=[common], help="run the benchmarks in benchmarks/",
-                           description=f"Run benchmark scripts from {benchmarks_dir()}.")
+    bench = sub.add_parser(
+        "bench",
+        parents=[common],
+        help="run the benchmarks in benchmarks/",
+        description=f"Run benchmark scripts from {benchmarks_dir()}.",
+    )
     bench.add_argument("names", nargs="*", help="benchmark names (file stems); default: all")
     bench.add_argument("--quick", action="store_true", help="small sizes, for a smoke run")
     bench.add_argument("--list", action="store_true", help="list the benchmarks and exit")
     bench.set_defaults(func=_bench)
 
-    fit = sub.add_parser("fit", parents=[common], help="fit an inertia tensor to recorded motion",
-                         description="Fit an inertia tensor to recorded motion. " + (_read_recording.__doc__ or ""),
-                         formatter_class=argparse.RawDescriptionHelpFormatter)
+    fit = sub.add_parser(
+        "fit",
+        parents=[common],
+        help="fit an inertia tensor to recorded motion",
+        description="Fit an inertia tensor to recorded motion. " + (_read_recording.__doc__ or ""),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     fit.add_argument("recording", help="a .csv or .npz recording (see above)")
     fit.add_argument("--out", default=None, help="write the result as JSON to this path")
     fit.set_defaults(func=_fit)

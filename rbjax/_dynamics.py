@@ -20,7 +20,7 @@ from ._batching import lift
 from ._math import cross, quat_multiply, skew
 from ._pytree import replace
 from ._quantities import _omega_world
-from ._state import AnyState, Forces, MatrixState, ParticleState, State, _apply
+from ._state import AnyState, Forces, ParticleState, State, _apply
 
 __all__ = ["derivative"]
 
@@ -35,14 +35,20 @@ def _one_derivative(s: AnyState, f: Forces) -> AnyState:
         w = _omega_world(s)
         wq = jnp.concatenate([jnp.zeros_like(w[:1]), w])
         return replace(
-            s, position=s.velocity, velocity=a,
-            orientation=0.5 * quat_multiply(wq, s.orientation), angular_momentum=tau,
+            s,
+            position=s.velocity,
+            velocity=a,
+            orientation=0.5 * quat_multiply(wq, s.orientation),
+            angular_momentum=tau,
         )
     R, w = s.rotation, s.angular_velocity
     I_w = R @ s.body.inertia @ R.T
     I_w_inv = R @ s.body.inverse_inertia @ R.T
     return replace(
-        s, position=s.velocity, velocity=a, rotation=skew(w) @ R,
+        s,
+        position=s.velocity,
+        velocity=a,
+        rotation=skew(w) @ R,
         angular_velocity=_apply(I_w_inv, tau - cross(w, _apply(I_w, w))),
     )
 

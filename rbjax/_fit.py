@@ -93,8 +93,15 @@ class FitResult:
 def _np_qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     pw, px, py, pz = np.moveaxis(p, -1, 0)
     qw, qx, qy, qz = np.moveaxis(q, -1, 0)
-    return np.stack([pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
-                     pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw], -1)
+    return np.stack(
+        [
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        ],
+        -1,
+    )
 
 
 def _np_qlog(q: np.ndarray) -> np.ndarray:
@@ -106,11 +113,14 @@ def _np_qlog(q: np.ndarray) -> np.ndarray:
 
 def _np_qmat(q: np.ndarray) -> np.ndarray:
     w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], -2)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
 
 
 _CONJ = np.array([1.0, -1.0, -1.0, -1.0])
@@ -151,9 +161,7 @@ def _regressor(w: np.ndarray) -> np.ndarray:
 
 def _entries_to_matrix(x: np.ndarray) -> np.ndarray:
     xx, yy, zz, xy, xz, yz = (x[..., i] for i in range(6))
-    return np.stack(
-        [np.stack([xx, xy, xz], -1), np.stack([xy, yy, yz], -1), np.stack([xz, yz, zz], -1)], -2
-    )
+    return np.stack([np.stack([xx, xy, xz], -1), np.stack([xy, yy, yz], -1), np.stack([xz, yz, zz], -1)], -2)
 
 
 def _momentum_system(times, q, w, tau):
@@ -199,8 +207,12 @@ def _identifiability(MtM: np.ndarray, tol: float, torque_free: bool) -> None:
         f"the linearised problem {np.array2string(sv, precision=2)} (threshold {tol:g}); the data "
         "fit any inertia (body-frame entries) in the span of: ["
         + "], [".join(terms)
-        + "]" + (" (one of these is the overall scale, never identifiable without torques)"
-                 if torque_free else " (one of these may be the overall scale, fixed only by the torques)")
+        + "]"
+        + (
+            " (one of these is the overall scale, never identifiable without torques)"
+            if torque_free
+            else " (one of these may be the overall scale, fixed only by the torques)"
+        )
         + ". Record a tumble that excites all three axes (e.g. spin near, not on, a principal axis)."
     )
 
@@ -286,8 +298,9 @@ def _simulate_segment(I, q0, w0, dts, tau_a, tau_b, *, method, substeps):
     one = jnp.ones((), I.dtype)
     body = new_unchecked(Body, mass=one, inertia=I, inverse_inertia=inverse_3x3(I))
     zero = jnp.zeros(3, I.dtype)
-    s0 = new_unchecked(State, body=body, position=zero, velocity=zero, orientation=q0,
-                       angular_momentum=quat_rotate(q0, _apply(I, w0)))
+    s0 = new_unchecked(
+        State, body=body, position=zero, velocity=zero, orientation=q0, angular_momentum=quat_rotate(q0, _apply(I, w0))
+    )
 
     def interval(s, x):
         dt, ta, tb = x
@@ -316,16 +329,17 @@ def _residuals(y, data, *, scale_fixed, method, substeps, use_rates, continuity_
     sim = functools.partial(_simulate_segment, I, method=method, substeps=substeps)
     q, w = jax.vmap(sim)(q_start, w0, data["dt"], data["tau_a"], data["tau_b"])
     wq, ww, mask = data["wq"], data["ww"], data["mask"][..., None]
-    res = [wq * quat_log(quat_multiply(quat_conjugate(q_start[0]), data["q0"])),
-           (wq * mask * quat_log(quat_multiply(quat_conjugate(q), data["q_meas"]))).reshape(-1)]
+    res = [
+        wq * quat_log(quat_multiply(quat_conjugate(q_start[0]), data["q0"])),
+        (wq * mask * quat_log(quat_multiply(quat_conjugate(q), data["q_meas"]))).reshape(-1),
+    ]
     if use_rates:
         res += [ww * (w0[0] - data["w0"]), (ww * mask * (w - data["w_meas"])).reshape(-1)]
     if S > 1:
         # last real interval of each segment (padding repeats it anyway)
         q_end, w_end = q[:-1, -1], w[:-1, -1]
         gap = quat_log(quat_multiply(quat_conjugate(q_end), q_start[1:]))
-        res += [continuity_weight * wq * gap.reshape(-1),
-                continuity_weight * data["wc"] * (w_end - w0[1:]).reshape(-1)]
+        res += [continuity_weight * wq * gap.reshape(-1), continuity_weight * data["wc"] * (w_end - w0[1:]).reshape(-1)]
     return jnp.concatenate(res)
 
 
@@ -366,15 +380,29 @@ def _with_dense_jacobian(f):
 
 @functools.partial(
     jax.jit,
-    static_argnames=("scale_fixed", "method", "substeps", "use_rates", "continuity_weight",
-                     "rtol", "atol", "max_steps", "n_data"),
+    static_argnames=(
+        "scale_fixed",
+        "method",
+        "substeps",
+        "use_rates",
+        "continuity_weight",
+        "rtol",
+        "atol",
+        "max_steps",
+        "n_data",
+    ),
 )
-def _fit_batch(y0, data, *, scale_fixed, method, substeps, use_rates, continuity_weight,
-               rtol, atol, max_steps, n_data):
-    res_fn = _with_dense_jacobian(functools.partial(
-        _residuals, scale_fixed=scale_fixed, method=method, substeps=substeps, use_rates=use_rates,
-        continuity_weight=continuity_weight,
-    ))
+def _fit_batch(y0, data, *, scale_fixed, method, substeps, use_rates, continuity_weight, rtol, atol, max_steps, n_data):
+    res_fn = _with_dense_jacobian(
+        functools.partial(
+            _residuals,
+            scale_fixed=scale_fixed,
+            method=method,
+            substeps=substeps,
+            use_rates=use_rates,
+            continuity_weight=continuity_weight,
+        )
+    )
     solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
 
     def one(y0, data):
@@ -403,12 +431,19 @@ def _fit_batch(y0, data, *, scale_fixed, method, substeps, use_rates, continuity
             w_rms = jnp.sqrt(jnp.sum(r_w**2) / nq)
         else:
             w_rms = jnp.full((), jnp.nan, r.dtype)
-        return dict(inertia=I, principal_moments=moments, principal_axes=axes, moment_std=std,
-                    initial_angular_velocity=w0[0],
-                    initial_orientation=quat_multiply(data["q_start"][0], quat_exp(delta[0])),
-                    residuals=r, orientation_rms=q_rms, rate_rms=w_rms,
-                    converged=sol.result == optx.RESULTS.successful,
-                    iterations=sol.stats["num_steps"])
+        return dict(
+            inertia=I,
+            principal_moments=moments,
+            principal_axes=axes,
+            moment_std=std,
+            initial_angular_velocity=w0[0],
+            initial_orientation=quat_multiply(data["q_start"][0], quat_exp(delta[0])),
+            residuals=r,
+            orientation_rms=q_rms,
+            rate_rms=w_rms,
+            converged=sol.result == optx.RESULTS.successful,
+            iterations=sol.stats["num_steps"],
+        )
 
     return jax.vmap(one)(y0, data)
 
@@ -531,8 +566,11 @@ def fit_inertia(
     else:
         sq = np.full(N, float(orientation_std))
     if use_rates:
-        sw = np.full(N, float(rate_std)) if rate_std is not None else np.maximum(
-            _mad_sigma(np.diff(wr, 2, axis=-2)), 1e-12)
+        sw = (
+            np.full(N, float(rate_std))
+            if rate_std is not None
+            else np.maximum(_mad_sigma(np.diff(wr, 2, axis=-2)), 1e-12)
+        )
     else:
         sw = np.full(N, np.nan)
 
@@ -564,14 +602,21 @@ def fit_inertia(
             Body(1.0, I0)  # validates a user guess
         if torque_free:  # the gauge log L00 = 0: rescale so that Σ_xx = 1, drop θ0
             I0 = I0 / (0.5 * np.trace(I0) - I0[0, 0])
-        theta0 = np.asarray(params_from_inertia(jnp.asarray(I0)))[(1 if torque_free else 0):]
+        theta0 = np.asarray(params_from_inertia(jnp.asarray(I0)))[(1 if torque_free else 0) :]
         w_start = rates[n][starts]
         y0s.append(np.concatenate([theta0, np.zeros(3 * S), w_start.reshape(-1)]))
         wc = (1 / sw[n]) if use_rates else seg_dur / sq[n]
         d = dict(
-            q_start=q[n][starts], q0=q[n][0], q_meas=q[n][idx_c + 1], dt=seg_dt,
-            mask=mask.astype(np.float64), wq=1 / sq[n], ww=1 / sw[n] if use_rates else 1.0, wc=wc,
-            w0=rates[n][0], w_meas=rates[n][idx_c + 1],
+            q_start=q[n][starts],
+            q0=q[n][0],
+            q_meas=q[n][idx_c + 1],
+            dt=seg_dt,
+            mask=mask.astype(np.float64),
+            wq=1 / sq[n],
+            ww=1 / sw[n] if use_rates else 1.0,
+            wc=wc,
+            w0=rates[n][0],
+            w_meas=rates[n][idx_c + 1],
         )
         if not torque_free:
             d["tau_a"], d["tau_b"] = tau_n[idx_c], tau_n[idx_c + 1]
@@ -580,9 +625,17 @@ def fit_inertia(
     if torque_free:
         data["tau_a"] = data["tau_b"] = None
     out = _fit_batch(
-        jnp.asarray(np.stack(y0s), dtype), data, scale_fixed=not torque_free, method=method,
-        substeps=int(substeps), use_rates=use_rates, continuity_weight=float(continuity_weight),
-        rtol=float(rtol), atol=float(atol), max_steps=int(max_steps), n_data=n_data,
+        jnp.asarray(np.stack(y0s), dtype),
+        data,
+        scale_fixed=not torque_free,
+        method=method,
+        substeps=int(substeps),
+        use_rates=use_rates,
+        continuity_weight=float(continuity_weight),
+        rtol=float(rtol),
+        atol=float(atol),
+        max_steps=int(max_steps),
+        n_data=n_data,
     )
     if not batched:
         out = jax.tree.map(lambda a: a[0], out)

@@ -345,9 +345,7 @@ class Spring(ForceModel):
             force = _add_at(force, self.other, -f_a)
             if r_b is not None:
                 tb = cross(r_b, -f_a)
-                torque = (
-                    _scatter(n, state, self.other, tb) if torque is None else _add_at(torque, self.other, tb)
-                )
+                torque = _scatter(n, state, self.other, tb) if torque is None else _add_at(torque, self.other, tb)
         return Forces(force=force, torque=torque)
 
 
@@ -444,9 +442,7 @@ class TimeSeriesForce(ForceModel):
 
     def __post_init__(self) -> None:
         if self.interpolation not in ("linear", "hold"):
-            raise ValueError(
-                f"TimeSeriesForce: interpolation must be 'linear' or 'hold', got {self.interpolation!r}"
-            )
+            raise ValueError(f"TimeSeriesForce: interpolation must be 'linear' or 'hold', got {self.interpolation!r}")
         object.__setattr__(self, "times", _as_float(self.times))
         k = self.times.shape[0] if self.times.ndim == 1 else -1
         for name in ("force", "torque"):
@@ -455,8 +451,7 @@ class TimeSeriesForce(ForceModel):
                 v = _as_float(v)
                 if v.ndim < 2 or v.shape[0] != k or v.shape[-1] != 3:
                     raise ValueError(
-                        f"TimeSeriesForce: {name} must have shape (K={k}, ..., 3) matching times (K,); "
-                        f"got {v.shape}"
+                        f"TimeSeriesForce: {name} must have shape (K={k}, ..., 3) matching times (K,); got {v.shape}"
                     )
                 object.__setattr__(self, name, v)
 

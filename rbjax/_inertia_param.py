@@ -28,9 +28,7 @@ def _lower(theta: Array) -> Array:
     z = jnp.zeros_like(theta[..., 0])
     d0, d1, d2 = jnp.exp(theta[..., 0]), jnp.exp(theta[..., 1]), jnp.exp(theta[..., 2])
     l10, l20, l21 = theta[..., 3], theta[..., 4], theta[..., 5]
-    return jnp.stack(
-        [jnp.stack([d0, z, z], -1), jnp.stack([l10, d1, z], -1), jnp.stack([l20, l21, d2], -1)], -2
-    )
+    return jnp.stack([jnp.stack([d0, z, z], -1), jnp.stack([l10, d1, z], -1), jnp.stack([l20, l21, d2], -1)], -2)
 
 
 def inertia_from_params(theta: ArrayLike) -> Array:
@@ -67,8 +65,12 @@ def params_from_inertia(inertia: ArrayLike) -> Array:
     L = jnp.linalg.cholesky(second_moment(inertia))
     return jnp.stack(
         [
-            jnp.log(L[..., 0, 0]), jnp.log(L[..., 1, 1]), jnp.log(L[..., 2, 2]),
-            L[..., 1, 0], L[..., 2, 0], L[..., 2, 1],
+            jnp.log(L[..., 0, 0]),
+            jnp.log(L[..., 1, 1]),
+            jnp.log(L[..., 2, 2]),
+            L[..., 1, 0],
+            L[..., 2, 0],
+            L[..., 2, 1],
         ],
         axis=-1,
     )

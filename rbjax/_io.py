@@ -95,8 +95,16 @@ def _time_stacked(obj: Any) -> list[str]:
     return []
 
 
-def _metadata(obj: Any, *, trajectory: bool, method: str | None, dt: Any, save_every: int | None,
-              t0: Any, extra: dict[str, Any] | None = None) -> dict[str, Any]:
+def _metadata(
+    obj: Any,
+    *,
+    trajectory: bool,
+    method: str | None,
+    dt: Any,
+    save_every: int | None,
+    t0: Any,
+    extra: dict[str, Any] | None = None,
+) -> dict[str, Any]:
     leaves = jax.tree_util.tree_leaves(obj)
     dtypes = sorted({str(np.asarray(a).dtype) for a in leaves})
     meta = {
@@ -197,9 +205,7 @@ def _check_expect(meta: dict[str, Any], expect: type | tuple[type, ...] | None, 
     wanted = expect if isinstance(expect, tuple) else (expect,)
     name = meta["tree"]["type"]
     if name not in {t.__name__ for t in wanted}:
-        raise ValueError(
-            f"load: {path} holds a {name}, expected {' or '.join(t.__name__ for t in wanted)}"
-        )
+        raise ValueError(f"load: {path} holds a {name}, expected {' or '.join(t.__name__ for t in wanted)}")
 
 
 def _to_jax(arrays: dict[str, np.ndarray], path: Path) -> dict[str, Any]:
@@ -251,11 +257,7 @@ def load(path: str | os.PathLike, expect: type | tuple[type, ...] | None = None)
 
 
 def _chunk_files(directory: Path) -> list[Path]:
-    found = sorted(
-        (int(m.group(1)), directory / name)
-        for name in os.listdir(directory)
-        if (m := _CHUNK.match(name))
-    )
+    found = sorted((int(m.group(1)), directory / name) for name in os.listdir(directory) if (m := _CHUNK.match(name)))
     if not found:
         raise ValueError(f"load: {directory} holds no chunk_NNNNNN.npz files")
     numbers = [n for n, _ in found]

@@ -162,9 +162,7 @@ def matrix_to_quat(R: ArrayLike) -> Array:
     r20, r21, r22 = R[..., 2, 0], R[..., 2, 1], R[..., 2, 2]
     tr = r00 + r11 + r22
     # 4 w² = 1 + tr, 4 x² = 1 + r00 - r11 - r22, ...
-    four_sq = jnp.stack(
-        [1 + tr, 1 + r00 - r11 - r22, 1 - r00 + r11 - r22, 1 - r00 - r11 + r22], axis=-1
-    )
+    four_sq = jnp.stack([1 + tr, 1 + r00 - r11 - r22, 1 - r00 + r11 - r22, 1 - r00 - r11 + r22], axis=-1)
     s = 2 * jnp.sqrt(jnp.maximum(four_sq, _eps(R)))  # s_k = 4 |q_k|
     cand = jnp.stack(
         [
@@ -184,9 +182,9 @@ def matrix_to_quat(R: ArrayLike) -> Array:
 def quat_exp(rotvec: ArrayLike) -> Array:
     """Exponential map: rotation vector ``θ n`` (radians) → unit quaternion.
 
-    ``exp(θ n) = [cos(θ/2), sin(θ/2) n]``. Near ``θ = 0`` a Taylor series replaces
-    ``sin(θ/2)/θ``, so the value and every gradient are finite at zero rotation.
-``rotvec``: ``(..., 3)``; returns ``(..., 4)``.
+        ``exp(θ n) = [cos(θ/2), sin(θ/2) n]``. Near ``θ = 0`` a Taylor series replaces
+        ``sin(θ/2)/θ``, so the value and every gradient are finite at zero rotation.
+    ``rotvec``: ``(..., 3)``; returns ``(..., 4)``.
     """
     v = jnp.asarray(rotvec)
     th2 = jnp.sum(v * v, axis=-1, keepdims=True)
@@ -217,9 +215,9 @@ def quat_log(q: ArrayLike) -> Array:
 def quat_angle(p: ArrayLike, q: ArrayLike) -> Array:
     """Angle (radians, in ``[0, π]``) of the rotation taking ``p`` to ``q``.
 
-    ``2 atan2(‖vec(p* ⊗ q)‖, |scal(p* ⊗ q)|)``; insensitive to the sign of either
-    quaternion, accurate for small angles (unlike ``arccos``). ``p``, ``q``:
-``(..., 4)``, broadcast; returns ``(...)``.
+        ``2 atan2(‖vec(p* ⊗ q)‖, |scal(p* ⊗ q)|)``; insensitive to the sign of either
+        quaternion, accurate for small angles (unlike ``arccos``). ``p``, ``q``:
+    ``(..., 4)``, broadcast; returns ``(...)``.
     """
     d = quat_multiply(quat_conjugate(p), q)
     return 2 * jnp.arctan2(safe_norm(d[..., 1:]), jnp.abs(d[..., 0]))

@@ -51,9 +51,7 @@ def pytree_dataclass(cls: type[T]) -> type[T]:
     keys = tuple(jax.tree_util.GetAttrKey(n) for n in data)
 
     def flatten_with_keys(obj):
-        return [(k, getattr(obj, n)) for k, n in zip(keys, data)], tuple(
-            getattr(obj, n) for n in meta
-        )
+        return [(k, getattr(obj, n)) for k, n in zip(keys, data)], tuple(getattr(obj, n) for n in meta)
 
     def flatten(obj):
         return [getattr(obj, n) for n in data], tuple(getattr(obj, n) for n in meta)

@@ -31,7 +31,9 @@ __all__ = [
 
 def _omega_world(s: State) -> Array:
     # ω = I_w⁻¹ L = R I_L⁻¹ Rᵀ L, evaluated with quaternion rotations (no matrix)
-    return quat_rotate(s.orientation, _apply(s.body.inverse_inertia, quat_rotate(quat_conjugate(s.orientation), s.angular_momentum)))
+    return quat_rotate(
+        s.orientation, _apply(s.body.inverse_inertia, quat_rotate(quat_conjugate(s.orientation), s.angular_momentum))
+    )
 
 
 def _one_angular_velocity(s: RigidState) -> Array:
@@ -143,8 +145,12 @@ def to_matrix_state(state: State) -> MatrixState:
     """
     R, w = rotation_matrix(state), angular_velocity(state)
     return new_unchecked(
-        MatrixState, body=state.body, position=state.position, velocity=state.velocity,
-        rotation=R, angular_velocity=w,
+        MatrixState,
+        body=state.body,
+        position=state.position,
+        velocity=state.velocity,
+        rotation=R,
+        angular_velocity=w,
     )
 
 
@@ -155,7 +161,10 @@ def to_state(state: MatrixState) -> State:
     """
     q, L = orientation(state), angular_momentum(state)
     return new_unchecked(
-        State, body=state.body, position=state.position, velocity=state.velocity,
-        orientation=q, angular_momentum=L,
+        State,
+        body=state.body,
+        position=state.position,
+        velocity=state.velocity,
+        orientation=q,
+        angular_momentum=L,
     )
-

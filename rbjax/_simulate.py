@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import functools
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -19,6 +20,7 @@ from ._simulate_support import constant_fields
 from ._state import AnyState, ForceLike, Forces
 
 __all__ = ["step", "simulate", "as_force_fn"]
+
 
 def _check_dt(dt: Any) -> None:
     if isinstance(dt, jax.core.Tracer):
@@ -136,9 +138,7 @@ def simulate(
 
     A new callable ``forces`` object compiles anew (it is a static argument).
     """
-    return _run(
-        state, forces, dt, steps, method, save_every=save_every, t0=t0, checked=checked, checkpoint=checkpoint
-    )
+    return _run(state, forces, dt, steps, method, save_every=save_every, t0=t0, checked=checked, checkpoint=checkpoint)
 
 
 def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoint=None, step_offset=0):
@@ -164,15 +164,28 @@ def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoin
         raise TypeError(f"forces must be Forces, a callable (state, t) -> Forces, or None; got {type(forces)}")
     checks = _checked.resolve(checked, state)
     out = _simulate(
-        state, forces, jnp.asarray(dt), jnp.asarray(t0),
-        steps=int(steps), method=method, save_every=int(save_every), series=series, force_fn=force_fn,
-        checks=checks, checkpoint=None if checkpoint is None else int(checkpoint),
+        state,
+        forces,
+        jnp.asarray(dt),
+        jnp.asarray(t0),
+        steps=int(steps),
+        method=method,
+        save_every=int(save_every),
+        series=series,
+        force_fn=force_fn,
+        checks=checks,
+        checkpoint=None if checkpoint is None else int(checkpoint),
     )
     if checks is None:
         return out
     traj, rec = out
     return _checked.raise_on_failure(
-        traj, rec, checks, method=method, batch_shape=state.batch_shape, steps=int(steps),
+        traj,
+        rec,
+        checks,
+        method=method,
+        batch_shape=state.batch_shape,
+        steps=int(steps),
         step_offset=step_offset,
     )
 
@@ -181,9 +194,7 @@ def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoin
     jax.jit,
     static_argnames=("steps", "method", "save_every", "series", "force_fn", "checks", "checkpoint"),
 )
-def _simulate(
-    state, forces, dt, t0, *, steps, method, save_every, series, force_fn, checks=None, checkpoint=None
-):
+def _simulate(state, forces, dt, t0, *, steps, method, save_every, series, force_fn, checks=None, checkpoint=None):
     step_fn = method if callable(method) else _methods.get(method, type(state))
     dtype = state.dtype
     dt, t0 = dt.astype(dtype), t0.astype(dtype)
@@ -227,7 +238,6 @@ def _simulate(
     return traj if checks is None else (traj, rec)
 
 
-
 # --- gradient checkpointing (the ``checkpoint=`` option of ``simulate``) ---
 
 
@@ -235,13 +245,9 @@ def _check_checkpoint(checkpoint: Any, steps: int, save_every: int) -> None:
     if checkpoint is None:
         return
     if not isinstance(checkpoint, (int, np.integer)) or checkpoint < 1 or steps % checkpoint:
-        raise ValueError(
-            f"checkpoint must be None or a positive int dividing steps={steps}, got {checkpoint!r}"
-        )
+        raise ValueError(f"checkpoint must be None or a positive int dividing steps={steps}, got {checkpoint!r}")
     if save_every % checkpoint and checkpoint % save_every:
-        raise ValueError(
-            f"checkpoint={checkpoint} must divide save_every={save_every} or be a multiple of it"
-        )
+        raise ValueError(f"checkpoint={checkpoint} must divide save_every={save_every} or be a multiple of it")
 
 
 def _checkpointed_scan(f, carry, xs, segment: int | None):

@@ -6,7 +6,8 @@ All vectors are in the world frame unless a name says otherwise; SI units
 
 from __future__ import annotations
 
-from typing import Any, Callable, Union
+from collections.abc import Callable
+from typing import Any, Union
 
 import jax.numpy as jnp
 import numpy as np
@@ -129,7 +130,7 @@ class State:
         velocity: ArrayLike | None = None,
         orientation: ArrayLike | None = None,
         angular_velocity: ArrayLike | None = None,
-    ) -> "State":
+    ) -> State:
         """State from kinematic quantities; missing ones are zero / identity.
 
         ``angular_velocity`` ``ω`` is in the world frame (rad/s); the stored
@@ -142,9 +143,7 @@ class State:
         x = _vec(position, [0.0, 0.0, 0.0], dtype)
         v = _vec(velocity, [0.0, 0.0, 0.0], dtype)
         _check_vectors("State.create", position=x, velocity=v, orientation=q, angular_velocity=w)
-        shape = jnp.broadcast_shapes(
-            body.batch_shape, x.shape[:-1], v.shape[:-1], q.shape[:-1], w.shape[:-1]
-        )
+        shape = jnp.broadcast_shapes(body.batch_shape, x.shape[:-1], v.shape[:-1], q.shape[:-1], w.shape[:-1])
         _check_unit_quaternion("State.create", q)
         L = quat_rotate(q, _apply(body.inertia, quat_rotate(_conj(q), w)))
         bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])  # noqa: E731
@@ -197,7 +196,7 @@ class MatrixState:
         velocity: ArrayLike | None = None,
         orientation: ArrayLike | None = None,
         angular_velocity: ArrayLike | None = None,
-    ) -> "MatrixState":
+    ) -> MatrixState:
         """State from kinematic quantities, as :meth:`State.create`.
 
         ``orientation`` is a unit quaternion ``[w, x, y, z]`` or a ``(3, 3)``
@@ -214,9 +213,7 @@ class MatrixState:
         x = _vec(position, [0.0, 0.0, 0.0], dtype)
         v = _vec(velocity, [0.0, 0.0, 0.0], dtype)
         _check_vectors("MatrixState.create", position=x, velocity=v, rotation=R, angular_velocity=w)
-        shape = jnp.broadcast_shapes(
-            body.batch_shape, x.shape[:-1], v.shape[:-1], R.shape[:-2], w.shape[:-1]
-        )
+        shape = jnp.broadcast_shapes(body.batch_shape, x.shape[:-1], v.shape[:-1], R.shape[:-2], w.shape[:-1])
         bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])  # noqa: E731
         return cls(body, bc(x), bc(v), jnp.broadcast_to(R, shape + (3, 3)), bc(w))
 
@@ -257,7 +254,7 @@ class ParticleState:
         *,
         position: ArrayLike | None = None,
         velocity: ArrayLike | None = None,
-    ) -> "ParticleState":
+    ) -> ParticleState:
         """Particles from mass (kg) and optional position and velocity (zeros)."""
         m = _as_float(mass)
         dtype = _dtype_of(None, m, position, velocity)
@@ -307,19 +304,19 @@ class Forces:
         _check_vectors("Forces", force=self.force, torque=self.torque)
 
     @classmethod
-    def at_point(cls, force: ArrayLike, point: ArrayLike, state: AnyState) -> "Forces":
+    def at_point(cls, force: ArrayLike, point: ArrayLike, state: AnyState) -> Forces:
         """Force ``F`` applied at world point ``p``: torque ``τ = (p - x) × F``."""
         f = _as_float(force)
         return cls(force=f, torque=cross(jnp.asarray(point) - state.position, f))
 
     @classmethod
-    def gravity(cls, state: AnyState, g: ArrayLike = (0.0, 0.0, -9.81)) -> "Forces":
+    def gravity(cls, state: AnyState, g: ArrayLike = (0.0, 0.0, -9.81)) -> Forces:
         """Uniform gravity ``F = m g`` (world frame, m/s²), no torque."""
         m = state.mass if isinstance(state, ParticleState) else state.body.mass
         g = jnp.asarray(g, dtype=state.dtype)
         return cls(force=jnp.broadcast_to(m[..., None] * g, state.position.shape))
 
-    def __add__(self, other: "Forces") -> "Forces":
+    def __add__(self, other: Forces) -> Forces:
         def add(a: Array | None, b: Array | None) -> Array | None:
             if a is None:
                 return b

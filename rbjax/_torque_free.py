@@ -174,11 +174,34 @@ def _setup(s: State) -> dict[str, Array]:
     p = matrix_to_quat(frame)
     u0 = jnp.stack([ma, mb, mc]) / M
     c = dict(
-        steady=steady, eq=eq, ma=ma, mb=mb, mc=mc, M=M, rho=rho, mu2=mu2, mc_max=mc_max,
-        kc2=kc2, lam=lam, d0=d0, K=K, r0=r0,
-        rate=M / Jc + dac / (Ja * Jc) * fbar, coef=dac / (Ja * Jc), psi_rate_eq=psi_rate_eq,
-        pre=quat_multiply(quat_multiply(q0, p), quat_conjugate(_b_quat(u0))), post=quat_conjugate(p),
-        omega=_omega_world(s), q0=q0, n=n, m_par=m_par, fbar=fbar, sq=sq, a_s=a_s, c_s=c_s, kc=jnp.sqrt(kc2),
+        steady=steady,
+        eq=eq,
+        ma=ma,
+        mb=mb,
+        mc=mc,
+        M=M,
+        rho=rho,
+        mu2=mu2,
+        mc_max=mc_max,
+        kc2=kc2,
+        lam=lam,
+        d0=d0,
+        K=K,
+        r0=r0,
+        rate=M / Jc + dac / (Ja * Jc) * fbar,
+        coef=dac / (Ja * Jc),
+        psi_rate_eq=psi_rate_eq,
+        pre=quat_multiply(quat_multiply(q0, p), quat_conjugate(_b_quat(u0))),
+        post=quat_conjugate(p),
+        omega=_omega_world(s),
+        q0=q0,
+        n=n,
+        m_par=m_par,
+        fbar=fbar,
+        sq=sq,
+        a_s=a_s,
+        c_s=c_s,
+        kc=jnp.sqrt(kc2),
     )
     c["P0"] = _periodic(c, sr0, cr0, d2r0, r0)
     return c
@@ -200,11 +223,16 @@ def _orientation_at(c: dict[str, Array], t: Array) -> Array:
     ma, mb, mc, rho, d0 = c["ma"], c["mb"], c["mc"], c["rho"], c["d0"]
     den = C * C + d0 * d0 * S * S
     mc_max_safe = jnp.where(c["eq"], 1.0, c["mc_max"])
-    m_t = jnp.stack([
-        ma * C - rho * mb * d0 * S * D,
-        mb * C * D + ma / rho * d0 * S,
-        mc * D - c["mu2"] / rho * ma * mb / mc_max_safe * S * C,
-    ]) / den
+    m_t = (
+        jnp.stack(
+            [
+                ma * C - rho * mb * d0 * S * D,
+                mb * C * D + ma / rho * d0 * S,
+                mc * D - c["mu2"] / rho * ma * mb / mc_max_safe * S * C,
+            ]
+        )
+        / den
+    )
     u = m_t / jnp.sqrt(jnp.sum(m_t * m_t))
 
     # the amplitude at τ = τ0 + λt, from τ reduced to r ∈ [-K, K]. Near r = ±K
@@ -242,7 +270,8 @@ def _solve(state: State, ts: Array) -> State:
     shape = q.shape[:-1]
     tb = ts.reshape(ts.shape + (1,) * (len(shape) - 1) + (1,))
     return new_unchecked(
-        State, body=state.body,
+        State,
+        body=state.body,
         position=state.position + tb * state.velocity,
         velocity=jnp.broadcast_to(state.velocity, shape + (3,)),
         orientation=q,
@@ -329,6 +358,12 @@ def torque_free(state: State | MatrixState, t: ArrayLike) -> Any:
     ts = jnp.asarray(t, state.dtype)
     out = _solve(state, jnp.atleast_1d(ts))
     if ts.ndim == 0:
-        out = new_unchecked(State, body=state.body, position=out.position[0], velocity=out.velocity[0],
-                            orientation=out.orientation[0], angular_momentum=out.angular_momentum[0])
+        out = new_unchecked(
+            State,
+            body=state.body,
+            position=out.position[0],
+            velocity=out.velocity[0],
+            orientation=out.orientation[0],
+            angular_momentum=out.angular_momentum[0],
+        )
     return out

@@ -74,9 +74,7 @@ def test_ellipsoid_and_sphere_against_quadrature():
     ref = np.diag([mom[1] + mom[2], mom[0] + mom[2], mom[0] + mom[1]])
     # quadrature accurate to ~1e-9 relative (the square-root edges limit it)
     np.testing.assert_allclose(rb.ellipsoid(m, [a, b, c]).inertia, ref, rtol=1e-7, atol=1e-12)
-    np.testing.assert_allclose(
-        rb.sphere(m, 1.3).inertia, rb.ellipsoid(m, [1.3, 1.3, 1.3]).inertia, rtol=1e-15
-    )
+    np.testing.assert_allclose(rb.sphere(m, 1.3).inertia, rb.ellipsoid(m, [1.3, 1.3, 1.3]).inertia, rtol=1e-15)
 
 
 def test_box_and_cylinder_against_quadrature():

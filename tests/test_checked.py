@@ -15,9 +15,7 @@ N = 5
 
 def _state(dtype=jnp.float64):
     rng = np.random.default_rng(11)
-    body = rb.box(
-        jnp.asarray(rng.uniform(0.5, 2, N), dtype), jnp.asarray(rng.uniform(0.3, 1.5, (N, 3)), dtype)
-    )
+    body = rb.box(jnp.asarray(rng.uniform(0.5, 2, N), dtype), jnp.asarray(rng.uniform(0.3, 1.5, (N, 3)), dtype))
     return rb.State.create(body, angular_velocity=jnp.asarray(rng.normal(size=(N, 3)), dtype))
 
 
@@ -41,9 +39,7 @@ def test_nan_names_step_and_body_eagerly_and_under_jit():
     with pytest.raises(Exception, match=want):
         rb.simulate(s, NAN_ON_3_AT_7, DT, 20, "euler", checked=True)
     with pytest.raises(Exception, match=want):
-        jax.block_until_ready(
-            jax.jit(lambda s: rb.simulate(s, NAN_ON_3_AT_7, DT, 20, "euler", checked=True))(s)
-        )
+        jax.block_until_ready(jax.jit(lambda s: rb.simulate(s, NAN_ON_3_AT_7, DT, 20, "euler", checked=True))(s))
     # the saved frames do not matter: the step is exact even between saves
     with pytest.raises(Exception, match=want):
         rb.simulate(s, NAN_ON_3_AT_7, DT, 20, "euler", save_every=5, checked=True)

@@ -77,9 +77,9 @@ def test_fit_reads_a_csv_recording_and_recovers_the_inertia(tmp_path, capsys):
     import json
 
     import numpy as np
+    from reference import qrot, reference_rotation
 
     from rbjax._cli import main
-    from reference import qrot, reference_rotation
 
     I_true = np.diag([1.0, 2.0, 2.6])
     t = np.linspace(0.0, 1.0, 201)

@@ -26,6 +26,7 @@ class E:
     carlson_rf = staticmethod(jax.jit(_E.carlson_rf))
     carlson_rj = staticmethod(jax.jit(_E.carlson_rj))
 
+
 # grid of parameters in [0, 1), including the separatrix side 1 - 1e-8
 M_GRID = np.array([0.0, 1e-12, 0.1, 0.5, 0.9, 0.99, 1 - 1e-4, 1 - 1e-6, 1 - 1e-8])
 

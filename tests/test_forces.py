@@ -72,9 +72,7 @@ def test_spring_damper_to_anchor_is_a_damped_oscillator():
     a = np.array([[1.0, 2.0, 3.0], [-1.0, 0.0, 0.0]])
     x0 = a + np.array([[1.0, -0.5, 0.2], [l0[1] + 0.5, 0.0, 0.0]])
     v0 = np.array([[0.0, 1.0, 0.0], [0.3, 0.0, 0.0]])
-    spring = rb.Spring.to_anchor(
-        np.arange(2), a, jnp.asarray(k), rest_length=jnp.asarray(l0), damping=jnp.asarray(c)
-    )
+    spring = rb.Spring.to_anchor(np.arange(2), a, jnp.asarray(k), rest_length=jnp.asarray(l0), damping=jnp.asarray(c))
     p = _particles(m, x0=x0, v0=v0)
     dt, steps = 0.01, 300
     tr = rb.Scene.build(p, spring, "rk4").simulate(p, dt, steps, save_every=steps)
@@ -202,9 +200,7 @@ def test_custom_force_is_differentiable_in_its_params():
     # exact on quadratics); gravity's g gives the same derivative per unit mass times m.
     m, T = 2.0, 1.0
     p = _particles([m])
-    custom = rb.CustomForce(
-        lambda s, t, f: rb.Forces(force=jnp.broadcast_to(f, s.position.shape)), jnp.zeros(3)
-    )
+    custom = rb.CustomForce(lambda s, t, f: rb.Forces(force=jnp.broadcast_to(f, s.position.shape)), jnp.zeros(3))
 
     def final_z(params):
         scene = rb.Scene.build(p, rb.CustomForce(custom.fn, params), "rk4")
@@ -213,9 +209,7 @@ def test_custom_force_is_differentiable_in_its_params():
     grad = jax.grad(final_z)(jnp.zeros(3))
     np.testing.assert_allclose(grad, [0.0, 0.0, T**2 / (2 * m)], rtol=1e-12, atol=1e-15)
     dz_dg = jax.grad(
-        lambda g: (
-            rb.Scene.build(p, rb.Gravity(g), "rk4").simulate(p, 0.1, 10, save_every=10).position[-1, 0, 2]
-        )
+        lambda g: rb.Scene.build(p, rb.Gravity(g), "rk4").simulate(p, 0.1, 10, save_every=10).position[-1, 0, 2]
     )
     np.testing.assert_allclose(dz_dg(jnp.zeros(3)), [0.0, 0.0, T**2 / 2], rtol=1e-12, atol=1e-15)
 

@@ -31,9 +31,14 @@ def _final(method, m, I_entries, r0, x0, v0, w0, F, tau, dt, checkpoint=None, st
 def _args(seed=0, w0=(0.4, 2.0, -0.3), r0=(0.2, -0.1, 0.3), I=(1.0, 2.0, 2.6, 0.1, -0.05, 0.08)):
     rng = np.random.default_rng(seed)
     return (
-        jnp.asarray(1.3), jnp.asarray(I), jnp.asarray(r0), jnp.asarray([0.1, 0.0, -0.2]),
-        jnp.asarray([0.5, -0.2, 0.1]), jnp.asarray(w0),
-        jnp.asarray(rng.normal(0, 1, (STEPS, 3))), jnp.asarray(rng.normal(0, 0.5, (STEPS, 3))),
+        jnp.asarray(1.3),
+        jnp.asarray(I),
+        jnp.asarray(r0),
+        jnp.asarray([0.1, 0.0, -0.2]),
+        jnp.asarray([0.5, -0.2, 0.1]),
+        jnp.asarray(w0),
+        jnp.asarray(rng.normal(0, 1, (STEPS, 3))),
+        jnp.asarray(rng.normal(0, 0.5, (STEPS, 3))),
         jnp.asarray(0.02),
     )
 
@@ -89,8 +94,11 @@ def test_sign_of_quaternion_does_not_change_gradients(method):
 def test_checkpointing_gives_the_same_gradient(method):
     steps = 48
     rng = np.random.default_rng(2)
-    a = _args()[:6] + (jnp.asarray(rng.normal(0, 1, (steps, 3))), jnp.asarray(rng.normal(0, 0.5, (steps, 3))),
-                       jnp.asarray(0.02))
+    a = _args()[:6] + (
+        jnp.asarray(rng.normal(0, 1, (steps, 3))),
+        jnp.asarray(rng.normal(0, 0.5, (steps, 3))),
+        jnp.asarray(0.02),
+    )
 
     def loss(ck, *x):
         return jnp.sum(_final(method, *x, checkpoint=ck, steps=steps) ** 2)
@@ -124,7 +132,9 @@ def test_checkpoint_reduces_compiled_memory():
         return jnp.sum(q[-1] * jnp.arange(4.0))  # torque-free L is constant: use the orientation
 
     w = jnp.array([0.1, 2.0, 0.1])
-    mem = {ck: jax.jit(jax.grad(loss), static_argnums=1).lower(w, ck).compile().memory_analysis()
-           .temp_size_in_bytes for ck in (None, 32)}
+    mem = {
+        ck: jax.jit(jax.grad(loss), static_argnums=1).lower(w, ck).compile().memory_analysis().temp_size_in_bytes
+        for ck in (None, 32)
+    }
     # 1024 steps stored vs 32 boundaries + one 32-step segment: ~16x less; assert 5x
     assert mem[32] * 5 < mem[None], mem

@@ -27,8 +27,7 @@ BODIES = {
     # highly anisotropic: a box with squared side lengths 1 : 30 : 1000, moments
     # ∝ (1030, 1001, 31). (Moments 1 : 30 : 1000 themselves break the triangle
     # inequality d1 + d2 ≥ d3: no mass distribution has them, Body rejects them.)
-    "aniso": (_rot(0.1, 0.2, -0.3) @ np.diag([1030.0, 1001.0, 31.0]) @ _rot(0.1, 0.2, -0.3).T,
-              [0.4, 0.3, 0.05]),
+    "aniso": (_rot(0.1, 0.2, -0.3) @ np.diag([1030.0, 1001.0, 31.0]) @ _rot(0.1, 0.2, -0.3).T, [0.4, 0.3, 0.05]),
     # thin rod near the triangle-inequality limit: moments 0.001 : 1 : 1.0009
     # (ratio 1000, slack d1 + d2 - d3 = 1e-4)
     "rod": (_rot(-0.4, 0.1, 0.2) @ np.diag([0.001, 1.0, 1.0009]) @ _rot(-0.4, 0.1, 0.2).T, [0.7, 0.5, -0.4]),
@@ -66,8 +65,9 @@ def _reference():
     out = []
     for body, torque in CASES:
         I, w0 = BODIES[body]
-        q, w = reference_rotation(I, Q0, np.array(w0), np.array([0.0, T_CONV]),
-                                  (lambda t, q, w: _torque(t)) if torque else None)
+        q, w = reference_rotation(
+            I, Q0, np.array(w0), np.array([0.0, T_CONV]), (lambda t, q, w: _torque(t)) if torque else None
+        )
         out.append((q[-1], w[-1]))
     return out
 

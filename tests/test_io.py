@@ -46,9 +46,7 @@ def test_round_trip_is_bitwise(tmp_path, dtype):
         "one_body": _state(dtype, batch=()),
         "traj": traj,
         "matrix": rb.to_matrix_state(s),
-        "particles": rb.ParticleState.create(
-            jnp.asarray([1.0, 2.0], dtype), position=jnp.ones((2, 3), dtype)
-        ),
+        "particles": rb.ParticleState.create(jnp.asarray([1.0, 2.0], dtype), position=jnp.ones((2, 3), dtype)),
         "body": s.body,
         "forces_torque_only": rb.Forces(torque=jnp.ones((3, 3), dtype)),
     }

@@ -95,9 +95,7 @@ def test_exp_and_log_against_scipy(shape):
     q = np.asarray(rb.quat_exp(v))
     ref = _scipy_rot(q).as_rotvec().reshape(shape + (3,))
     # |v| may exceed π: compare rotations, not vectors
-    np.testing.assert_allclose(
-        _scipy_rot(q).as_matrix(), Rotation.from_rotvec(v.reshape(-1, 3)).as_matrix(), atol=TOL
-    )
+    np.testing.assert_allclose(_scipy_rot(q).as_matrix(), Rotation.from_rotvec(v.reshape(-1, 3)).as_matrix(), atol=TOL)
     np.testing.assert_allclose(rb.quat_log(q), ref, atol=1e-12)
     # small angles: the series branch agrees with scipy to round-off
     small = 1e-6 * v
@@ -121,9 +119,7 @@ def test_gradients_finite_at_zero_rotation():
     np.testing.assert_allclose(Jl[:, 1:], 2 * np.eye(3), atol=TOL)
     assert np.all(np.isfinite(jax.grad(lambda x: rb.safe_norm(x))(z)))
     assert np.all(
-        np.isfinite(
-            jax.grad(lambda q: rb.quat_angle(q, jnp.array([1.0, 0, 0, 0])))(jnp.array([1.0, 0, 0, 0]))
-        )
+        np.isfinite(jax.grad(lambda q: rb.quat_angle(q, jnp.array([1.0, 0, 0, 0])))(jnp.array([1.0, 0, 0, 0])))
     )
 
 
@@ -144,9 +140,7 @@ def test_orthonormalize_gives_the_polar_factor():
     out = np.asarray(rb.orthonormalize(noisy))
     # two Newton–Schulz steps leave O(ε⁴) ≈ 1e-13 (quadratic convergence)
     np.testing.assert_allclose(out, polar, atol=1e-12)
-    np.testing.assert_allclose(
-        np.swapaxes(out, -1, -2) @ out, np.broadcast_to(np.eye(3), R.shape), atol=1e-12
-    )
+    np.testing.assert_allclose(np.swapaxes(out, -1, -2) @ out, np.broadcast_to(np.eye(3), R.shape), atol=1e-12)
 
 
 def test_float32_stays_float32():

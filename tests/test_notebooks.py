@@ -30,10 +30,16 @@ def kernel_name(tmp_path_factory, monkeypatch_module):
     jp = tmp_path_factory.mktemp("jupyter")
     spec_dir = jp / "kernels" / KERNEL
     spec_dir.mkdir(parents=True)
-    env = {"PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
-           "MPLBACKEND": "module://matplotlib_inline.backend_inline"}
-    spec = {"argv": [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}"],
-            "display_name": "rbjax test kernel", "language": "python", "env": env}
+    env = {
+        "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
+        "MPLBACKEND": "module://matplotlib_inline.backend_inline",
+    }
+    spec = {
+        "argv": [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}"],
+        "display_name": "rbjax test kernel",
+        "language": "python",
+        "env": env,
+    }
     (spec_dir / "kernel.json").write_text(json.dumps(spec))
     monkeypatch_module.setenv("JUPYTER_PATH", str(jp))
     return KERNEL
@@ -56,7 +62,10 @@ def test_notebooks_found():
 def test_notebook_runs(name, kernel_name):
     nb = nbformat.read(NB_DIR / name, as_version=4)
     client = nbclient.NotebookClient(
-        nb, timeout=300, kernel_name=kernel_name, resources={"metadata": {"path": str(NB_DIR)}},
+        nb,
+        timeout=300,
+        kernel_name=kernel_name,
+        resources={"metadata": {"path": str(NB_DIR)}},
     )
     t0 = time.perf_counter()
     client.execute()  # raises CellExecutionError (with the traceback) if any cell fails

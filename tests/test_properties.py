@@ -118,9 +118,7 @@ def test_q_and_minus_q_give_the_same_motion(s, dt, method):
 def test_euler_keeps_torque_free_world_momentum_exactly(s, dt):
     # L += τ dt with no torque adds nothing: L is bit-for-bit constant, even at large dt
     traj = rb.simulate(s, rb.Forces(force=jnp.ones((N, 3))), dt, STEPS, "euler")
-    assert np.array_equal(
-        np.asarray(traj.angular_momentum), np.broadcast_to(s.angular_momentum, (STEPS + 1, N, 3))
-    )
+    assert np.array_equal(np.asarray(traj.angular_momentum), np.broadcast_to(s.angular_momentum, (STEPS + 1, N, 3)))
 
 
 def _energy_methods():
@@ -167,9 +165,7 @@ def invalid_inertias(draw):
         i, j = draw(st.sampled_from([(0, 1), (0, 2), (1, 2)]))
         inertia[i, j] += draw(finite(min_value=1e-3, max_value=1.0)) * draw(st.sampled_from([-1, 1]))
     elif kind == "non_finite":
-        inertia[draw(st.integers(0, 2)), draw(st.integers(0, 2))] = draw(
-            st.sampled_from([np.nan, np.inf, -np.inf])
-        )
+        inertia[draw(st.integers(0, 2)), draw(st.integers(0, 2))] = draw(st.sampled_from([np.nan, np.inf, -np.inf]))
     return inertia
 
 

@@ -34,8 +34,7 @@ def test_public_name_is_documented(name):
     assert doc.strip(), f"rbjax.{name} has no docstring"
     lines = [ln for ln in doc.strip().splitlines() if ln.strip()]
     takes_arrays = inspect.isfunction(obj) and any(
-        p.name not in ("method", "name", "path", "state_type")
-        for p in inspect.signature(obj).parameters.values()
+        p.name not in ("method", "name", "path", "state_type") for p in inspect.signature(obj).parameters.values()
     )
     if takes_arrays:
         # one line is enough when it gives the shapes or frames, e.g. "R (body to world), (*B, 3, 3)"

@@ -251,12 +251,8 @@ def test_sharded_simulate_keeps_sharding_and_results():
     # stacked over time, on axis 0) for both mesh axis types (explicit: a Scene with springs that
     # gather and scatter by body index; auto: rbjax.simulate), and equal the unsharded run to
     # round-off (the partitioned program may fuse differently): 1e-13 relative.
-    env = dict(
-        os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=8", PYTHONPATH=ROOT, JAX_PLATFORMS="cpu"
-    )
-    out = subprocess.run(
-        [sys.executable, "-c", SHARDING_CHECK], env=env, capture_output=True, text=True, timeout=300
-    )
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=8", PYTHONPATH=ROOT, JAX_PLATFORMS="cpu")
+    out = subprocess.run([sys.executable, "-c", SHARDING_CHECK], env=env, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-3000:]
     worst = float(out.stdout.split("WORST")[-1])
     assert worst < 1e-13

@@ -165,9 +165,9 @@ def test_batch_equals_per_body_and_jit_equals_eager(method):
     eager = batch
     for _ in range(3):
         eager = rb.step(eager, tau, 0.01, method)
-    jitted = jax.jit(
-        lambda s: rb.step(rb.step(rb.step(s, tau, 0.01, method), tau, 0.01, method), tau, 0.01, method)
-    )(batch)
+    jitted = jax.jit(lambda s: rb.step(rb.step(rb.step(s, tau, 0.01, method), tau, 0.01, method), tau, 0.01, method))(
+        batch
+    )
     np.testing.assert_allclose(jitted.orientation, eager.orientation, rtol=1e-14, atol=1e-15)
     np.testing.assert_allclose(traj.orientation[3], eager.orientation, rtol=1e-14, atol=1e-15)
 

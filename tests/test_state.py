@@ -39,9 +39,7 @@ def test_quantities_equal_particle_sums(particle_body):
     np.testing.assert_allclose(rb.angular_velocity(s), w, rtol=TOL)
     np.testing.assert_allclose(rb.body_angular_velocity(s), R.T @ w, rtol=TOL, atol=TOL)
     np.testing.assert_allclose(rb.linear_momentum(s), (m[:, None] * vel).sum(0), rtol=TOL)
-    np.testing.assert_allclose(
-        rb.angular_momentum(s), (m[:, None] * np.cross(r, vel)).sum(0), rtol=TOL, atol=TOL
-    )
+    np.testing.assert_allclose(rb.angular_momentum(s), (m[:, None] * np.cross(r, vel)).sum(0), rtol=TOL, atol=TOL)
     np.testing.assert_allclose(rb.kinetic_energy(s), 0.5 * (m * (vel**2).sum(1)).sum(), rtol=TOL)
     # I_w = R I_L Rᵀ equals the inertia of the rotated particles
     np.testing.assert_allclose(rb.world_inertia(s), rb.from_particles(m, r)[0].inertia, rtol=1e-11, atol=TOL)
@@ -117,9 +115,7 @@ def test_pytrees_work_under_jit_vmap_grad():
     # zero angular velocity at the identity: gradient finite
     assert np.all(
         np.isfinite(
-            jax.grad(lambda w: rb.angular_velocity(rb.State.create(body, angular_velocity=w)).sum())(
-                jnp.zeros(3)
-            )
+            jax.grad(lambda w: rb.angular_velocity(rb.State.create(body, angular_velocity=w)).sum())(jnp.zeros(3))
         )
     )
 

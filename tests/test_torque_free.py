@@ -23,8 +23,9 @@ def _state(inertia, omega_body, q0=Q0, dtype=np.float64):
     """State with body-frame rate ``omega_body`` (so pure spins are exact in the body frame)."""
     inertia = np.asarray(inertia, dtype)
     w_world = np.asarray(rbjax.quat_rotate(q0, np.asarray(omega_body, np.float64)))
-    return rbjax.State.create(rbjax.Body(dtype(1.0), inertia), orientation=np.asarray(q0, dtype),
-                              angular_velocity=w_world.astype(dtype))
+    return rbjax.State.create(
+        rbjax.Body(dtype(1.0), inertia), orientation=np.asarray(q0, dtype), angular_velocity=w_world.astype(dtype)
+    )
 
 
 CASES = {
@@ -130,8 +131,9 @@ def _rhs_q(inertia, w_world, t):
 # compiled once for all cases: the body is an argument, not a closure constant
 _final_jit = jax.jit(_final)
 _dt_fwd = jax.jit(jax.vmap(jax.jacfwd(_final, argnums=2), in_axes=(None, None, 0)))
-_dt_rev = jax.jit(jax.vmap(jax.grad(lambda i, w, t: _final(i, w, t) @ jnp.arange(1.0, 8.0), argnums=2),
-                           in_axes=(None, None, 0)))
+_dt_rev = jax.jit(
+    jax.vmap(jax.grad(lambda i, w, t: _final(i, w, t) @ jnp.arange(1.0, 8.0), argnums=2), in_axes=(None, None, 0))
+)
 _dw_fwd = jax.jit(jax.jacfwd(_final, argnums=1))
 _dw_rev = jax.jit(jax.jacrev(_final, argnums=1))
 _rhs = jax.jit(jax.vmap(_rhs_q, in_axes=(None, None, 0)))

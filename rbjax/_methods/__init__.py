@@ -9,7 +9,8 @@ inside is written for one body and lifted with :func:`rbjax._batching.lift`.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 __all__ = ["Method", "register", "get", "available"]
 
@@ -51,8 +52,7 @@ def get(name: str, state_type: type) -> StepFn:
     fn = m.steps.get(state_type)
     if fn is None:
         raise ValueError(
-            f"method {name!r} does not support {state_type.__name__}; it supports "
-            f"{sorted(t.__name__ for t in m.steps)}"
+            f"method {name!r} does not support {state_type.__name__}; it supports {sorted(t.__name__ for t in m.steps)}"
         )
     return fn
 

@@ -39,9 +39,10 @@ def rk4(state, force_fn, t, dt):
     k3 = f(_axpy(state, dt / 2, k2), t + dt / 2)
     k4 = f(_axpy(state, dt, k3), t + dt)
     consts = constant_fields(state)
-    incr = jax.tree.map(lambda a, b, c, d: (a + 2 * b + 2 * c + d) / 6, *(
-        replace(k, **{n: None for n in consts}) for k in (k1, k2, k3, k4)
-    ))
+    incr = jax.tree.map(
+        lambda a, b, c, d: (a + 2 * b + 2 * c + d) / 6,
+        *(replace(k, **{n: None for n in consts}) for k in (k1, k2, k3, k4)),
+    )
     out = _axpy(state, dt, replace(incr, **{n: getattr(state, n) for n in consts}))
     if isinstance(out, State):
         out = replace(out, orientation=quat_normalize(out.orientation))
