@@ -49,6 +49,15 @@ from ._inertia_param import (
 from ._inertia_param import (
     second_moment as second_moment,
 )
+
+# isort: split
+# --- multiple shooting and truncated gradients (fit2) ---
+from ._shooting import defects as defects
+from ._shooting import shoot as shoot
+from ._shooting import simulate_truncated as simulate_truncated
+
+# --- end multiple shooting ---
+# isort: split
 from ._math import (
     cross as cross,
 )

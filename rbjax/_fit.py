@@ -26,6 +26,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import lineax as lx
 import numpy as np
 import optimistix as optx
 from jax import Array
@@ -35,7 +36,7 @@ from ._body import Body, inverse_3x3
 from ._inertia_param import inertia_from_params, params_from_inertia
 from ._math import quat_conjugate, quat_exp, quat_log, quat_multiply, quat_rotate
 from ._pytree import field, new_unchecked, pytree_dataclass, static_field
-from ._simulate import step
+from ._shooting import _scan_segment
 from ._state import Forces, State, _apply, quat_tolerance
 
 __all__ = ["FitResult", "fit_inertia", "fit_inertia_linear"]
@@ -277,6 +278,13 @@ def _check_inputs(times, orientations, body_rates, torques):
 
 # ----------------------------------------------------------------------------------------
 # The model and its residuals (traced; one recording, vmapped for batches)
+#
+# Layout: S segments of K sample intervals (padding intervals have dt = 0 and
+# mask 0). Segment s has local parameters p_s = (δ_s, ω_s) (6) and shares the
+# inertia parameters θ (5 or 6). Its data residuals depend on (θ, p_s) only and
+# a join's continuity residuals on (θ, p_s, p_{s+1}) only, so the Jacobian is
+# formed from (n_θ + 6) forward tangents per segment, vmapped over segments,
+# and scattered into the dense matrix: the cost no longer grows with S.
 
 
 def _inertia(theta: Array, scale_fixed: bool) -> Array:
@@ -286,61 +294,90 @@ def _inertia(theta: Array, scale_fixed: bool) -> Array:
 
 
 def _unpack(y: Array, n_theta: int, S: int):
-    return y[:n_theta], y[n_theta : n_theta + 3 * S].reshape(S, 3), y[n_theta + 3 * S :].reshape(S, 3)
+    return y[:n_theta], y[n_theta:].reshape(S, 6)
 
 
-def _simulate_segment(I, q0, w0, dts, tau_a, tau_b, *, method, substeps):
-    """Orientations and body rates at the ends of a segment's intervals.
+def _segment(theta, p, d, *, scale_fixed, method, substeps, use_rates):
+    """Data residuals of one segment and its end ``(q, ω_body)`` (7,).
 
-    Torques (world) are linear in time between the samples ``tau_a`` → ``tau_b``.
-    Padding intervals have ``dt = 0`` and leave the state unchanged.
+    ``d`` holds the segment's slice of the recording. Torques (world) are linear
+    in time between samples. Residuals: ``[first-sample orientation (3),
+    orientations (K, 3)]`` and, with rates, ``[first-sample rate (3), rates (K, 3)]``,
+    each weighted by its inverse noise; the first-sample terms are non-zero in
+    segment 0 only.
     """
+    I = _inertia(theta, scale_fixed)
+    delta, w0 = p[:3], p[3:]
+    q0 = quat_multiply(d["q_start"], quat_exp(delta))
     one = jnp.ones((), I.dtype)
     body = new_unchecked(Body, mass=one, inertia=I, inverse_inertia=inverse_3x3(I))
     zero = jnp.zeros(3, I.dtype)
     s0 = new_unchecked(
         State, body=body, position=zero, velocity=zero, orientation=q0, angular_momentum=quat_rotate(q0, _apply(I, w0))
     )
-
-    def interval(s, x):
-        dt, ta, tb = x
-        h = dt / substeps
-        if ta is None:
-            forces = None
-        else:
-            inv_dt = jnp.where(dt > 0, 1 / jnp.where(dt > 0, dt, 1), 0)
-            forces = lambda st, t: Forces(torque=ta + (tb - ta) * (t * inv_dt))  # noqa: E731
-        sub = lambda k, s: step(s, forces, h, method, t=k.astype(h.dtype) * h)  # noqa: E731
-        s = jax.lax.fori_loop(0, substeps, sub, s)
-        qc = quat_conjugate(s.orientation)
-        w_body = _apply(s.body.inverse_inertia, quat_rotate(qc, s.angular_momentum))
-        return s, (s.orientation, w_body)
-
-    _, (q, w) = jax.lax.scan(interval, s0, (dts, tau_a, tau_b))
-    return q, w
-
-
-def _residuals(y, data, *, scale_fixed, method, substeps, use_rates, continuity_weight):
-    S = data["q_start"].shape[0]
-    n_theta = 6 if scale_fixed else 5
-    theta, delta, w0 = _unpack(y, n_theta, S)
-    I = _inertia(theta, scale_fixed)
-    q_start = quat_multiply(data["q_start"], quat_exp(delta))
-    sim = functools.partial(_simulate_segment, I, method=method, substeps=substeps)
-    q, w = jax.vmap(sim)(q_start, w0, data["dt"], data["tau_a"], data["tau_b"])
-    wq, ww, mask = data["wq"], data["ww"], data["mask"][..., None]
+    if "tau" in d:
+        ts, tau = d["t_samples"], d["tau"]
+        force_fn = lambda st, t: Forces(  # noqa: E731
+            torque=jnp.stack([jnp.interp(t, ts, tau[:, i]) for i in range(3)])
+        )
+    else:
+        force_fn = lambda st, t: Forces()  # noqa: E731
+    K = d["dt"].shape[0]
+    dts = jnp.broadcast_to((d["dt"] / substeps)[:, None], (K, substeps))
+    traj = _scan_segment(s0, force_fn, dts, d["t0"], _methods.get(method, State))
+    q = traj.orientation[1:]
+    w = jax.vmap(lambda qq, L: _apply(body.inverse_inertia, quat_rotate(quat_conjugate(qq), L)))(
+        q, traj.angular_momentum[1:]
+    )
+    wq, m = d["wq"], d["mask"][:, None]
     res = [
-        wq * quat_log(quat_multiply(quat_conjugate(q_start[0]), data["q0"])),
-        (wq * mask * quat_log(quat_multiply(quat_conjugate(q), data["q_meas"]))).reshape(-1),
+        wq * d["first"] * quat_log(quat_multiply(quat_conjugate(q0), d["q_first"])),
+        (wq * m * quat_log(quat_multiply(quat_conjugate(q), d["q_meas"]))).reshape(-1),
     ]
     if use_rates:
-        res += [ww * (w0[0] - data["w0"]), (ww * mask * (w - data["w_meas"])).reshape(-1)]
-    if S > 1:
-        # last real interval of each segment (padding repeats it anyway)
-        q_end, w_end = q[:-1, -1], w[:-1, -1]
-        gap = quat_log(quat_multiply(quat_conjugate(q_end), q_start[1:]))
-        res += [continuity_weight * wq * gap.reshape(-1), continuity_weight * data["wc"] * (w_end - w0[1:]).reshape(-1)]
-    return jnp.concatenate(res)
+        ww = d["ww"]
+        res += [ww * d["first"] * (w0 - d["w_first"]), (ww * m * (w - d["w_meas"])).reshape(-1)]
+    return jnp.concatenate(res), jnp.concatenate([q[-1], w[-1]])  # padding keeps the end
+
+
+def _continuity(end, p_next, d_next, continuity_weight):
+    """Join residuals (6,): orientation gap (rad) and rate gap, weighted."""
+    q_next = quat_multiply(d_next["q_start"], quat_exp(p_next[:3]))
+    gap = quat_log(quat_multiply(quat_conjugate(end[:4]), q_next))
+    return continuity_weight * jnp.concatenate([d_next["wq"] * gap, d_next["wc"] * (end[4:] - p_next[3:])])
+
+
+def _model(y, data, *, scale_fixed, method, substeps, use_rates, continuity_weight, jacobian):
+    """Residual vector ``r`` (segments' data rows, then join rows) and, if asked, dense ``∂r/∂y``."""
+    seg = data["seg"]
+    S = seg["dt"].shape[0]
+    n_theta = 6 if scale_fixed else 5
+    theta, P = _unpack(y, n_theta, S)
+    f = functools.partial(_segment, scale_fixed=scale_fixed, method=method, substeps=substeps, use_rates=use_rates)
+    c = functools.partial(_continuity, continuity_weight=continuity_weight)
+    nxt = jax.tree.map(lambda a: a[1:], seg)
+    if not jacobian:
+        r_seg, ends = jax.vmap(f, in_axes=(None, 0, 0))(theta, P, seg)
+        r_c = jax.vmap(c)(ends[:-1], P[1:], nxt)
+        return jnp.concatenate([r_seg.reshape(-1), r_c.reshape(-1)])
+
+    def local(x, d):  # x = (θ, p_s): n_θ + 6 tangents, not n_θ + 6 S
+        out = f(x[:n_theta], x[n_theta:], d)
+        return out, out
+
+    X = jnp.concatenate([jnp.broadcast_to(theta, (S, n_theta)), P], -1)
+    (J_seg, J_end), (r_seg, ends) = jax.vmap(jax.jacfwd(local, has_aux=True))(X, seg)
+    cj = jax.jacfwd(lambda e, pn, dn: (c(e, pn, dn),) * 2, argnums=(0, 1), has_aux=True)
+    (Dc_end, Dc_p), r_c = jax.vmap(cj)(ends[:-1], P[1:], nxt)
+    m = r_seg.shape[1]
+    eye = jnp.eye(S, dtype=y.dtype)
+    blocks = lambda B, E: jnp.einsum("sra,st->srta", B, E).reshape(B.shape[0] * B.shape[1], -1)  # noqa: E731
+    J_top = jnp.concatenate([J_seg[..., :n_theta].reshape(S * m, n_theta), blocks(J_seg[..., n_theta:], eye)], -1)
+    Je = J_end[:-1]  # chain rule through the end state of segment s
+    Jc_theta = jnp.einsum("sre,sea->sra", Dc_end, Je[..., :n_theta]).reshape(-1, n_theta)
+    Jc_p = blocks(jnp.einsum("sre,sea->sra", Dc_end, Je[..., n_theta:]), eye[:-1]) + blocks(Dc_p, eye[1:])
+    J = jnp.concatenate([J_top, jnp.concatenate([Jc_theta, Jc_p], -1)], 0)
+    return jnp.concatenate([r_seg.reshape(-1), r_c.reshape(-1)]), J
 
 
 def _normalised_moments(y, scale_fixed):
@@ -350,29 +387,24 @@ def _normalised_moments(y, scale_fixed):
     return I, jnp.linalg.eigvalsh(I)
 
 
-def _jacobian_and_value(f, y, data):
-    return jax.jacfwd(lambda yy: (f(yy, data),) * 2, has_aux=True)(y)
-
-
-def _with_dense_jacobian(f):
-    """``f(y, data)`` whose JVP in ``y`` is a dense ``J @ ẏ``, ``J`` by forward mode.
+def _with_dense_jacobian(model):
+    """``r(y, data)`` whose JVP in ``y`` is ``J @ ẏ`` with ``J`` from :func:`_model`.
 
     Levenberg–Marquardt linearises, materialises and transposes the residual
-    map; through the integrator's scan each of those is a separate compiled
-    copy of the simulation. With the Jacobian formed once (``p`` forward
-    tangents in one vmapped pass) the solver only sees a matrix: about half
-    the compile time and no reverse pass through the scan. Not differentiable
-    in ``data``.
+    map; through the integrator's scan each of those would be a separate
+    compiled copy of the simulation. Handing it a matrix formed by the
+    segment-local forward pass means one copy, no reverse pass through the
+    scan. Not differentiable in ``data``.
     """
 
     @jax.custom_jvp
     def g(y, data):
-        return f(y, data)
+        return model(y, data, jacobian=False)
 
     @g.defjvp
     def g_jvp(primals, tangents):
         y, data = primals
-        J, r = _jacobian_and_value(f, y, data)
+        r, J = model(y, data, jacobian=True)
         return r, J @ tangents[0]
 
     return g
@@ -389,46 +421,46 @@ def _with_dense_jacobian(f):
         "rtol",
         "atol",
         "max_steps",
-        "n_data",
     ),
 )
-def _fit_batch(y0, data, *, scale_fixed, method, substeps, use_rates, continuity_weight, rtol, atol, max_steps, n_data):
-    res_fn = _with_dense_jacobian(
-        functools.partial(
-            _residuals,
-            scale_fixed=scale_fixed,
-            method=method,
-            substeps=substeps,
-            use_rates=use_rates,
-            continuity_weight=continuity_weight,
-        )
+def _fit_batch(y0, data, *, scale_fixed, method, substeps, use_rates, continuity_weight, rtol, atol, max_steps):
+    model = functools.partial(
+        _model,
+        scale_fixed=scale_fixed,
+        method=method,
+        substeps=substeps,
+        use_rates=use_rates,
+        continuity_weight=continuity_weight,
     )
+    res_fn = _with_dense_jacobian(model)
     solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
 
     def one(y0, data):
         sol = optx.least_squares(res_fn, solver, y0, data, max_steps=max_steps, throw=False)
         y = sol.value
-        J, r = _jacobian_and_value(res_fn, y, data)
+        # residual and Jacobian at the accepted point, as the solver last linearised them:
+        # reusing them keeps a second copy of the simulation out of the compiled program
+        f_info = sol.state.f_info
+        r, J = f_info.residual, lx.materialise(f_info.jac).as_matrix()
+        seg = data["seg"]
+        S, K = seg["dt"].shape
         p = y.shape[0]
-        n_res_data = (3 + data["mask"].size * 3) * (2 if use_rates else 1)  # incl. zero padding
-        n_cont = r.shape[0] - n_res_data
+        n_rows = S * (3 + 3 * K) * (2 if use_rates else 1)  # data rows, incl. zero padding
+        n_cont = r.shape[0] - n_rows
         # continuity residuals act as constraints: they remove degrees of freedom, add no data
-        s2 = jnp.sum(r[:n_res_data] ** 2) / (n_data - (p - n_cont))
+        s2 = jnp.sum(r[:n_rows] ** 2) / (data["n_data"] - (p - n_cont))
         cov = s2 * jnp.linalg.pinv(J.T @ J)
         I, moments = _normalised_moments(y, scale_fixed)
         G = jax.jacfwd(lambda yy: _normalised_moments(yy, scale_fixed)[1])(y)
         std = jnp.sqrt(jnp.diagonal(G @ cov @ G.T))
         _, axes = jnp.linalg.eigh(I)
         axes = axes * jnp.sign(jnp.linalg.det(axes))
-        S = data["q_start"].shape[0]
-        _, delta, w0 = _unpack(y, 6 if scale_fixed else 5, S)
-        nq = data["mask"].sum() * 3 + 3
-        r_q = r[: 3 + data["mask"].size * 3] / data["wq"]
-        q_rms = jnp.sqrt(jnp.sum(r_q**2) / nq)
+        _, P = _unpack(y, 6 if scale_fixed else 5, S)
+        r_seg = r[:n_rows].reshape(S, 2 if use_rates else 1, 3 + 3 * K)
+        nq = seg["mask"].sum() * 3 + 3
+        q_rms = jnp.sqrt(jnp.sum(r_seg[:, 0] ** 2) / nq) / seg["wq"][0]
         if use_rates:
-            off = 3 + data["mask"].size * 3
-            r_w = r[off : off + 3 + data["mask"].size * 3] / data["ww"]
-            w_rms = jnp.sqrt(jnp.sum(r_w**2) / nq)
+            w_rms = jnp.sqrt(jnp.sum(r_seg[:, 1] ** 2) / nq) / seg["ww"][0]
         else:
             w_rms = jnp.full((), jnp.nan, r.dtype)
         return dict(
@@ -436,8 +468,8 @@ def _fit_batch(y0, data, *, scale_fixed, method, substeps, use_rates, continuity
             principal_moments=moments,
             principal_axes=axes,
             moment_std=std,
-            initial_angular_velocity=w0[0],
-            initial_orientation=quat_multiply(data["q_start"][0], quat_exp(delta[0])),
+            initial_angular_velocity=P[0, 3:],
+            initial_orientation=quat_multiply(seg["q_start"][0], quat_exp(P[0, :3])),
             residuals=r,
             orientation_rms=q_rms,
             rate_rms=w_rms,
@@ -450,6 +482,27 @@ def _fit_batch(y0, data, *, scale_fixed, method, substeps, use_rates, continuity
 
 # ----------------------------------------------------------------------------------------
 # Public entry points
+
+
+# Default numerics (see fit_inertia's docstring for the error budget)
+_MAX_STEP_ANGLE = 0.05  # rad turned per integrator step: rk4 error ~1e-9 rad per step at this size
+_SEGMENT_INTERVALS = 512  # target intervals per shooting segment (scan depth)
+
+
+def _next_pow2(x: float) -> int:
+    return 1 << max(0, int(np.ceil(np.log2(max(float(x), 1.0)))))
+
+
+def _bucket(k: int) -> int:
+    """Round ``k`` up onto a grid with at most 12.5% padding (multiples of 2^(⌊log2 k⌋-3))."""
+    g = 1 << max(0, int(np.floor(np.log2(max(k, 1)))) - 3)
+    return int(-(-k // g) * g)
+
+
+def _default_segments(n_intervals: int, total_angle: float) -> int:
+    """A power of two: about one segment per 512 intervals and per 2π of rotation."""
+    want = max(n_intervals / _SEGMENT_INTERVALS, total_angle / (2 * np.pi))
+    return int(min(_next_pow2(want), max(1, n_intervals // 8)))
 
 
 def _initial_inertia(MtM, Mtb, scale, torque_free):
@@ -480,7 +533,7 @@ def fit_inertia(
     substeps: int | None = None,
     orientation_std: float | None = None,
     rate_std: float | None = None,
-    continuity_weight: float = 10.0,
+    continuity_weight: float = 100.0,
     excitation_tol: float = 1e-3,
     rtol: float = 1e-8,
     atol: float = 1e-8,
@@ -543,10 +596,10 @@ def fit_inertia(
     inc = _np_increments(q)  # (N, T-1, 3)
     angles = np.linalg.norm(inc, axis=-1)
     dts = np.diff(t)
-    if substeps is None:
-        substeps = max(1, int(np.ceil(angles.max() / 0.05)))
+    if substeps is None:  # a power of two, so similar recordings share a compiled program
+        substeps = _next_pow2(np.ceil(angles.max() / _MAX_STEP_ANGLE))
     if segments is None:
-        segments = int(np.clip(np.ceil(angles.sum(-1).max() / (2 * np.pi)), 1, max(1, (T - 1) // 8)))
+        segments = _default_segments(T - 1, angles.sum(-1).max())
     S = int(segments)
     if S < 1 or (T - 1) // S < 2:
         raise ValueError(f"fit_inertia: segments={segments} needs at least 2 intervals each; T = {T}")
@@ -581,14 +634,15 @@ def fit_inertia(
         k = int(np.clip(np.ceil(0.1 / max(np.median(angles), 1e-12)), 1, max(1, (T - 1) // 4)))
         rates = _rate_estimate(t, q, k)
 
-    # segment layout: S segments of K intervals (the last padded with dt = 0)
-    K = int(np.ceil((T - 1) / S))
-    starts = np.arange(S) * K
-    idx = starts[:, None] + np.arange(K)[None, :]  # interval index
-    mask = idx < T - 1
-    idx_c = np.minimum(idx, T - 2)
+    K = _bucket(-(-(T - 1) // S))  # intervals per segment, padded: shapes from a coarse grid
+    n_real = np.full(S, (T - 1) // S) + (np.arange(S) < (T - 1) % S)  # spread the real intervals evenly
+    starts = np.concatenate([[0], np.cumsum(n_real)[:-1]])
+    local = np.arange(K)[None, :]
+    mask = local < n_real[:, None]
+    idx_c = np.minimum(starts[:, None] + local, T - 2)  # interval index (padding repeats the last)
     seg_dt = np.where(mask, dts[idx_c], 0.0)
     seg_dur = seg_dt.sum(-1).mean()
+    samp = np.minimum(starts[:, None] + np.arange(K + 1)[None, :], T - 1)  # sample index per segment
 
     y0s, datas = [], []
     for n in range(N):
@@ -604,26 +658,27 @@ def fit_inertia(
             I0 = I0 / (0.5 * np.trace(I0) - I0[0, 0])
         theta0 = np.asarray(params_from_inertia(jnp.asarray(I0)))[(1 if torque_free else 0) :]
         w_start = rates[n][starts]
-        y0s.append(np.concatenate([theta0, np.zeros(3 * S), w_start.reshape(-1)]))
-        wc = (1 / sw[n]) if use_rates else seg_dur / sq[n]
-        d = dict(
+        y0s.append(np.concatenate([theta0, np.column_stack([np.zeros((S, 3)), w_start]).reshape(-1)]))
+        first = (np.arange(S) == 0).astype(np.float64)
+        ones = np.ones(S)
+        seg = dict(
             q_start=q[n][starts],
-            q0=q[n][0],
+            q_first=np.broadcast_to(q[n][0], (S, 4)),
+            w_first=np.broadcast_to(rates[n][0], (S, 3)),
+            first=first,
             q_meas=q[n][idx_c + 1],
-            dt=seg_dt,
-            mask=mask.astype(np.float64),
-            wq=1 / sq[n],
-            ww=1 / sw[n] if use_rates else 1.0,
-            wc=wc,
-            w0=rates[n][0],
             w_meas=rates[n][idx_c + 1],
+            dt=seg_dt,
+            t0=t[starts] - t[0],
+            mask=mask.astype(np.float64),
+            wq=ones / sq[n],
+            ww=ones / sw[n] if use_rates else ones,
+            wc=ones * ((1 / sw[n]) if use_rates else seg_dur / sq[n]),
         )
         if not torque_free:
-            d["tau_a"], d["tau_b"] = tau_n[idx_c], tau_n[idx_c + 1]
-        datas.append(d)
+            seg["t_samples"], seg["tau"] = t[samp] - t[0], tau_n[samp]
+        datas.append(dict(seg=seg, n_data=np.float64(n_data)))
     data = jax.tree.map(lambda *a: jnp.asarray(np.stack(a), dtype), *datas)
-    if torque_free:
-        data["tau_a"] = data["tau_b"] = None
     out = _fit_batch(
         jnp.asarray(np.stack(y0s), dtype),
         data,
@@ -635,7 +690,6 @@ def fit_inertia(
         rtol=float(rtol),
         atol=float(atol),
         max_steps=int(max_steps),
-        n_data=n_data,
     )
     if not batched:
         out = jax.tree.map(lambda a: a[0], out)

@@ -1,0 +1,256 @@
+"""Multiple shooting and truncated gradients: tools for fitting sensitive trajectories.
+
+Near a separatrix the derivative of a long trajectory with respect to its
+initial state or parameters grows by orders of magnitude (see the README's
+"Sensitivity of long trajectories"), and a loss on the whole trajectory becomes
+rugged. Two standard remedies, both built on :func:`rbjax.step` /
+:func:`rbjax.simulate`:
+
+* :func:`shoot` integrates ``S`` segments from ``S`` independent start states
+  in parallel (``vmap`` over segments, one ``lax.scan`` of ``steps`` steps
+  each), and :func:`defects` measures how far each segment's end is from the
+  next segment's start. Fitting the starts as free parameters with the
+  defects as extra residuals (or constraints) keeps every simulation short.
+* :func:`simulate_truncated` runs one trajectory but cuts the derivative at
+  every ``truncate_every`` steps (``lax.stop_gradient`` on the state carried
+  between chunks): each chunk's gradient is exact with respect to everything
+  but the chunk's start, and nothing flows across a cut. Biased, but bounded.
+
+:func:`rbjax.fit_inertia` runs its segments through the same kernel as
+:func:`shoot` (per-step ``dt``, so irregular samples and padding are one path).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+from jaxtyping import ArrayLike, Float
+
+from . import _methods
+from ._batching import _in_axes, batch_shape
+from ._math import quat_conjugate, quat_log, quat_multiply
+from ._pytree import replace
+from ._simulate import as_force_fn, simulate
+from ._simulate_support import constant_fields
+from ._state import AnyState, ForceLike, Forces, State
+
+__all__ = ["shoot", "defects", "simulate_truncated"]
+
+
+def _scan_segment(state: Any, force_fn: Callable, dts: Array, t0: Array, step_fn: Callable) -> Any:
+    """One segment: ``dts`` ``(n_save, save_every)`` per-step sizes; frames after each row.
+
+    Returns the trajectory with a leading time axis of ``n_save + 1`` (initial
+    state first). A step with ``dt = 0`` leaves the state unchanged (padding).
+    """
+    consts = {k: getattr(state, k) for k in constant_fields(state)}
+    strip = lambda s: replace(s, **{k: None for k in consts})  # noqa: E731
+
+    def sub(carry, dt):
+        dyn, t = carry
+        new = step_fn(replace(dyn, **consts), force_fn, t, dt)
+        return (strip(new), t + dt), None
+
+    def row(carry, dts_row):
+        carry, _ = jax.lax.scan(sub, carry, dts_row)
+        return carry, carry[0]
+
+    dyn0 = strip(state)
+    _, frames = jax.lax.scan(row, (dyn0, t0), dts)
+    traj = jax.tree.map(lambda a0, a: jnp.concatenate([a0[None], a]), dyn0, frames)
+    return replace(traj, **consts)
+
+
+def shoot(
+    starts: AnyState,
+    forces: ForceLike,
+    dt: Float[ArrayLike, ""] | Float[ArrayLike, "S steps"],
+    steps: int,
+    method: str = "rk4",
+    *,
+    save_every: int | None = None,
+    t0: Float[ArrayLike, ""] | Float[ArrayLike, " S"] = 0.0,
+) -> tuple[AnyState, AnyState]:
+    """Simulate ``S`` segments from ``S`` start states in parallel (multiple shooting).
+
+    Segment ``s`` integrates ``x_s(t)`` from ``x_s(t_s) = starts[s]`` over
+    ``steps`` steps of ``method`` (world-frame Newton–Euler equations, as
+    :func:`rbjax.simulate`); segments are independent, so the work is one
+    ``lax.scan`` of ``steps`` steps ``vmap``-ped over segments (depth ``steps``,
+    not ``S·steps``).
+
+    Args:
+        starts: start states with a leading segment axis: batch shape ``(S, *B)``
+            (fields without it, e.g. one shared ``Body``, are shared).
+        forces: world-frame forces as for :func:`rbjax.simulate` (``None``, a
+            constant :class:`rbjax.Forces`, or a callable ``(state, t) -> Forces``
+            that sees one segment's ``(*B)`` state and the absolute time ``t`` in s).
+        dt: step (s): a scalar, or ``(S, steps)`` per-segment per-step sizes
+            (irregular sampling; ``dt = 0`` steps are no-ops, for padding).
+        steps: steps per segment (static).
+        method: integrator name (see :func:`rbjax.methods`).
+        save_every: keep every ``save_every``-th state (must divide ``steps``);
+            default ``steps``: start and end only.
+        t0: scalar start time of segment 0, the segments tiling
+            ``[t0, t0 + Σ dt]`` back to back; or ``(S,)`` start times (s).
+
+    Returns:
+        ``(trajectories, ends)``: trajectories with leading axes
+        ``(steps // save_every + 1, S, *B)`` (time first, as
+        :func:`rbjax.simulate`; constant fields not stacked over time) and the
+        end states ``(S, *B)``.
+    """
+    save_every = steps if save_every is None else save_every
+    if not isinstance(steps, (int, np.integer)) or steps < 1:
+        raise ValueError(f"shoot: steps must be a positive int, got {steps!r}")
+    if not isinstance(save_every, (int, np.integer)) or save_every < 1 or steps % save_every:
+        raise ValueError(f"shoot: save_every must be a positive int dividing steps={steps}, got {save_every!r}")
+    bshape = batch_shape(starts)
+    if not bshape:
+        raise ValueError("shoot: starts need a leading segment axis (batch shape (S, *B))")
+    S, nd = bshape[0], len(bshape)
+    step_fn = _methods.get(method, type(starts))
+    dtype = starts.dtype
+    dt = jnp.asarray(dt, dtype)
+    if dt.ndim == 0:
+        d = np.asarray(dt) if not isinstance(dt, jax.core.Tracer) else None
+        if d is not None and not (np.isfinite(d) and d > 0):
+            raise ValueError(f"shoot: dt must be finite and > 0, got {d}")
+        dts = jnp.broadcast_to(dt, (S, steps))
+    elif dt.shape == (S, steps):
+        dts = dt
+    else:
+        raise ValueError(f"shoot: dt must be a scalar or (S, steps) = {(S, steps)}, got {dt.shape}")
+    t0 = jnp.asarray(t0, dtype)
+    if t0.ndim == 0:
+        t0 = t0 + jnp.concatenate([jnp.zeros(1, dtype), jnp.cumsum(dts.sum(-1))[:-1]])
+    elif t0.shape != (S,):
+        raise ValueError(f"shoot: t0 must be a scalar or (S,) = {(S,)}, got {t0.shape}")
+    force_fn = as_force_fn(forces)
+    n_save = steps // save_every
+    run = lambda s, d, t: _scan_segment(s, force_fn, d.reshape(n_save, save_every), t, step_fn)  # noqa: E731
+    traj = jax.vmap(run, in_axes=(_in_axes(starts, 0, nd), 0, 0))(starts, dts, t0)
+    consts = constant_fields(starts)
+    # vmap put segments first; time leads in rbjax trajectories, constant fields stay as given
+    moved = {
+        n: jax.tree.map(lambda a: jnp.moveaxis(a, 1, 0), getattr(traj, n))
+        for n in type(traj)._rbjax_data_fields
+        if n not in consts
+    }
+    traj = replace(traj, **moved, **{n: getattr(starts, n) for n in consts})
+    ends = jax.tree.map(lambda a: a[-1], replace(traj, **{n: None for n in consts}))
+    return traj, replace(ends, **{n: getattr(starts, n) for n in consts})
+
+
+def defects(ends: State, starts: State) -> Float[Array, "S-1 *B 12"]:
+    """Mismatch between each segment's end and the next segment's start.
+
+    For segments ``s = 0 .. S-2``: ``[p_{s+1} - p_s(end), v_{s+1} - v_s(end),
+    log(q_s(end)⁻¹ ⊗ q_{s+1}), L_{s+1} - L_s(end)]`` — position (m), velocity
+    (m/s), the rotation vector from the end orientation to the next start in
+    the end's body frame (rad; sign-insensitive in ``q``), angular momentum
+    (world, kg m²/s). All zero for a continuous trajectory.
+
+    Args:
+        ends: end states ``(S, *B)`` (e.g. from :func:`shoot`).
+        starts: start states ``(S, *B)``.
+
+    Returns:
+        ``(S - 1, *B, 12)``.
+    """
+    if not (isinstance(ends, State) and isinstance(starts, State)):
+        raise ValueError("defects: ends and starts must be rbjax.State (quaternion form)")
+    if batch_shape(ends)[:1] != batch_shape(starts)[:1]:
+        raise ValueError(f"defects: segment counts differ: {batch_shape(ends)} vs {batch_shape(starts)}")
+    e = lambda a: a[:-1]  # noqa: E731
+    n = lambda a: a[1:]  # noqa: E731
+    rot = quat_log(quat_multiply(quat_conjugate(e(ends.orientation)), n(starts.orientation)))
+    return jnp.concatenate(
+        [
+            n(starts.position) - e(ends.position),
+            n(starts.velocity) - e(ends.velocity),
+            rot,
+            n(starts.angular_momentum) - e(ends.angular_momentum),
+        ],
+        -1,
+    )
+
+
+def simulate_truncated(
+    state: AnyState,
+    forces: ForceLike,
+    dt: Float[ArrayLike, ""],
+    steps: int,
+    method: str = "rk4",
+    *,
+    truncate_every: int,
+    save_every: int = 1,
+    t0: Float[ArrayLike, ""] = 0.0,
+) -> AnyState:
+    """:func:`rbjax.simulate` with the derivative cut every ``truncate_every`` steps.
+
+    Values equal ``simulate(state, forces, dt, steps, method, save_every=...)``.
+    Derivatives: the trajectory is run in ``steps / truncate_every`` chunks and
+    the state carried into each chunk after the first passes through
+    ``lax.stop_gradient`` (the dynamic fields only; the ``Body`` and other
+    parameters keep their derivatives). So ``∂x(t)/∂x(t')`` is exactly zero
+    when a cut lies between ``t'`` and ``t``, and the gradient of a loss
+    summed over chunks is the sum of each chunk's gradient taken from its
+    (fixed) start: bounded however unstable the motion, at the price of
+    ignoring how earlier chunks steer later ones.
+
+    Args:
+        state: initial state (any batch shape).
+        forces: ``None``, a constant :class:`rbjax.Forces`, a callable
+            ``(state, t) -> Forces`` (absolute time, s), or time-series
+            :class:`rbjax.Forces` with a leading ``(steps, ...)`` axis.
+        dt: step (s), > 0.
+        steps: total steps (static), a multiple of ``truncate_every``.
+        method: integrator name.
+        truncate_every: chunk length in steps (static); must be a multiple of ``save_every``.
+        save_every: keep every ``save_every``-th state.
+        t0: start time (s).
+
+    Returns:
+        Trajectory as :func:`rbjax.simulate`: leading time axis
+        ``steps // save_every + 1``; constant fields not stacked.
+    """
+    k = truncate_every
+    if not isinstance(k, (int, np.integer)) or k < 1 or steps % k or k % save_every:
+        raise ValueError(
+            f"simulate_truncated: truncate_every={k!r} must be a positive int dividing steps={steps} "
+            f"and a multiple of save_every={save_every}"
+        )
+    n_chunks = steps // k
+    consts = constant_fields(state)
+    const_vals = {n: getattr(state, n) for n in consts}
+    strip = lambda s: replace(s, **{n: None for n in consts})  # noqa: E731
+    series = isinstance(forces, Forces) and any(
+        a is not None and a.ndim >= 2 and a.shape[0] == steps and a.ndim - 1 > len(state.batch_shape)
+        for a in (forces.force, forces.torque)
+    )
+    fs = jax.tree.map(lambda a: a.reshape((n_chunks, k) + a.shape[1:]), forces) if series else None
+    dtype = state.dtype
+    t0 = jnp.asarray(t0, dtype)
+
+    def chunk(dyn, xs):
+        i, f = xs
+        s = replace(jax.lax.stop_gradient(dyn), **const_vals)
+        traj = simulate(s, f if series else forces, dt, k, method, save_every=save_every, t0=t0 + i * k * dt)
+        traj = strip(traj)
+        return jax.tree.map(lambda a: a[-1], traj), jax.tree.map(lambda a: a[1:], traj)
+
+    # the first chunk starts from the caller's state, with its derivatives
+    f0 = jax.tree.map(lambda a: a[0], fs) if series else forces
+    first = strip(simulate(state, f0, dt, k, method, save_every=save_every, t0=t0))
+    carry = jax.tree.map(lambda a: a[-1], first)
+    rest_f = jax.tree.map(lambda a: a[1:], fs) if series else None
+    _, rest = jax.lax.scan(chunk, carry, (jnp.arange(1, n_chunks, dtype=dtype), rest_f))
+    rest = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:]), rest)
+    traj = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), first, rest)
+    return replace(traj, **const_vals)
