@@ -367,9 +367,11 @@ def _model(y, data, *, scale_fixed, method, substeps, use_rates, continuity_weig
 
     X = jnp.concatenate([jnp.broadcast_to(theta, (S, n_theta)), P], -1)
     (J_seg, J_end), (r_seg, ends) = jax.vmap(jax.jacfwd(local, has_aux=True))(X, seg)
+    m = r_seg.shape[1]
+    if S == 1:  # single shooting: no joins
+        return r_seg.reshape(-1), J_seg.reshape(m, -1)
     cj = jax.jacfwd(lambda e, pn, dn: (c(e, pn, dn),) * 2, argnums=(0, 1), has_aux=True)
     (Dc_end, Dc_p), r_c = jax.vmap(cj)(ends[:-1], P[1:], nxt)
-    m = r_seg.shape[1]
     eye = jnp.eye(S, dtype=y.dtype)
     blocks = lambda B, E: jnp.einsum("sra,st->srta", B, E).reshape(B.shape[0] * B.shape[1], -1)  # noqa: E731
     J_top = jnp.concatenate([J_seg[..., :n_theta].reshape(S * m, n_theta), blocks(J_seg[..., n_theta:], eye)], -1)
@@ -500,8 +502,12 @@ def _bucket(k: int) -> int:
 
 
 def _default_segments(n_intervals: int, total_angle: float) -> int:
-    """A power of two: about one segment per 512 intervals and per 2π of rotation."""
-    want = max(n_intervals / _SEGMENT_INTERVALS, total_angle / (2 * np.pi))
+    """A power of two: about one segment per 512 intervals and per two turns (4π) of rotation.
+
+    Only the power of two depends on the data, so recordings of similar length and
+    motion share a compiled program; pass ``segments=`` to pin it.
+    """
+    want = max(n_intervals / _SEGMENT_INTERVALS, total_angle / (4 * np.pi))
     return int(min(_next_pow2(want), max(1, n_intervals // 8)))
 
 
