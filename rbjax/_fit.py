@@ -24,6 +24,7 @@ from __future__ import annotations
 import functools
 from typing import Any
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import lineax as lx
@@ -389,6 +390,23 @@ def _normalised_moments(y, scale_fixed):
     return I, jnp.linalg.eigvalsh(I)
 
 
+class _TrustRegion(optx.ClassicalTrustRegion):
+    """optimistix's trust-region search with its step size in the parameters' dtype.
+
+    The stock ``init`` starts from ``jnp.array(1.0)``, which is float64 whenever x64
+    is enabled; the damping ``1/step_size`` then promotes the float32 Jacobian's
+    damped operator to float64 and lineax rejects the mixed system.
+    """
+
+    def init(self, y, f_info_struct):
+        state = super().init(y, f_info_struct)
+        return eqx.tree_at(lambda s: s.step_size, state, jnp.ones((), jnp.result_type(*jax.tree.leaves(y))))
+
+
+def _levenberg_marquardt(rtol: float, atol: float) -> optx.LevenbergMarquardt:
+    return eqx.tree_at(lambda s: s.search, optx.LevenbergMarquardt(rtol=rtol, atol=atol), _TrustRegion())
+
+
 def _with_dense_jacobian(model):
     """``r(y, data)`` whose JVP in ``y`` is ``J @ ẏ`` with ``J`` from :func:`_model`.
 
@@ -435,7 +453,7 @@ def _fit_batch(y0, data, *, scale_fixed, method, substeps, use_rates, continuity
         continuity_weight=continuity_weight,
     )
     res_fn = _with_dense_jacobian(model)
-    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    solver = _levenberg_marquardt(rtol, atol)
 
     def one(y0, data):
         sol = optx.least_squares(res_fn, solver, y0, data, max_steps=max_steps, throw=False)

@@ -114,17 +114,17 @@ def test_similar_lengths_share_one_compiled_program():
     assert _rel(res.inertia, I_BAR) < 1e-6  # padding (dt = 0, masked) does not bias the clean fit
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="known gap: a float64 leaks into optimistix's damped operator (lineax structure mismatch) in float32",
-)
 def test_float32_clean_fit():
+    # x64 is on in the test session: float32 data must stay float32 through the solver
+    # (optimistix's trust region used to start its step size in float64)
     q, _ = _record(T_FAST)
-    res = rb.fit_inertia(T_FAST, q.astype(np.float32), rtol=1e-5, atol=1e-5)
-    assert res.inertia.dtype == np.float32
-    # float32: orientations carry ~6e-8 rad rounding, the 400-step rk4 recursion accumulates
-    # ~sqrt(400)·eps and the normal equations square the conditioning: 1e-3 relative is the budget
-    assert _rel(res.inertia, I_BAR) < 1e-3
+    res = rb.fit_inertia(T_FAST, q.astype(np.float32))
+    assert res.inertia.dtype == np.float32 and bool(res.converged)
+    # float32 budget: the data carry eps/2 ≈ 6e-8 rad of rounding and the 400-step rk4
+    # recursion a random walk of ~sqrt(400)·eps ≈ 2.4e-6 rad; the noisy tests show the
+    # inertia error is O(1) times the orientation error (1e-3 rad -> < 1%), so ~1e-5 is
+    # expected (measured 3e-6); 1e-4 leaves a 10x margin
+    assert _rel(res.inertia, I_BAR) < 1e-4
 
 
 def test_bad_input_raises_before_tracing():
