@@ -34,7 +34,7 @@ from jax import Array
 
 from . import _methods
 from ._body import Body, inverse_3x3
-from ._inertia_param import inertia_from_params, params_from_inertia
+from ._inertia_param import inertia_from_params
 from ._math import quat_conjugate, quat_exp, quat_log, quat_multiply, quat_rotate
 from ._pytree import field, new_unchecked, pytree_dataclass, static_field
 from ._shooting import _scan_segment
@@ -348,14 +348,14 @@ def _continuity(end, p_next, d_next, continuity_weight):
     return continuity_weight * jnp.concatenate([d_next["wq"] * gap, d_next["wc"] * (end[4:] - p_next[3:])])
 
 
-def _model(y, data, *, scale_fixed, method, substeps, use_rates, continuity_weight, jacobian):
+def _model(y, data, *, scale_fixed, method, substeps, use_rates, jacobian):
     """Residual vector ``r`` (segments' data rows, then join rows) and, if asked, dense ``∂r/∂y``."""
     seg = data["seg"]
     S = seg["dt"].shape[0]
     n_theta = 6 if scale_fixed else 5
     theta, P = _unpack(y, n_theta, S)
     f = functools.partial(_segment, scale_fixed=scale_fixed, method=method, substeps=substeps, use_rates=use_rates)
-    c = functools.partial(_continuity, continuity_weight=continuity_weight)
+    c = functools.partial(_continuity, continuity_weight=data["continuity_weight"])  # traced: no recompile
     nxt = jax.tree.map(lambda a: a[1:], seg)
     if not jacobian:
         r_seg, ends = jax.vmap(f, in_axes=(None, 0, 0))(theta, P, seg)
@@ -437,21 +437,14 @@ def _with_dense_jacobian(model):
         "method",
         "substeps",
         "use_rates",
-        "continuity_weight",
         "rtol",
         "atol",
         "max_steps",
+        "unbatch",
     ),
 )
-def _fit_batch(y0, data, *, scale_fixed, method, substeps, use_rates, continuity_weight, rtol, atol, max_steps):
-    model = functools.partial(
-        _model,
-        scale_fixed=scale_fixed,
-        method=method,
-        substeps=substeps,
-        use_rates=use_rates,
-        continuity_weight=continuity_weight,
-    )
+def _fit_batch(y0, data, *, scale_fixed, method, substeps, use_rates, rtol, atol, max_steps, unbatch):
+    model = functools.partial(_model, scale_fixed=scale_fixed, method=method, substeps=substeps, use_rates=use_rates)
     res_fn = _with_dense_jacobian(model)
     solver = _levenberg_marquardt(rtol, atol)
 
@@ -497,6 +490,8 @@ def _fit_batch(y0, data, *, scale_fixed, method, substeps, use_rates, continuity
             iterations=sol.stats["num_steps"],
         )
 
+    if unbatch:  # one recording: no vmap, whose batching of the solver's loops doubles tracing
+        return one(y0[0], jax.tree.map(lambda a: a[0], data))
     return jax.vmap(one)(y0, data)
 
 
@@ -527,6 +522,12 @@ def _default_segments(n_intervals: int, total_angle: float) -> int:
     """
     want = max(n_intervals / _SEGMENT_INTERVALS, total_angle / (4 * np.pi))
     return int(min(_next_pow2(want), max(1, n_intervals // 8)))
+
+
+def _np_params_from_inertia(I: np.ndarray) -> np.ndarray:
+    """NumPy twin of :func:`params_from_inertia` (no eager JAX compile per call)."""
+    L = np.linalg.cholesky(0.5 * np.trace(I) * np.eye(3) - I)
+    return np.array([np.log(L[0, 0]), np.log(L[1, 1]), np.log(L[2, 2]), L[1, 0], L[2, 0], L[2, 1]])
 
 
 def _initial_inertia(MtM, Mtb, scale, torque_free):
@@ -612,7 +613,7 @@ def fit_inertia(
         wr = None if wr is None else wr[None]
         tau = None if tau is None else tau[None]
     N, T = q.shape[:2]
-    dtype = jnp.asarray(q).dtype
+    dtype = jax.dtypes.canonicalize_dtype(q.dtype)  # float64 input stays float32 without x64
     torque_free = tau is None
     use_rates = wr is not None
     q = q.astype(np.float64)
@@ -680,7 +681,7 @@ def fit_inertia(
             Body(1.0, I0)  # validates a user guess
         if torque_free:  # the gauge log L00 = 0: rescale so that Σ_xx = 1, drop θ0
             I0 = I0 / (0.5 * np.trace(I0) - I0[0, 0])
-        theta0 = np.asarray(params_from_inertia(jnp.asarray(I0)))[(1 if torque_free else 0) :]
+        theta0 = _np_params_from_inertia(I0)[(1 if torque_free else 0) :]
         w_start = rates[n][starts]
         y0s.append(np.concatenate([theta0, np.column_stack([np.zeros((S, 3)), w_start]).reshape(-1)]))
         first = (np.arange(S) == 0).astype(np.float64)
@@ -701,22 +702,21 @@ def fit_inertia(
         )
         if not torque_free:
             seg["t_samples"], seg["tau"] = t[samp] - t[0], tau_n[samp]
-        datas.append(dict(seg=seg, n_data=np.float64(n_data)))
-    data = jax.tree.map(lambda *a: jnp.asarray(np.stack(a), dtype), *datas)
+        datas.append(dict(seg=seg, n_data=np.float64(n_data), continuity_weight=np.float64(continuity_weight)))
+    # NumPy all the way into the jitted solver: eager jnp here would compile once per shape
+    data = jax.tree.map(lambda *a: np.stack(a).astype(dtype), *datas)
     out = _fit_batch(
-        jnp.asarray(np.stack(y0s), dtype),
+        np.stack(y0s).astype(dtype),
         data,
         scale_fixed=not torque_free,
         method=method,
         substeps=int(substeps),
         use_rates=use_rates,
-        continuity_weight=float(continuity_weight),
         rtol=float(rtol),
         atol=float(atol),
         max_steps=int(max_steps),
+        unbatch=not batched,
     )
-    if not batched:
-        out = jax.tree.map(lambda a: a[0], out)
     return new_unchecked(FitResult, **out, scale_fixed=not torque_free, segments=S)
 
 
