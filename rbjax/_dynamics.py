@@ -20,7 +20,7 @@ from ._batching import lift
 from ._math import cross, quat_multiply, skew
 from ._pytree import replace
 from ._quantities import _omega_world
-from ._state import AnyState, Forces, ParticleState, State, _apply
+from ._state import AnyState, Forces, ParticleState, State, StateT, _apply
 
 __all__ = ["derivative"]
 
@@ -53,7 +53,7 @@ def _one_derivative(s: AnyState, f: Forces) -> AnyState:
     )
 
 
-def derivative(state: AnyState, forces: Forces) -> AnyState:
+def derivative(state: StateT, forces: Forces) -> StateT:
     """Time derivative of every changing field of ``state`` under ``forces`` (world frame).
 
     Returns the same pytree type; its constant fields (``body``, particle

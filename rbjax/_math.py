@@ -16,7 +16,9 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 from jax import Array
-from jax.typing import ArrayLike
+from jaxtyping import Float
+
+from ._typing import ArrayLike
 
 __all__ = [
     "cross",
@@ -39,7 +41,7 @@ def _eps(x: Array) -> Array:
     return jnp.asarray(jnp.finfo(x.dtype).eps, x.dtype)
 
 
-def safe_norm(x: ArrayLike, axis: int = -1, keepdims: bool = False) -> Array:
+def safe_norm(x: Float[ArrayLike, " ..."], axis: int = -1, keepdims: bool = False) -> Float[Array, " ..."]:
     """Euclidean norm ``‖x‖`` along ``axis`` whose gradient is 0, not NaN, at ``x = 0``.
 
     Uses the double-``where`` pattern: the square root never sees a zero that
@@ -51,7 +53,7 @@ def safe_norm(x: ArrayLike, axis: int = -1, keepdims: bool = False) -> Array:
     return jnp.where(zero, 0.0, jnp.sqrt(jnp.where(zero, 1.0, sq)))
 
 
-def skew(a: ArrayLike) -> Array:
+def skew(a: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3 3"]:
     """Skew-symmetric matrix ``ã`` with ``ã b = a × b`` (the notes' tilde).
 
     ``a``: ``(..., 3)`` → ``(..., 3, 3)``::
@@ -73,7 +75,7 @@ def skew(a: ArrayLike) -> Array:
     )
 
 
-def cross(a: ArrayLike, b: ArrayLike) -> Array:
+def cross(a: Float[ArrayLike, "... 3"], b: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3"]:
     """Cross product ``a × b`` of ``(..., 3)`` vectors, written by components."""
     a, b = jnp.asarray(a), jnp.asarray(b)
     ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
@@ -81,7 +83,7 @@ def cross(a: ArrayLike, b: ArrayLike) -> Array:
     return jnp.stack([ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx], axis=-1)
 
 
-def quat_multiply(p: ArrayLike, q: ArrayLike) -> Array:
+def quat_multiply(p: Float[ArrayLike, "... 4"], q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
     """Hamilton product ``p ⊗ q`` of ``(..., 4)`` quaternions ``[w, x, y, z]``.
 
     ``(pw, pv) ⊗ (qw, qv) = (pw qw - pv·qv, pw qv + qw pv + pv × qv)``.
@@ -100,7 +102,7 @@ def quat_multiply(p: ArrayLike, q: ArrayLike) -> Array:
     )
 
 
-def quat_conjugate(q: ArrayLike) -> Array:
+def quat_conjugate(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
     """Conjugate ``q* = [w, -x, -y, -z]``; the inverse rotation for a unit ``q``.
 
     ``q``: ``(..., 4)``; returns ``(..., 4)``.
@@ -109,7 +111,7 @@ def quat_conjugate(q: ArrayLike) -> Array:
     return jnp.concatenate([q[..., :1], -q[..., 1:]], axis=-1)
 
 
-def quat_rotate(q: ArrayLike, v: ArrayLike) -> Array:
+def quat_rotate(q: Float[ArrayLike, "... 4"], v: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3"]:
     """Rotate ``(..., 3)`` vectors by unit quaternions: ``q ⊗ (0, v) ⊗ q*``.
 
     Evaluated as ``v + w t + u × t`` with ``t = 2 u × v`` (``q = [w, u]``): 18
@@ -121,13 +123,13 @@ def quat_rotate(q: ArrayLike, v: ArrayLike) -> Array:
     return v + w * t + cross(u, t)
 
 
-def quat_normalize(q: ArrayLike) -> Array:
+def quat_normalize(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
     """``q / ‖q‖`` for ``(..., 4)`` quaternions (finite gradient; ``q = 0`` is invalid)."""
     q = jnp.asarray(q)
     return q / jnp.sqrt(jnp.sum(q * q, axis=-1, keepdims=True))
 
 
-def quat_to_matrix(q: ArrayLike) -> Array:
+def quat_to_matrix(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 3 3"]:
     """Rotation matrix ``R`` (body to world) of unit quaternions ``(..., 4)`` → ``(..., 3, 3)``.
 
     ``R = (w² - u·u) 1 + 2 u uᵀ + 2 w ũ``. Columns of ``R`` are the body axes
@@ -148,7 +150,7 @@ def quat_to_matrix(q: ArrayLike) -> Array:
     )
 
 
-def matrix_to_quat(R: ArrayLike) -> Array:
+def matrix_to_quat(R: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 4"]:
     """Unit quaternion ``[w, x, y, z]`` with ``w ≥ 0`` of rotation matrices ``(..., 3, 3)``.
 
     Shepperd's method: of the four candidate formulas, take the one whose
@@ -179,7 +181,7 @@ def matrix_to_quat(R: ArrayLike) -> Array:
     return quat_normalize(q)
 
 
-def quat_exp(rotvec: ArrayLike) -> Array:
+def quat_exp(rotvec: Float[ArrayLike, "... 3"]) -> Float[Array, "... 4"]:
     """Exponential map: rotation vector ``θ n`` (radians) → unit quaternion.
 
         ``exp(θ n) = [cos(θ/2), sin(θ/2) n]``. Near ``θ = 0`` a Taylor series replaces
@@ -195,7 +197,7 @@ def quat_exp(rotvec: ArrayLike) -> Array:
     return jnp.concatenate([cos_half, half_sinc * v], axis=-1)
 
 
-def quat_log(q: ArrayLike) -> Array:
+def quat_log(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 3"]:
     """Logarithm: unit quaternion → rotation vector ``θ n`` with ``θ ∈ [0, π]``.
 
     ``q`` and ``-q`` give the same result (the shorter rotation). Finite
@@ -212,7 +214,7 @@ def quat_log(q: ArrayLike) -> Array:
     return scale * u
 
 
-def quat_angle(p: ArrayLike, q: ArrayLike) -> Array:
+def quat_angle(p: Float[ArrayLike, "... 4"], q: Float[ArrayLike, "... 4"]) -> Float[Array, " ..."]:
     """Angle (radians, in ``[0, π]``) of the rotation taking ``p`` to ``q``.
 
         ``2 atan2(‖vec(p* ⊗ q)‖, |scal(p* ⊗ q)|)``; insensitive to the sign of either
@@ -223,7 +225,7 @@ def quat_angle(p: ArrayLike, q: ArrayLike) -> Array:
     return 2 * jnp.arctan2(safe_norm(d[..., 1:]), jnp.abs(d[..., 0]))
 
 
-def orthonormalize(R: ArrayLike, iterations: int = 2) -> Array:
+def orthonormalize(R: Float[ArrayLike, "... 3 3"], iterations: int = 2) -> Float[Array, "... 3 3"]:
     """Nearest rotation matrix to a nearly orthogonal ``R`` ``(..., 3, 3)``.
 
     Newton–Schulz iteration for the polar factor, ``R ← R (3·1 - RᵀR) / 2``,

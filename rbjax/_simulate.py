@@ -7,17 +7,19 @@ from collections.abc import Callable
 from typing import Any
 
 import jax
+import jax.core
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
-from jax.typing import ArrayLike
+from jaxtyping import Float
 
 from . import _checked, _methods
 from ._batching import batch_shape
 from ._forces import ForceModel
 from ._pytree import replace
 from ._simulate_support import constant_fields
-from ._state import AnyState, ForceLike, Forces
+from ._state import AnyState, ForceLike, Forces, StateT
+from ._typing import ArrayLike
 
 __all__ = ["step", "simulate", "as_force_fn"]
 
@@ -43,7 +45,14 @@ def as_force_fn(forces: ForceLike) -> Callable[[Any, Array], Forces]:
     raise TypeError(f"forces must be Forces, a callable (state, t) -> Forces, or None; got {type(forces)}")
 
 
-def step(state: AnyState, forces: ForceLike, dt: ArrayLike, method: str = "euler", *, t: ArrayLike = 0.0) -> AnyState:
+def step(
+    state: StateT,
+    forces: ForceLike,
+    dt: Float[ArrayLike, ""],
+    method: str | Callable[..., Any] = "euler",
+    *,
+    t: Float[ArrayLike, ""] = 0.0,
+) -> StateT:
     """Advance ``state`` by one step of ``dt`` seconds.
 
     Args:
@@ -85,17 +94,17 @@ def _is_time_series(forces: Forces, state: AnyState, steps: int) -> bool:
 
 
 def simulate(
-    state: AnyState,
+    state: StateT,
     forces: ForceLike,
-    dt: ArrayLike,
+    dt: Float[ArrayLike, ""],
     steps: int,
-    method: str = "euler",
+    method: str | Callable[..., Any] = "euler",
     *,
     save_every: int = 1,
-    t0: ArrayLike = 0.0,
+    t0: Float[ArrayLike, ""] = 0.0,
     checked: bool | _checked.Checks = False,
     checkpoint: int | None = None,
-) -> AnyState:
+) -> StateT:
     """Integrate ``steps`` steps of ``dt`` with ``lax.scan`` and return the trajectory.
 
     Args:
@@ -149,6 +158,7 @@ def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoin
         raise ValueError(f"steps must be a non-negative int, got {steps!r}")
     if not isinstance(save_every, (int, np.integer)) or save_every < 1 or steps % save_every:
         raise ValueError(f"save_every must be a positive int dividing steps={steps}, got {save_every!r}")
+    steps, save_every = int(steps), int(save_every)
     _check_dt(dt)
     _check_checkpoint(checkpoint, steps, save_every)
     force_fn = None
