@@ -158,6 +158,7 @@ class Body:
 
     @property
     def dtype(self) -> Any:
+        """Floating dtype of ``mass`` and ``inertia``."""
         return self.mass.dtype
 
     def principal(self) -> tuple[Float[Array, "*B 3"], Float[Array, "*B 3 3"]]:

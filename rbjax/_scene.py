@@ -168,6 +168,7 @@ class Scene:
 
     @property
     def kernel(self) -> _Kernel:
+        """The hashable batch step ``(state, force_fn, t, dt) -> state`` that this scene compiles."""
         return _Kernel(self.method, self.kind, self.torque_free)
 
     def _check(self, state: AnyState) -> None:

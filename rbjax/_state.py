@@ -154,10 +154,12 @@ class State:
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
+        """Leading batch shape ``B`` (``()`` for a single body)."""
         return tuple(self.position.shape[:-1])
 
     @property
     def dtype(self) -> Any:
+        """Floating dtype of the state's arrays (float32 or float64)."""
         return self.position.dtype
 
 
@@ -222,10 +224,12 @@ class MatrixState:
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
+        """Leading batch shape ``B`` (``()`` for a single body)."""
         return tuple(self.position.shape[:-1])
 
     @property
     def dtype(self) -> Any:
+        """Floating dtype of the state's arrays (float32 or float64)."""
         return self.position.dtype
 
 
@@ -272,10 +276,12 @@ class ParticleState:
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
+        """Leading batch shape ``B`` (``()`` for a single body)."""
         return tuple(self.position.shape[:-1])
 
     @property
     def dtype(self) -> Any:
+        """Floating dtype of the state's arrays (float32 or float64)."""
         return self.position.dtype
 
 
