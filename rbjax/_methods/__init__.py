@@ -68,3 +68,7 @@ from . import implicit_midpoint as implicit_midpoint  # noqa: E402
 from . import rk4 as rk4  # noqa: E402
 from . import semi_implicit_euler as semi_implicit_euler  # noqa: E402
 from . import splitting as splitting  # noqa: E402
+
+# isort: split
+# composition builds on registered methods ("splitting"): it must come after them
+from . import composition as composition  # noqa: E402
