@@ -66,6 +66,7 @@ from . import euler as euler  # noqa: E402  (each module registers itself)
 from . import implicit_gyroscopic as implicit_gyroscopic  # noqa: E402
 from . import implicit_midpoint as implicit_midpoint  # noqa: E402
 from . import rk4 as rk4  # noqa: E402
+from . import rk8 as rk8  # noqa: E402
 from . import semi_implicit_euler as semi_implicit_euler  # noqa: E402
 from . import splitting as splitting  # noqa: E402
 
