@@ -38,7 +38,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from .._math import cross, quat_conjugate, quat_multiply, quat_normalize, quat_rotate, skew
+from .._math import _dot3, _matmul3, cross, quat_conjugate, quat_multiply, quat_normalize, quat_rotate, skew
 from .._pytree import replace
 from .._state import MatrixState, State, _apply
 from . import Method, register
@@ -59,7 +59,7 @@ _NEWTON = 7
 def _newton(y, pi0, I_inv, h):
     w = _apply(I_inv, y)
     G = y - pi0 - 0.5 * h * cross(y, w)
-    J = jnp.eye(3, dtype=y.dtype) - 0.5 * h * (skew(y) @ I_inv - skew(w))
+    J = jnp.eye(3, dtype=y.dtype) - 0.5 * h * (_matmul3(skew(y), I_inv) - skew(w))
     return y - solve3(J, G)
 
 
@@ -76,7 +76,10 @@ def _drift(s: State, h) -> State:
     q = s.orientation
     pi0 = quat_rotate(quat_conjugate(q), s.angular_momentum)
     w = _apply(s.body.inverse_inertia, midpoint_momentum(pi0, s.body.inverse_inertia, h))
-    cay = quat_normalize(jnp.concatenate([jnp.ones_like(w[:1]), 0.5 * h * w]))
+    # (1, a)/‖(1, a)‖, a = h ω/2, by components (no unbatched constant 1 stacked in)
+    a = 0.5 * h * w
+    n = 1 / jnp.sqrt(1 + _dot3(a, a))
+    cay = jnp.stack([n, a[0] * n, a[1] * n, a[2] * n])
     return replace(s, position=s.position + s.velocity * h, orientation=quat_normalize(quat_multiply(q, cay)))
 
 

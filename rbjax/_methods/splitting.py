@@ -35,7 +35,7 @@ import jax
 import jax.numpy as jnp
 
 from .._batching import lift
-from .._math import cross, quat_conjugate, quat_multiply, quat_normalize, quat_rotate
+from .._math import _dot3, cross, quat_conjugate, quat_multiply, quat_normalize, quat_rotate
 from .._pytree import replace
 from .._state import MatrixState, ParticleState, State
 from . import Method, register
@@ -51,11 +51,11 @@ def _rotate_about(qp, m, d, e, h):
     Angle ``θ = h m_i/d_i``; ``qp ← qp ⊗ (cos θ/2, sin θ/2 e)``,
     ``m ← Rot_e(-θ) m = c m - s e × m + (1 - c)(e·m) e``.
     """
-    me = jnp.sum(e * m)
-    theta = h * me / jnp.sum(e * d)
+    me = _dot3(e, m)
+    theta = h * me / _dot3(e, d)
     c2, s2 = jnp.cos(theta / 2), jnp.sin(theta / 2)
     c, s = 1 - 2 * s2 * s2, 2 * s2 * c2
-    qp = quat_multiply(qp, jnp.concatenate([c2[None], s2 * e]))
+    qp = quat_multiply(qp, jnp.stack([c2, s2 * e[0], s2 * e[1], s2 * e[2]]))
     return qp, c * m - s * cross(e, m) + (1 - c) * me * e
 
 
