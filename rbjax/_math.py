@@ -77,10 +77,45 @@ def skew(a: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3 3"]:
 
 def cross(a: Float[ArrayLike, "... 3"], b: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3"]:
     """Cross product ``a × b`` of ``(..., 3)`` vectors, written by components."""
-    a, b = jnp.asarray(a), jnp.asarray(b)
-    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
-    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
-    return jnp.stack([ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx], axis=-1)
+    return jnp.stack(_cross(_unstack(jnp.asarray(a)), _unstack(jnp.asarray(b))), axis=-1)
+
+
+# Component helpers: the vector functions here index single components and stack
+# once at the end. Multi-component slices (``q[..., 1:]``) and broadcasts of a
+# size-1 slice made XLA:CPU materialise each intermediate vector in its own loop
+# (one pass over the batch each) instead of fusing a whole step into one loop.
+def _unstack(a: Array) -> tuple[Array, ...]:
+    return tuple(a[..., i] for i in range(a.shape[-1]))
+
+
+def _dot3(a: Array, b: Array) -> Array:
+    """``a · b`` of ``(..., 3)`` vectors by components (a sum would be a reduction)."""
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
+def _matmul3(A: Array, B: Array) -> Array:
+    """``A @ B`` of ``(..., 3, 3)`` matrices by components: a batched ``dot`` of 3x3
+    blocks is a separate, unfused XLA:CPU kernel per product."""
+    return jnp.stack(
+        [jnp.stack([sum(A[..., i, k] * B[..., k, j] for k in range(3)) for j in range(3)], axis=-1) for i in range(3)],
+        axis=-2,
+    )
+
+
+def _pure_quat_multiply(w: Array, q: Array) -> Array:
+    """``(0, w) ⊗ q`` for a ``(..., 3)`` vector ``w``: ``(-w·u, q_w w + w × u)`` with ``q = (q_w, u)``.
+
+    The quaternion rate ``q̇ = ½ (0, ω) ⊗ q`` without building ``(0, ω)`` (a
+    zero stacked onto ``ω`` would be an unbatched constant under ``vmap``).
+    """
+    qw, u = q[..., 0], (q[..., 1], q[..., 2], q[..., 3])
+    wv = _unstack(w)
+    c = _cross(wv, u)
+    return jnp.stack([-(wv[0] * u[0] + wv[1] * u[1] + wv[2] * u[2])] + [qw * wv[i] + c[i] for i in range(3)], axis=-1)
+
+
+def _cross(a: tuple, b: tuple) -> tuple:
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
 def quat_multiply(p: Float[ArrayLike, "... 4"], q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
@@ -108,7 +143,7 @@ def quat_conjugate(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
     ``q``: ``(..., 4)``; returns ``(..., 4)``.
     """
     q = jnp.asarray(q)
-    return jnp.concatenate([q[..., :1], -q[..., 1:]], axis=-1)
+    return jnp.stack([q[..., 0], -q[..., 1], -q[..., 2], -q[..., 3]], axis=-1)
 
 
 def quat_rotate(q: Float[ArrayLike, "... 4"], v: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3"]:
@@ -118,15 +153,19 @@ def quat_rotate(q: Float[ArrayLike, "... 4"], v: Float[ArrayLike, "... 3"]) -> F
     multiplies, no rotation matrix.
     """
     q, v = jnp.asarray(q), jnp.asarray(v)
-    w, u = q[..., :1], q[..., 1:]
-    t = 2 * cross(u, v)
-    return v + w * t + cross(u, t)
+    w, u = q[..., 0], (q[..., 1], q[..., 2], q[..., 3])
+    t = tuple(2 * c for c in _cross(u, _unstack(v)))
+    ut = _cross(u, t)
+    return jnp.stack([v[..., i] + w * t[i] + ut[i] for i in range(3)], axis=-1)
 
 
 def quat_normalize(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
     """``q / ‖q‖`` for ``(..., 4)`` quaternions (finite gradient; ``q = 0`` is invalid)."""
     q = jnp.asarray(q)
-    return q / jnp.sqrt(jnp.sum(q * q, axis=-1, keepdims=True))
+    # explicit components, not a reduce: a reduction ends an XLA:CPU loop fusion
+    w, x, y, z = _unstack(q)
+    inv = 1 / jnp.sqrt(w * w + x * x + y * y + z * z)
+    return jnp.stack([w * inv, x * inv, y * inv, z * inv], axis=-1)
 
 
 def quat_to_matrix(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 3 3"]:
@@ -189,12 +228,13 @@ def quat_exp(rotvec: Float[ArrayLike, "... 3"]) -> Float[Array, "... 4"]:
     ``rotvec``: ``(..., 3)``; returns ``(..., 4)``.
     """
     v = jnp.asarray(rotvec)
-    th2 = jnp.sum(v * v, axis=-1, keepdims=True)
+    th2 = _dot3(v, v)[..., None]
     small = th2 < jnp.sqrt(_eps(v))
     th = jnp.sqrt(jnp.where(small, 1.0, th2))
     half_sinc = jnp.where(small, 0.5 - th2 / 48 + th2 * th2 / 3840, jnp.sin(th / 2) / th)
     cos_half = jnp.where(small, 1 - th2 / 8 + th2 * th2 / 384, jnp.cos(th / 2))
-    return jnp.concatenate([cos_half, half_sinc * v], axis=-1)
+    s = half_sinc[..., 0]
+    return jnp.stack([cos_half[..., 0], s * v[..., 0], s * v[..., 1], s * v[..., 2]], axis=-1)
 
 
 def quat_log(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 3"]:
@@ -237,6 +277,6 @@ def orthonormalize(R: Float[ArrayLike, "... 3 3"], iterations: int = 2) -> Float
     R = jnp.asarray(R)
     eye = jnp.eye(3, dtype=R.dtype)
     for _ in range(iterations):
-        RtR = jnp.einsum("...ki,...kj->...ij", R, R)
-        R = 0.5 * jnp.einsum("...ik,...kj->...ij", R, 3 * eye - RtR)
+        RtR = _matmul3(jnp.swapaxes(R, -1, -2), R)
+        R = 0.5 * _matmul3(R, 3 * eye - RtR)
     return R

@@ -11,7 +11,7 @@ from jax import Array
 from jaxtyping import Float
 
 from ._batching import lift
-from ._math import cross, matrix_to_quat, quat_conjugate, quat_rotate, quat_to_matrix
+from ._math import _dot3, _matmul3, cross, matrix_to_quat, quat_conjugate, quat_rotate, quat_to_matrix
 from ._pytree import new_unchecked
 from ._state import AnyState, MatrixState, ParticleState, RigidState, State, _apply
 from ._typing import ArrayLike
@@ -55,7 +55,7 @@ def angular_velocity(state: RigidState) -> Float[Array, "*B 3"]:
 def _one_body_angular_velocity(s: RigidState) -> Array:
     if isinstance(s, State):
         return _apply(s.body.inverse_inertia, quat_rotate(quat_conjugate(s.orientation), s.angular_momentum))
-    return jnp.swapaxes(s.rotation, -1, -2) @ s.angular_velocity
+    return _apply(jnp.swapaxes(s.rotation, -1, -2), s.angular_velocity)
 
 
 def body_angular_velocity(state: RigidState) -> Float[Array, "*B 3"]:
@@ -83,7 +83,7 @@ def orientation(state: RigidState) -> Float[Array, "*B 4"]:
 
 def _one_world_inertia(s: RigidState) -> Array:
     R = _one_rotation(s)
-    return R @ s.body.inertia @ R.T
+    return _matmul3(_matmul3(R, s.body.inertia), R.T)
 
 
 def world_inertia(state: RigidState) -> Float[Array, "*B 3 3"]:
@@ -97,7 +97,7 @@ def _one_angular_momentum(s: AnyState, about: Array | None) -> Array:
     if isinstance(s, State):
         L = s.angular_momentum
     else:
-        L = s.rotation @ _apply(s.body.inertia, s.rotation.T @ s.angular_velocity)
+        L = _apply(s.rotation, _apply(s.body.inertia, _apply(s.rotation.T, s.angular_velocity)))
     if about is not None:
         L = L + cross(s.position - about, s.body.mass * s.velocity)
     return L
@@ -126,12 +126,12 @@ def linear_momentum(state: AnyState) -> Float[Array, "*B 3"]:
 
 def _one_kinetic_energy(s: AnyState) -> Array:
     m = s.mass if isinstance(s, ParticleState) else s.body.mass
-    e = 0.5 * m * jnp.sum(s.velocity**2)
+    e = 0.5 * m * _dot3(s.velocity, s.velocity)
     if isinstance(s, ParticleState):
         return e
     w = _one_angular_velocity(s)
     L = s.angular_momentum if isinstance(s, State) else _one_angular_momentum(s, None)
-    return e + 0.5 * jnp.dot(w, L)
+    return e + 0.5 * _dot3(w, L)
 
 
 def kinetic_energy(state: AnyState) -> Float[Array, "*B"]:

@@ -63,6 +63,9 @@ for _name in ("euler", "rk4"):
     for _kind in ("isotropic", "axisymmetric", "general"):
         for _type in (State, MatrixState):
             register_kernel(_name, _kind, _type, _specialise.explicit_step(_name))
+# rbjax's own kernels lift all per-body work, so they run in either batch layout
+# (rbjax._batching.batch_last); a user's kernel is always given batch-first states
+_LAYOUT_AGNOSTIC = frozenset(_KERNELS.values())
 
 
 def body_kind(body: Body) -> str:
@@ -95,6 +98,11 @@ class _Kernel:
     method: str
     kind: str
     torque_free: bool
+
+    def layout_agnostic(self, state_type: type) -> bool:
+        """Whether the step for ``state_type`` runs in the batch-last layout too."""
+        fn = _KERNELS.get((self.method, self.kind, state_type))
+        return fn is None or fn in _LAYOUT_AGNOSTIC
 
     def __call__(self, state: AnyState, force_fn: Any, t: Array, dt: Array) -> AnyState:
         fn = _KERNELS.get((self.method, self.kind, type(state)))

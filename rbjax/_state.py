@@ -356,4 +356,6 @@ def _conj(q: Array) -> Array:
 
 def _apply(A: Array, v: Array) -> Array:
     """``A v`` for ``(..., 3, 3)`` and ``(..., 3)``, by components (fuses under vmap)."""
-    return A[..., 0] * v[..., 0:1] + A[..., 1] * v[..., 1:2] + A[..., 2] * v[..., 2:3]
+    # single components only (see rbjax._math._unstack): rows of A dotted with v
+    v0, v1, v2 = v[..., 0], v[..., 1], v[..., 2]
+    return jnp.stack([A[..., i, 0] * v0 + A[..., i, 1] * v1 + A[..., i, 2] * v2 for i in range(3)], axis=-1)
