@@ -33,11 +33,11 @@ from collections.abc import Sequence
 import jax.numpy as jnp
 
 from .._dynamics import derivative
-from .._math import orthonormalize, quat_normalize
 from .._pytree import replace
 from .._simulate_support import constant_fields
 from .._state import MatrixState, ParticleState, State
 from . import Method, StepFn, register
+from ._common import project
 
 __all__ = ["DOP853_A", "DOP853_B", "DOP853_C", "explicit_rk"]
 
@@ -196,12 +196,8 @@ def explicit_rk(a: Sequence[Sequence[float]], b: Sequence[float], c: Sequence[fl
         for i in range(s):
             y = _combine(state, dt, a[i], ks[:i])
             ks.append(derivative(y, force_fn(y, t + c[i] * dt)))
-        out = _combine(state, dt, b, ks)
-        if isinstance(out, State):
-            out = replace(out, orientation=quat_normalize(out.orientation))
-        elif isinstance(out, MatrixState):
-            out = replace(out, rotation=orthonormalize(out.rotation))
-        return out
+        # lifted, so it holds in simulate's batch-last layout too
+        return project(_combine(state, dt, b, ks))
 
     return step
 
