@@ -14,7 +14,8 @@ library has it) or a scipy DOP853 reference at rtol = atol = 1e-13 in float64:
 
 For every method in ``rbjax.methods(rbjax.State)`` (found at run time, so new
 methods appear automatically), float32 and float64, and a sweep of ``dt = T/n``
-with ``n = 2^k``:
+with ``n = 2^k`` (``k = 4..18``; order ≥ 6: ``n = 2^(k/2)``, 8 to 2048, since
+their error falls 64-256x per doubling and reaches round-off within a few):
 
 * the error at T: orientation angle ``rb.quat_angle(q, q_ref)`` (rad), relative
   angular-velocity error ``‖ω - ω_ref‖ / ‖ω_ref‖``, relative rotational-energy
@@ -218,20 +219,35 @@ def run_fixed(state, dt, n, *, method, force):
     return jax.lax.fori_loop(0, n, lambda k, s: rb.step(s, force, dt, method, t=k * dt), state)
 
 
-def rbjax_curves(p: Problem, ref: dict, dtype, n_batch: int, ks: list[int], quick: bool, log) -> list[dict]:
+def step_counts(order: int, quick: bool) -> list[int]:
+    """Step counts ``n`` of the dt sweep (``dt = T / n``) for a method of ``order``.
+
+    Powers of 2 from 16 to 2^18; from order 6 on, half powers from 8 to 2048: the
+    error of an order-8 method falls 256-fold per doubling, and reaches float64
+    round-off by n ~ 100 on these problems (finer points for the Pareto front,
+    none wasted below round-off).
+    """
+    if quick:
+        return [2**k for k in (4, 6, 8, 10)]
+    if order >= 6:
+        return [round(2 ** (k / 2)) for k in range(6, 23)]
+    return [2**k for k in range(4, 19)]
+
+
+def rbjax_curves(p: Problem, ref: dict, dtype, n_batch: int, methods, quick: bool, log) -> list[dict]:
     """Errors from one body (full) or the batch's first body (quick: one compile); cost from the batch."""
     rows = []
     sN = p.state(dtype, n_batch)
     s1 = sN if quick else p.state(dtype)
-    for method in rb.methods(rb.State):
+    for method in methods:
+        ns = step_counts(rb.methods()[method].order, quick)
         run = functools.partial(run_fixed, method=method, force=p.force)
         steps_t = max(4, int(2e6 / n_batch / max(1.0, rb.methods()[method].cost)))
-        dt_t = jnp.asarray(p.T / 2 ** ks[len(ks) // 2], dtype)
+        dt_t = jnp.asarray(p.T / ns[len(ns) // 2], dtype)
         compiled, t_compile = compile_timed(jax.jit(run), sN, dt_t, steps_t)
         jax.block_until_ready(compiled(sN, dt_t, steps_t))
         t_bs = best_time(compiled, sN, dt_t, steps_t) / (n_batch * steps_t)
-        for k in ks:
-            n = 2**k
+        for n in ns:
             dt = p.T / n
             out = (compiled if quick else run)(s1, jnp.asarray(dt, dtype), n)
             q, w = out.orientation.reshape(-1, 4)[0], rb.angular_velocity(out).reshape(-1, 3)[0]
@@ -254,7 +270,7 @@ def rbjax_curves(p: Problem, ref: dict, dtype, n_batch: int, ks: list[int], quic
         log(
             f"  rbjax {method:>20} {np.dtype(dtype).name}: {t_bs * 1e9:7.1f} ns/body-step, "
             f"compile {t_compile:.2f} s, "
-            f"best angle error {min(r['err_angle'] or np.inf for r in rows[-len(ks) :]):.2e}"
+            f"best angle error {min(r['err_angle'] or np.inf for r in rows[-len(ns) :]):.2e}"
         )
     return rows
 
@@ -458,6 +474,8 @@ def main(argv=None) -> int:
     )
     ap.add_argument("--out", default=os.path.join(ROOT, "benchmarks", "results"), help="output folder")
     ap.add_argument("--no-diffrax", action="store_true", help="skip the diffrax peer")
+    ap.add_argument("--methods", default="all", help="comma-separated rbjax methods (default: every registered one)")
+    ap.add_argument("--dtypes", default="float32,float64", help="comma-separated subset of float32,float64")
     args = ap.parse_args(argv)
 
     probs = problems()
@@ -466,15 +484,20 @@ def main(argv=None) -> int:
     if args.problems != "all":
         probs = {k: probs[k] for k in args.problems.split(",")}
     if args.quick:
-        n_batch, ks, dtypes = 64, [4, 6, 8, 10], [jnp.float32, jnp.float64]
+        n_batch = 64
         solvers, tols, max_steps = ["Tsit5"], {jnp.float64: [1e-4, 1e-7]}, 100_000
     else:
-        n_batch, ks, dtypes = 10_000, list(range(4, 19)), [jnp.float32, jnp.float64]
+        n_batch = 10_000
         solvers, max_steps = ["Tsit5", "Dopri8"], 1_000_000
         tols = {
             jnp.float32: [10.0 ** (-k / 2) for k in range(4, 13)],  # 1e-2 .. 1e-6: float32's floor is ~1e-7
             jnp.float64: [10.0 ** (-k / 2) for k in range(4, 27)],
         }  # 1e-2 .. 1e-13
+    dtypes = [{"float32": jnp.float32, "float64": jnp.float64}[d] for d in args.dtypes.split(",")]
+    methods = list(rb.methods(rb.State)) if args.methods == "all" else args.methods.split(",")
+    unknown = set(methods) - set(rb.methods(rb.State))
+    if unknown:
+        ap.error(f"unknown methods {sorted(unknown)}; available: {sorted(rb.methods(rb.State))}")
     try:
         import diffrax  # noqa: F401
     except ImportError:
@@ -491,7 +514,7 @@ def main(argv=None) -> int:
         log = lambda s: print(s, flush=True)  # noqa: E731
         rows = []
         for dtype in dtypes:
-            rows += rbjax_curves(p, ref, dtype, n_batch, ks, args.quick, log)
+            rows += rbjax_curves(p, ref, dtype, n_batch, methods, args.quick, log)
             if not args.no_diffrax and dtype in tols:
                 rows += diffrax_curves(p, ref, dtype, n_batch, solvers, tols[dtype], max_steps, args.quick, log)
         results[name] = rows

@@ -7,22 +7,70 @@ every body (``in_axes=None``); one with ``k`` extra leading dimensions is batche
 over the last ``k`` batch dimensions. So a single ``Body`` can drive a batch of
 states, and a trajectory ``(T, N)`` can share its ``(N,)`` bodies over time.
 Arguments that are not rbjax pytrees (``dt``, ``t``) are always shared.
+
+Layout. By default batch dimensions lead every leaf, ``(*B, *core)`` (array of
+structures). Inside :func:`batch_last` they trail it, ``(*core, *B)``
+(structure of arrays): ``simulate`` carries its state that way through the
+scan, so that the vmapped one-body kernel reads and writes whole contiguous
+rows per component and XLA:CPU fuses a step into one vectorised loop (with
+the batch leading, the per-body components are a stride-3/4 gather that does
+not vectorise). Kernels are the same either way; only ``lift`` and the
+layout converters below look at the mode.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import contextlib
+import contextvars
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 
 from ._pytree import is_rbjax_dataclass, replace
 
-__all__ = ["lift", "batch_shape"]
+__all__ = ["lift", "batch_shape", "batch_last", "to_batch_last", "to_batch_first"]
+
+_BATCH_LAST = contextvars.ContextVar("rbjax_batch_last", default=False)
+
+
+@contextlib.contextmanager
+def batch_last(on: bool = True) -> Iterator[None]:
+    """Trace code inside with rbjax pytrees in the batch-last layout ``(*core, *B)``."""
+    token = _BATCH_LAST.set(on)
+    try:
+        yield
+    finally:
+        _BATCH_LAST.reset(token)
+
+
+def _map_leaves(obj: Any, fn: Callable[[Any, int], Any]) -> Any:
+    """Apply ``fn(leaf, core_ndim)`` to every array leaf of an rbjax pytree."""
+    if not is_rbjax_dataclass(obj):
+        return obj
+    changes = {}
+    for name in type(obj)._rbjax_data_fields:
+        v = getattr(obj, name)
+        if v is None:
+            continue
+        changes[name] = _map_leaves(v, fn) if is_rbjax_dataclass(v) else fn(v, type(obj)._rbjax_core_ndim[name])
+    return replace(obj, **changes)
+
+
+def to_batch_last(obj: Any) -> Any:
+    """``(*B, *core)`` → ``(*core, *B)`` on every leaf (a shared leaf is unchanged)."""
+    return _map_leaves(obj, lambda a, c: jnp.moveaxis(a, tuple(range(a.ndim - c, a.ndim)), tuple(range(c))))
+
+
+def to_batch_first(obj: Any) -> Any:
+    """``(*core, *B)`` → ``(*B, *core)`` on every leaf; inverse of :func:`to_batch_last`."""
+    return _map_leaves(obj, lambda a, c: jnp.moveaxis(a, tuple(range(c)), tuple(range(a.ndim - c, a.ndim))))
 
 
 def _batch_dims(obj: Any) -> list[tuple[int, ...]]:
-    """Leading batch shapes of every array leaf of an rbjax pytree."""
+    """Batch shapes of every array leaf of an rbjax pytree (in the current layout)."""
+    last = _BATCH_LAST.get()
     out: list[tuple[int, ...]] = []
     for name, core in type(obj)._rbjax_core_ndim.items():
         if name not in type(obj)._rbjax_data_fields:
@@ -33,7 +81,7 @@ def _batch_dims(obj: Any) -> list[tuple[int, ...]]:
         if is_rbjax_dataclass(v):
             out.extend(_batch_dims(v))
         else:
-            out.append(tuple(v.shape[: v.ndim - core]))
+            out.append(tuple(v.shape[core:] if last else v.shape[: v.ndim - core]))
     return out
 
 
@@ -53,8 +101,12 @@ def batch_shape(*trees: Any) -> tuple[int, ...]:
     return tuple(result)
 
 
-def _in_axes(obj: Any, level: int, nd: int) -> Any:
-    """in_axes for the vmap over batch dimension ``level`` of ``nd``."""
+def _in_axes(obj: Any, level: int, nd: int, last: bool) -> Any:
+    """in_axes for the vmap over batch dimension ``level`` of ``nd``.
+
+    Batch-first, a mapped leaf's axis is 0 (outer levels are already removed);
+    batch-last it is the first axis after the core ones.
+    """
     if not is_rbjax_dataclass(obj):
         return None
     changes = {}
@@ -63,10 +115,11 @@ def _in_axes(obj: Any, level: int, nd: int) -> Any:
         if v is None:
             changes[name] = None
         elif is_rbjax_dataclass(v):
-            changes[name] = _in_axes(v, level, nd)
+            changes[name] = _in_axes(v, level, nd, last)
         else:
-            k = v.ndim - type(obj)._rbjax_core_ndim[name]
-            changes[name] = 0 if k >= nd - level else None
+            core = type(obj)._rbjax_core_ndim[name]
+            k = v.ndim - core
+            changes[name] = (core if last else 0) if k >= nd - level else None
     return replace(obj, **changes)
 
 
@@ -74,11 +127,14 @@ def lift(fn: Callable[..., Any]) -> Callable[..., Any]:
     """Map a one-body function over the broadcast batch shape of its arguments."""
 
     def lifted(*args: Any) -> Any:
+        last = _BATCH_LAST.get()
         nd = len(batch_shape(*args))
         f = fn
-        # innermost vmap maps the last batch dimension
+        # innermost vmap maps the last batch dimension; batch-last, each level's
+        # output axis goes just before those of the levels inside it
         for level in reversed(range(nd)):
-            f = jax.vmap(f, in_axes=tuple(_in_axes(a, level, nd) for a in args))
+            in_axes = tuple(_in_axes(a, level, nd, last) for a in args)
+            f = jax.vmap(f, in_axes=in_axes, out_axes=level - nd if last else 0)
         return f(*args)
 
     return lifted

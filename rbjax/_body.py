@@ -7,16 +7,18 @@ not be the body axes.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
+import jax.core
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
-from jax.typing import ArrayLike
+from jaxtyping import Float
 
 from ._math import skew
 from ._pytree import field, pytree_dataclass
+from ._typing import ArrayLike
 
 __all__ = [
     "Body",
@@ -52,7 +54,7 @@ def _is_concrete(*xs: Any) -> bool:
     )
 
 
-def inverse_3x3(A: ArrayLike) -> Array:
+def inverse_3x3(A: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 3 3"]:
     """Inverse of ``(..., 3, 3)`` matrices by the adjugate: ``A⁻¹ = adj(A) / det(A)``.
 
     Closed form (no pivoting, no LAPACK call), differentiable, and cheap under
@@ -120,9 +122,19 @@ class Body:
     ``ValueError`` otherwise. Under tracing it checks shapes only.
     """
 
-    mass: Array = field(core_ndim=0)
-    inertia: Array = field(core_ndim=2)
-    inverse_inertia: Array | None = field(core_ndim=2, default=None)
+    mass: Float[Array, "*B"] = field(core_ndim=0)
+    inertia: Float[Array, "*B 3 3"] = field(core_ndim=2)
+    # ``None`` only as the constructor's default: __post_init__ always fills it in
+    inverse_inertia: Float[Array, "*B 3 3"] = field(core_ndim=2, default=None)
+
+    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
+
+        def __init__(
+            self,
+            mass: Float[ArrayLike, "*B"],
+            inertia: Float[ArrayLike, "*B 3 3"],
+            inverse_inertia: Float[ArrayLike, "*B 3 3"] | None = None,
+        ) -> None: ...
 
     def __post_init__(self) -> None:
         mass = _as_float(self.mass)
@@ -146,9 +158,10 @@ class Body:
 
     @property
     def dtype(self) -> Any:
+        """Floating dtype of ``mass`` and ``inertia``."""
         return self.mass.dtype
 
-    def principal(self) -> tuple[Array, Array]:
+    def principal(self) -> tuple[Float[Array, "*B 3"], Float[Array, "*B 3 3"]]:
         """Principal moments ``(*B, 3)`` (ascending) and axes ``(*B, 3, 3)``.
 
         ``I = P diag(moments) Pᵀ`` with the axes as columns of ``P`` (a proper
@@ -165,7 +178,7 @@ def _diag(d0: Array, d1: Array, d2: Array) -> Array:
     return d[..., :, None] * jnp.eye(3, dtype=d.dtype)
 
 
-def box(mass: ArrayLike, size: ArrayLike) -> Body:
+def box(mass: Float[ArrayLike, "*B"], size: Float[ArrayLike, "*B 3"]) -> Body:
     """Solid cuboid with full side lengths ``size = (a, b, c)`` along body x, y, z (m).
 
     ``I = m/12 · diag(b² + c², a² + c², a² + b²)``.
@@ -175,7 +188,7 @@ def box(mass: ArrayLike, size: ArrayLike) -> Body:
     return Body(m, (m / 12)[..., None, None] * _diag(b2 + c2, a2 + c2, a2 + b2))
 
 
-def sphere(mass: ArrayLike, radius: ArrayLike) -> Body:
+def sphere(mass: Float[ArrayLike, "*B"], radius: Float[ArrayLike, "*B"]) -> Body:
     """Solid sphere of ``radius`` (m): ``I = 2/5 m r² · 1``.
 
     ``mass`` (kg) and ``radius`` broadcast to the batch shape ``B`` of the body.
@@ -185,7 +198,7 @@ def sphere(mass: ArrayLike, radius: ArrayLike) -> Body:
     return Body(m, _diag(i, i, i))
 
 
-def cylinder(mass: ArrayLike, radius: ArrayLike, length: ArrayLike) -> Body:
+def cylinder(mass: Float[ArrayLike, "*B"], radius: Float[ArrayLike, "*B"], length: Float[ArrayLike, "*B"]) -> Body:
     """Solid cylinder with its axis along body z.
 
     ``Izz = m r²/2``, ``Ixx = Iyy = m (3 r² + l²)/12``.
@@ -195,7 +208,7 @@ def cylinder(mass: ArrayLike, radius: ArrayLike, length: ArrayLike) -> Body:
     return Body(m, _diag(t, t, 0.5 * m * r**2))
 
 
-def ellipsoid(mass: ArrayLike, semi_axes: ArrayLike) -> Body:
+def ellipsoid(mass: Float[ArrayLike, "*B"], semi_axes: Float[ArrayLike, "*B 3"]) -> Body:
     """Solid ellipsoid with semi-axes ``(a, b, c)`` along body x, y, z (m).
 
     ``I = m/5 · diag(b² + c², a² + c², a² + b²)``.
@@ -205,7 +218,9 @@ def ellipsoid(mass: ArrayLike, semi_axes: ArrayLike) -> Body:
     return Body(m, (m / 5)[..., None, None] * _diag(b2 + c2, a2 + c2, a2 + b2))
 
 
-def particle_inertia(masses: ArrayLike, points: ArrayLike) -> tuple[Array, Array, Array]:
+def particle_inertia(
+    masses: Float[ArrayLike, "*B P"], points: Float[ArrayLike, "*B P 3"]
+) -> tuple[Float[Array, "*B"], Float[Array, "*B 3"], Float[Array, "*B 3 3"]]:
     """Mass, centre of mass and inertia of point masses, without validation.
 
     ``masses``: ``(P,)``; ``points``: ``(P, 3)``. Returns ``M = Σ m_i``,
@@ -220,7 +235,7 @@ def particle_inertia(masses: ArrayLike, points: ArrayLike) -> tuple[Array, Array
     return total, com, inertia
 
 
-def from_particles(masses: ArrayLike, points: ArrayLike) -> tuple[Body, Array]:
+def from_particles(masses: Float[ArrayLike, " P"], points: Float[ArrayLike, "P 3"]) -> tuple[Body, Float[Array, " 3"]]:
     """Rigid body made of point masses; returns ``(body, centre_of_mass)``.
 
     ``masses``: ``(P,)`` kg; ``points``: ``(P, 3)`` m, in the body frame. The
@@ -236,7 +251,9 @@ def from_particles(masses: ArrayLike, points: ArrayLike) -> tuple[Body, Array]:
     return Body(total, inertia), com
 
 
-def parallel_axis(inertia: ArrayLike, mass: ArrayLike, offset: ArrayLike) -> Array:
+def parallel_axis(
+    inertia: Float[ArrayLike, "... 3 3"], mass: Float[ArrayLike, " ..."], offset: Float[ArrayLike, "... 3"]
+) -> Float[Array, "... 3 3"]:
     """Inertia about a point displaced by ``offset`` from the centre of mass.
 
     ``I_p = I_c + m (‖d‖² 1 - d dᵀ)``, all in the same frame (Steiner's theorem).
@@ -247,7 +264,9 @@ def parallel_axis(inertia: ArrayLike, mass: ArrayLike, offset: ArrayLike) -> Arr
     return I + m[..., None, None] * (dd - d[..., :, None] * d[..., None, :])
 
 
-def rotate_inertia(inertia: ArrayLike, rotation: ArrayLike) -> Array:
+def rotate_inertia(
+    inertia: Float[ArrayLike, "... 3 3"], rotation: Float[ArrayLike, "... 3 3"]
+) -> Float[Array, "... 3 3"]:
     """Express an inertia tensor in a rotated frame: ``I' = R I Rᵀ``.
 
     With ``R`` body to world this is the notes' world inertia ``I_w = R I_L R⁻¹``.

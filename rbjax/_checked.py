@@ -17,6 +17,7 @@ without checks.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from typing import Any
 
 import equinox as eqx
@@ -84,12 +85,12 @@ def resolve(checked: bool | Checks, state: Any) -> Checks | None:
 
 
 def _index_dtype() -> Any:
-    return jnp.int64 if jax.config.jax_enable_x64 else jnp.int32
+    return jnp.int64 if jax.config.read("jax_enable_x64") else jnp.int32
 
 
 def _encodes_body(steps: int, n_bodies: int) -> bool:
     """Whether ``(step, body, kind)`` fits the index integer (int32 without x64)."""
-    limit = np.iinfo(np.int64 if jax.config.jax_enable_x64 else np.int32).max
+    limit = np.iinfo(np.int64 if jax.config.read("jax_enable_x64") else np.int32).max
     return (steps + 1) * max(n_bodies, 1) * len(_KINDS) < limit
 
 
@@ -131,6 +132,7 @@ def _record(rec: dict, bad_kind: jax.Array, step: Any, steps: int) -> dict:
 
 def after_step(rec: dict, state: Any, step: Any, checks: Checks, steps: int) -> dict:
     """Test the state reached by step number ``step`` (1-based) for every body."""
+    assert checks.quat_tol is not None  # resolve() fills it in
     batch = state.batch_shape
     consts = constant_fields(state)
     cores = core_ndim_of(state)
@@ -172,7 +174,7 @@ class _Messages:
     hashable (equinox treats it as static) and never materialised.
     """
 
-    method: str
+    method: str | Callable[..., Any]
     batch_shape: tuple[int, ...]
     steps: int
     step_offset: int
@@ -186,8 +188,8 @@ class _Messages:
         where, kind = divmod(int(index), len(_KINDS))
         if _encodes_body(self.steps, n):
             step, flat = divmod(where, max(n, 1))
-            index = tuple(int(i) for i in np.unravel_index(flat, self.batch_shape))
-            body = f"body {index}" if self.batch_shape else "the body"
+            where_in_batch = tuple(int(i) for i in np.unravel_index(flat, self.batch_shape))
+            body = f"body {where_in_batch}" if self.batch_shape else "the body"
         else:
             step, body = where, "a body (index not recorded: steps x bodies overflows int32; enable x64)"
         step += self.step_offset
@@ -211,11 +213,12 @@ def raise_on_failure(
     rec: dict,
     checks: Checks,
     *,
-    method: str,
+    method: str | Callable[..., Any],
     batch_shape: tuple[int, ...],
     steps: int,
     step_offset: int = 0,
 ) -> Any:
     """``traj`` unchanged, or an equinox runtime error naming the step and body."""
     msgs = _Messages(method, tuple(batch_shape), int(steps), int(step_offset), checks)
-    return eqx.branched_error_if(traj, rec["failed"], rec["code"], msgs)
+    # msgs is a lazy, hashable stand-in for Sequence[str]: equinox only indexes it
+    return eqx.branched_error_if(traj, rec["failed"], rec["code"], msgs)  # pyright: ignore[reportArgumentType]

@@ -15,14 +15,15 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.typing import ArrayLike
+from jaxtyping import Float
 
 from ._checked import Checks
 from ._io import ChunkWriter
-from ._pytree import replace
+from ._pytree import data_fields, replace
 from ._simulate import _is_time_series, _run
 from ._simulate_support import constant_fields
-from ._state import AnyState, ForceLike, Forces
+from ._state import ForceLike, Forces, StateT
+from ._typing import ArrayLike
 
 __all__ = ["simulate_chunked"]
 
@@ -38,7 +39,7 @@ def _progress_bar(progress: bool, total: int) -> Any:
     return tqdm(total=total, unit="step", unit_scale=True, desc="rbjax.simulate_chunked")
 
 
-def _frames(traj: Any, sl: slice) -> Any:
+def _frames(traj: Any, sl: slice | int) -> Any:
     """Slice the time axis of the changing fields (``body`` is not stacked)."""
     consts = constant_fields(traj)
     return replace(
@@ -50,20 +51,20 @@ def _frames(traj: Any, sl: slice) -> Any:
 
 
 def simulate_chunked(
-    state: AnyState,
+    state: StateT,
     forces: ForceLike,
-    dt: ArrayLike,
+    dt: Float[ArrayLike, ""],
     steps: int,
     method: str = "euler",
     *,
     save_every: int = 1,
     chunk_steps: int | None = None,
-    t0: ArrayLike = 0.0,
+    t0: Float[ArrayLike, ""] = 0.0,
     progress: bool = True,
     writer: ChunkWriter | None = None,
     keep: bool = True,
     checked: bool | Checks = False,
-) -> AnyState:
+) -> StateT:
     """:func:`rbjax.simulate` in chunks of ``chunk_steps`` steps, with a progress bar.
 
     Same arguments and result as :func:`rbjax.simulate` (state ``(*B, ...)``,
@@ -146,7 +147,7 @@ def simulate_chunked(
         kept[0],
         **{
             name: jax.tree.map(lambda *a: jnp.concatenate(a), *(getattr(k, name) for k in kept))
-            for name in type(state)._rbjax_data_fields
+            for name in data_fields(state)
             if name not in consts
         },
     )

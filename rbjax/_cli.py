@@ -94,7 +94,8 @@ def _read_recording(path: Path) -> dict:
         need = ["t", "qw", "qx", "qy", "qz"]
         if any(c not in cols for c in need):
             raise CLIError(f"{path}: CSV needs columns {need} (found {cols})")
-        col = lambda names: np.stack([np.asarray(data[data.dtype.names[cols.index(n)]], np.float64) for n in names], -1)  # noqa: E731
+        raw = data.dtype.names or ()
+        col = lambda names: np.stack([np.asarray(data[raw[cols.index(n)]], np.float64) for n in names], -1)  # noqa: E731
         rec = {"times": col(["t"])[:, 0], "quaternions": col(["qw", "qx", "qy", "qz"])}
         if all(c in cols for c in ("gx", "gy", "gz")):
             rec["gyro"] = col(["gx", "gy", "gz"])
@@ -149,7 +150,7 @@ def _fit(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``argparse`` parser of ``python -m rbjax`` (subcommands demo, bench, fit)."""
-    common = argparse.ArgumentParser(add_help=False)
+    common = _Parser(add_help=False)
     common.add_argument("--debug", action="store_true", help="show the full traceback on errors")
     parser = _Parser(
         prog="python -m rbjax",

@@ -72,7 +72,7 @@ def _pick_method(name: str | None) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m rbjax demo", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python -m rbjax demo", description=(__doc__ or "rbjax demo").splitlines()[0])
     p.add_argument("--bodies", type=int, default=10_000, help="number of random boxes (default 10000)")
     p.add_argument("--seconds", type=float, default=10.0, help="simulated time in s (default 10)")
     p.add_argument("--dt", type=float, default=2e-3, help="time step in s (default 2e-3)")

@@ -17,10 +17,10 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from ._batching import lift
-from ._math import cross, quat_multiply, skew
+from ._math import _matmul3, _pure_quat_multiply, cross, skew
 from ._pytree import replace
 from ._quantities import _omega_world
-from ._state import AnyState, Forces, ParticleState, State, _apply
+from ._state import AnyState, Forces, ParticleState, State, StateT, _apply
 
 __all__ = ["derivative"]
 
@@ -33,27 +33,26 @@ def _one_derivative(s: AnyState, f: Forces) -> AnyState:
     tau = jnp.zeros_like(s.velocity) if f.torque is None else f.torque
     if isinstance(s, State):
         w = _omega_world(s)
-        wq = jnp.concatenate([jnp.zeros_like(w[:1]), w])
         return replace(
             s,
             position=s.velocity,
             velocity=a,
-            orientation=0.5 * quat_multiply(wq, s.orientation),
+            orientation=0.5 * _pure_quat_multiply(w, s.orientation),
             angular_momentum=tau,
         )
     R, w = s.rotation, s.angular_velocity
-    I_w = R @ s.body.inertia @ R.T
-    I_w_inv = R @ s.body.inverse_inertia @ R.T
+    I_w = _matmul3(_matmul3(R, s.body.inertia), R.T)
+    I_w_inv = _matmul3(_matmul3(R, s.body.inverse_inertia), R.T)
     return replace(
         s,
         position=s.velocity,
         velocity=a,
-        rotation=skew(w) @ R,
+        rotation=_matmul3(skew(w), R),
         angular_velocity=_apply(I_w_inv, tau - cross(w, _apply(I_w, w))),
     )
 
 
-def derivative(state: AnyState, forces: Forces) -> AnyState:
+def derivative(state: StateT, forces: Forces) -> StateT:
     """Time derivative of every changing field of ``state`` under ``forces`` (world frame).
 
     Returns the same pytree type; its constant fields (``body``, particle

@@ -219,13 +219,14 @@ def carlson_rf(x: ArrayLike, y: ArrayLike, z: ArrayLike) -> Array:
     """
     x, y, z = jnp.broadcast_arrays(*_asfloat(x, y, z))
 
-    def step(_, xyz):
+    def step(_: int, xyz: tuple[Array, Array, Array]) -> tuple[Array, Array, Array]:
         x, y, z = xyz
         sx, sy, sz = _sqrt0(x), _sqrt0(y), _sqrt0(z)
         lam = sx * sy + sy * sz + sz * sx
         return (x + lam) / 4, (y + lam) / 4, (z + lam) / 4
 
-    x, y, z = jax.lax.fori_loop(0, _CARLSON_STEPS, step, (x, y, z))
+    xyz: tuple[Array, Array, Array] = jax.lax.fori_loop(0, _CARLSON_STEPS, step, (x, y, z))
+    x, y, z = xyz
     A = (x + y + z) / 3
     X, Y = 1 - x / A, 1 - y / A
     Z = -(X + Y)

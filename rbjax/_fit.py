@@ -22,7 +22,6 @@ differentiated data), which also gives the identifiability check.
 from __future__ import annotations
 
 import functools
-from typing import Any
 
 import equinox as eqx
 import jax
@@ -31,6 +30,7 @@ import lineax as lx
 import numpy as np
 import optimistix as optx
 from jax import Array
+from jaxtyping import Bool, Float, Int
 
 from . import _methods
 from ._body import Body, inverse_3x3
@@ -39,6 +39,7 @@ from ._math import quat_conjugate, quat_exp, quat_log, quat_multiply, quat_rotat
 from ._pytree import field, new_unchecked, pytree_dataclass, static_field
 from ._shooting import _scan_segment
 from ._state import Forces, State, _apply, quat_tolerance
+from ._typing import ArrayLike
 
 __all__ = ["FitResult", "fit_inertia", "fit_inertia_linear"]
 
@@ -70,17 +71,17 @@ class FitResult:
         segments: number of shooting segments used.
     """
 
-    inertia: Array = field(core_ndim=2)
-    principal_moments: Array = field(core_ndim=1)
-    principal_axes: Array = field(core_ndim=2)
-    moment_std: Array = field(core_ndim=1)
-    initial_angular_velocity: Array = field(core_ndim=1)
-    initial_orientation: Array = field(core_ndim=1)
-    residuals: Array = field(core_ndim=1)
-    orientation_rms: Array = field(core_ndim=0)
-    rate_rms: Array = field(core_ndim=0)
-    converged: Array = field(core_ndim=0)
-    iterations: Array = field(core_ndim=0)
+    inertia: Float[Array, "*N 3 3"] = field(core_ndim=2)
+    principal_moments: Float[Array, "*N 3"] = field(core_ndim=1)
+    principal_axes: Float[Array, "*N 3 3"] = field(core_ndim=2)
+    moment_std: Float[Array, "*N 3"] = field(core_ndim=1)
+    initial_angular_velocity: Float[Array, "*N 3"] = field(core_ndim=1)
+    initial_orientation: Float[Array, "*N 4"] = field(core_ndim=1)
+    residuals: Float[Array, "*N n"] = field(core_ndim=1)
+    orientation_rms: Float[Array, "*N"] = field(core_ndim=0)
+    rate_rms: Float[Array, "*N"] = field(core_ndim=0)
+    converged: Bool[Array, "*N"] = field(core_ndim=0)
+    iterations: Int[Array, "*N"] = field(core_ndim=0)
     scale_fixed: bool = static_field(default=False)
     segments: int = static_field(default=1)
 
@@ -552,12 +553,12 @@ def _initial_inertia(MtM, Mtb, scale, torque_free):
 
 
 def fit_inertia(
-    times: Any,
-    orientations: Any,
+    times: Float[ArrayLike, " T"],
+    orientations: Float[ArrayLike, "*N T 4"],
     *,
-    body_rates: Any = None,
-    torques: Any = None,
-    initial_inertia: Any = None,
+    body_rates: Float[ArrayLike, "*N T 3"] | None = None,
+    torques: Float[ArrayLike, "*N T 3"] | None = None,
+    initial_inertia: Float[ArrayLike, "3 3"] | None = None,
     method: str = "rk4",
     segments: int | None = None,
     substeps: int | None = None,
@@ -711,7 +712,7 @@ def fit_inertia(
             ww=ones / sw[n] if use_rates else ones,
             wc=ones * ((1 / sw[n]) if use_rates else seg_dur / sq[n]),
         )
-        if not torque_free:
+        if tau_n is not None:  # i.e. not torque_free
             seg["t_samples"], seg["tau"] = t[samp] - t[0], tau_n[samp]
         datas.append(dict(seg=seg, n_data=np.float64(n_data), continuity_weight=np.float64(continuity_weight)))
     # NumPy all the way into the jitted solver: eager jnp here would compile once per shape
@@ -731,7 +732,12 @@ def fit_inertia(
     return new_unchecked(FitResult, **out, scale_fixed=not torque_free, segments=S)
 
 
-def fit_inertia_linear(times: Any, body_rates: Any, orientations: Any = None, torques: Any = None) -> Array:
+def fit_inertia_linear(
+    times: Float[ArrayLike, " T"],
+    body_rates: Float[ArrayLike, "T 3"],
+    orientations: Float[ArrayLike, "T 4"] | None = None,
+    torques: Float[ArrayLike, "T 3"] | None = None,
+) -> Float[Array, "3 3"]:
     """Baseline: linear least squares on Euler's equations with differentiated gyro rates.
 
     ``I ω̇ + ω × I ω = τ_b`` (body frame) is linear in the six entries of ``I``;

@@ -18,19 +18,20 @@ shape ``(*B, 3)``. Models that name bodies by index (:class:`Spring`,
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
 from jax import Array
 from jax.sharding import NamedSharding, PartitionSpec
-from jax.typing import ArrayLike
+from jaxtyping import Float, Int
 
 from ._body import _as_float
 from ._math import cross, quat_rotate, safe_norm
 from ._pytree import field, pytree_dataclass, static_field
 from ._quantities import angular_velocity
-from ._state import AnyState, Forces, MatrixState, ParticleState, State, _apply
+from ._state import AnyState, Forces, MatrixState, ParticleState, RigidState, State, _apply
+from ._typing import ArrayLike
 
 __all__ = [
     "ForceModel",
@@ -55,7 +56,7 @@ class ForceModel:
     ``(*B, 3)`` in N m about it, either ``None`` when the model has none).
     """
 
-    def __call__(self, state: AnyState, t: Array) -> Forces:  # pragma: no cover - abstract
+    def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:  # pragma: no cover - abstract
         raise NotImplementedError
 
     def __add__(self, other: ForceModel) -> ForceSum:
@@ -78,9 +79,11 @@ def _full(x: Array, state: AnyState) -> Array:
     return jnp.broadcast_to(x, state.position.shape)
 
 
-def _no_torque_for_particles(name: str, state: AnyState) -> None:
+def _no_torque_for_particles(name: str, state: AnyState) -> RigidState:
+    """``state``, known to be rigid; ``ValueError`` for particles."""
     if isinstance(state, ParticleState):
         raise ValueError(f"{name}: a torque needs rigid bodies; ParticleState has no rotation")
+    return state
 
 
 @pytree_dataclass
@@ -92,7 +95,7 @@ class ForceSum(ForceModel):
 
     terms: tuple = ()
 
-    def __call__(self, state: AnyState, t: Array) -> Forces:
+    def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         total = Forces()
         for term in self.terms:
             total = total + term(state, t)
@@ -107,12 +110,16 @@ class Gravity(ForceModel):
     ``(0, 0, -9.81)``.
     """
 
-    g: Array = field(core_ndim=1, default=(0.0, 0.0, -9.81))
+    g: Float[Array, "*B 3"] = field(core_ndim=1, default=(0.0, 0.0, -9.81))
+
+    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
+
+        def __init__(self, g: Float[ArrayLike, "*B 3"] | tuple[float, float, float] = (0.0, 0.0, -9.81)) -> None: ...
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "g", _as_float(self.g))
 
-    def __call__(self, state: AnyState, t: Array) -> Forces:
+    def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         return Forces(force=_full(_mass(state)[..., None] * _cast(self.g, state), state))
 
 
@@ -125,20 +132,26 @@ class LinearDrag(ForceModel):
     centre-of-mass velocity and ``ω`` the angular velocity, both world frame.
     """
 
-    linear: Array = field(default=0.0)
-    angular: Array | None = field(default=None)
+    linear: Float[Array, "*B"] = field(default=0.0)
+    angular: Float[Array, "*B"] | None = field(default=None)
+
+    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
+
+        def __init__(
+            self, linear: Float[ArrayLike, "*B"] = 0.0, angular: Float[ArrayLike, "*B"] | None = None
+        ) -> None: ...
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "linear", _as_float(self.linear))
         if self.angular is not None:
             object.__setattr__(self, "angular", _as_float(self.angular))
 
-    def __call__(self, state: AnyState, t: Array) -> Forces:
+    def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         f = -_cast(self.linear, state)[..., None] * state.velocity
         if self.angular is None:
             return Forces(force=f)
-        _no_torque_for_particles("LinearDrag(angular=...)", state)
-        return Forces(force=f, torque=-_cast(self.angular, state)[..., None] * angular_velocity(state))
+        rigid = _no_torque_for_particles("LinearDrag(angular=...)", state)
+        return Forces(force=f, torque=-_cast(self.angular, state)[..., None] * angular_velocity(rigid))
 
 
 @pytree_dataclass
@@ -150,21 +163,26 @@ class QuadraticDrag(ForceModel):
     gravity: ``√(m g / c)``.
     """
 
-    linear: Array = field(default=0.0)
-    angular: Array | None = field(default=None)
+    linear: Float[Array, "*B"] = field(default=0.0)
+    angular: Float[Array, "*B"] | None = field(default=None)
+
+    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
+
+        def __init__(
+            self, linear: Float[ArrayLike, "*B"] = 0.0, angular: Float[ArrayLike, "*B"] | None = None
+        ) -> None: ...
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "linear", _as_float(self.linear))
         if self.angular is not None:
             object.__setattr__(self, "angular", _as_float(self.angular))
 
-    def __call__(self, state: AnyState, t: Array) -> Forces:
+    def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         v = state.velocity
         f = -_cast(self.linear, state)[..., None] * safe_norm(v, keepdims=True) * v
         if self.angular is None:
             return Forces(force=f)
-        _no_torque_for_particles("QuadraticDrag(angular=...)", state)
-        w = angular_velocity(state)
+        w = angular_velocity(_no_torque_for_particles("QuadraticDrag(angular=...)", state))
         c_r = _cast(self.angular, state)[..., None]
         return Forces(force=f, torque=-c_r * safe_norm(w, keepdims=True) * w)
 
@@ -182,8 +200,11 @@ def _check_flat(name: str, state: AnyState) -> int:
 
 def _offset(state: AnyState, idx: Array, point: Array | None) -> Array | None:
     """World offset ``r = R p`` of body-frame points ``p`` on bodies ``idx`` (``None`` at the COM)."""
-    if point is None:
-        return None
+    return None if point is None else _to_world(state, idx, point)
+
+
+def _to_world(state: AnyState, idx: Array, point: Array) -> Array:
+    """Body-frame vectors ``p`` on bodies ``idx`` in the world frame: ``R p``."""
     p = _cast(point, state)
     if isinstance(state, State):
         return quat_rotate(_gather(state.orientation, idx), p)
@@ -195,7 +216,7 @@ def _offset(state: AnyState, idx: Array, point: Array | None) -> Array | None:
 def _point_motion(state: AnyState, idx: Array, r: Array | None, omega: Array | None) -> tuple[Array, Array]:
     """World position ``x + r`` and velocity ``v + ω × r`` of attached points."""
     x, v = _gather(state.position, idx), _gather(state.velocity, idx)
-    if r is None:
+    if r is None or omega is None:  # omega is given whenever an offset r is
         return x, v
     return x + r, v + cross(_gather(omega, idx), r)
 
@@ -253,13 +274,26 @@ class Spring(ForceModel):
     and no rotation work; with both ends there the model returns ``torque=None``.
     """
 
-    body: Array
-    stiffness: Array
-    point: Array | None = None
-    anchor: Array | None = None
-    other: Array | None = None
-    rest_length: Array = field(default=0.0)
-    damping: Array | None = None
+    body: Int[Array, " S"]
+    stiffness: Float[Array, "*S"]
+    point: Float[Array, "S 3"] | None = None
+    anchor: Float[Array, "S 3"] | None = None
+    other: Int[Array, " S"] | None = None
+    rest_length: Float[Array, "*S"] = field(default=0.0)
+    damping: Float[Array, "*S"] | None = None
+
+    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
+
+        def __init__(
+            self,
+            body: Int[ArrayLike, " S"],
+            stiffness: Float[ArrayLike, "*S"],
+            point: Float[ArrayLike, "S 3"] | None = None,
+            anchor: Float[ArrayLike, "S 3"] | None = None,
+            other: Int[ArrayLike, " S"] | None = None,
+            rest_length: Float[ArrayLike, "*S"] = 0.0,
+            damping: Float[ArrayLike, "*S"] | None = None,
+        ) -> None: ...
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "body", _as_index(self.body))
@@ -275,13 +309,13 @@ class Spring(ForceModel):
     @classmethod
     def to_anchor(
         cls,
-        body: ArrayLike,
-        anchor: ArrayLike,
-        stiffness: ArrayLike,
+        body: Int[ArrayLike, " S"],
+        anchor: Float[ArrayLike, "S 3"],
+        stiffness: Float[ArrayLike, "*S"],
         *,
-        point: ArrayLike | None = None,
-        rest_length: ArrayLike = 0.0,
-        damping: ArrayLike | None = None,
+        point: Float[ArrayLike, "S 3"] | None = None,
+        rest_length: Float[ArrayLike, "*S"] = 0.0,
+        damping: Float[ArrayLike, "*S"] | None = None,
     ) -> Spring:
         """Springs from body points (body frame; ``None`` = COM) to world ``anchor`` points."""
         return cls(
@@ -296,14 +330,14 @@ class Spring(ForceModel):
     @classmethod
     def between(
         cls,
-        body_a: ArrayLike,
-        body_b: ArrayLike,
-        stiffness: ArrayLike,
+        body_a: Int[ArrayLike, " S"],
+        body_b: Int[ArrayLike, " S"],
+        stiffness: Float[ArrayLike, "*S"],
         *,
-        point_a: ArrayLike | None = None,
-        point_b: ArrayLike | None = None,
-        rest_length: ArrayLike = 0.0,
-        damping: ArrayLike | None = None,
+        point_a: Float[ArrayLike, "S 3"] | None = None,
+        point_b: Float[ArrayLike, "S 3"] | None = None,
+        rest_length: Float[ArrayLike, "*S"] = 0.0,
+        damping: Float[ArrayLike, "*S"] | None = None,
     ) -> Spring:
         """Springs between points on two bodies (each in its own body frame; ``None`` = COM)."""
         return cls(
@@ -316,10 +350,10 @@ class Spring(ForceModel):
             damping=damping,
         )
 
-    def __call__(self, state: AnyState, t: Array) -> Forces:
+    def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         n = _check_flat("Spring", state)
         rotating = self.point is not None or (self.other is not None and self.anchor is not None)
-        omega = angular_velocity(state) if rotating else None
+        omega = angular_velocity(_no_torque_for_particles("Spring(point=...)", state)) if rotating else None
         r_a = _offset(state, self.body, self.point)
         x_a, v_a = _point_motion(state, self.body, r_a, omega)
         r_b = None
@@ -361,10 +395,20 @@ class Thruster(ForceModel):
     ``(S, 3)``, ``thrust`` ``(S,)`` or scalar. Rigid states only.
     """
 
-    body: Array
-    direction: Array
-    thrust: Array
-    point: Array | None = None
+    body: Int[Array, " S"]
+    direction: Float[Array, "S 3"]
+    thrust: Float[Array, "*S"]
+    point: Float[Array, "S 3"] | None = None
+
+    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
+
+        def __init__(
+            self,
+            body: Int[ArrayLike, " S"],
+            direction: Float[ArrayLike, "S 3"],
+            thrust: Float[ArrayLike, "*S"],
+            point: Float[ArrayLike, "S 3"] | None = None,
+        ) -> None: ...
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "body", _as_index(self.body))
@@ -373,11 +417,11 @@ class Thruster(ForceModel):
             if v is not None:
                 object.__setattr__(self, name, _as_float(v))
 
-    def __call__(self, state: AnyState, t: Array) -> Forces:
+    def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         n = _check_flat("Thruster", state)
         if isinstance(state, ParticleState):
             raise ValueError("Thruster: a body-fixed direction needs rigid bodies, not ParticleState")
-        d = _offset(state, self.body, self.direction)
+        d = _to_world(state, self.body, self.direction)
         f = _cast(self.thrust, state)[..., None] * d
         r = _offset(state, self.body, self.point)
         force = _scatter(n, state, self.body, f)
@@ -395,8 +439,14 @@ class ConstantForce(ForceModel):
     ``(*B, 3)`` or ``(3,)`` in N m (about it). Either may be ``None`` (absent).
     """
 
-    force: Array | None = None
-    torque: Array | None = None
+    force: Float[Array, "*B 3"] | None = None
+    torque: Float[Array, "*B 3"] | None = None
+
+    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
+
+        def __init__(
+            self, force: Float[ArrayLike, "*B 3"] | None = None, torque: Float[ArrayLike, "*B 3"] | None = None
+        ) -> None: ...
 
     def __post_init__(self) -> None:
         for name in ("force", "torque"):
@@ -404,12 +454,12 @@ class ConstantForce(ForceModel):
             if v is not None:
                 object.__setattr__(self, name, _as_float(v))
 
-    def __call__(self, state: AnyState, t: Array) -> Forces:
+    def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         f = None if self.force is None else _full(_cast(self.force, state), state)
         if self.torque is None:
             return Forces(force=f)
-        _no_torque_for_particles("ConstantForce(torque=...)", state)
-        return Forces(force=f, torque=_full(_cast(self.torque, state), state))
+        rigid = _no_torque_for_particles("ConstantForce(torque=...)", state)
+        return Forces(force=f, torque=_full(_cast(self.torque, state), rigid))
 
 
 def _sample(times: Array, values: Array, t: Array, interpolation: str) -> Array:
@@ -435,10 +485,20 @@ class TimeSeriesForce(ForceModel):
     the first and after the last sample the end value holds.
     """
 
-    times: Array
-    force: Array | None = None
-    torque: Array | None = None
+    times: Float[Array, " K"]
+    force: Float[Array, "K *B 3"] | None = None
+    torque: Float[Array, "K *B 3"] | None = None
     interpolation: str = static_field(default="linear")
+
+    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
+
+        def __init__(
+            self,
+            times: Float[ArrayLike, " K"],
+            force: Float[ArrayLike, "K *B 3"] | None = None,
+            torque: Float[ArrayLike, "K *B 3"] | None = None,
+            interpolation: str = "linear",
+        ) -> None: ...
 
     def __post_init__(self) -> None:
         if self.interpolation not in ("linear", "hold"):
@@ -455,7 +515,7 @@ class TimeSeriesForce(ForceModel):
                     )
                 object.__setattr__(self, name, v)
 
-    def __call__(self, state: AnyState, t: Array) -> Forces:
+    def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         times = _cast(self.times, state)
         t = _cast(t, state)
 
@@ -475,10 +535,10 @@ class ExternalForce(ForceModel):
     (no term compiled). A new function object compiles anew.
     """
 
-    force: Callable[[Array], Array] | None = static_field(default=None)
-    torque: Callable[[Array], Array] | None = static_field(default=None)
+    force: Callable[[Any], Float[ArrayLike, "*B 3"]] | None = static_field(default=None)
+    torque: Callable[[Any], Float[ArrayLike, "*B 3"]] | None = static_field(default=None)
 
-    def __call__(self, state: AnyState, t: Array) -> Forces:
+    def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         f = None if self.force is None else _full(_cast(self.force(t), state), state)
         if self.torque is None:
             return Forces(force=f)
@@ -498,5 +558,5 @@ class CustomForce(ForceModel):
     fn: Callable[..., Forces] = static_field()
     params: Any = None
 
-    def __call__(self, state: AnyState, t: Array) -> Forces:
+    def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         return self.fn(state, t) if self.params is None else self.fn(state, t, self.params)

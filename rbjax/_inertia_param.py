@@ -19,7 +19,9 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 from jax import Array
-from jax.typing import ArrayLike
+from jaxtyping import Float
+
+from ._typing import ArrayLike
 
 __all__ = ["inertia_from_params", "params_from_inertia", "second_moment"]
 
@@ -31,7 +33,7 @@ def _lower(theta: Array) -> Array:
     return jnp.stack([jnp.stack([d0, z, z], -1), jnp.stack([l10, d1, z], -1), jnp.stack([l20, l21, d2], -1)], -2)
 
 
-def inertia_from_params(theta: ArrayLike) -> Array:
+def inertia_from_params(theta: Float[ArrayLike, "... 6"]) -> Float[Array, "... 3 3"]:
     """Inertia tensor ``(..., 3, 3)`` (body frame, kg m²) from log-Cholesky ``θ`` ``(..., 6)``.
 
     ``L = [[e^θ0, 0, 0], [θ3, e^θ1, 0], [θ4, θ5, e^θ2]]``, ``Σ = L Lᵀ``,
@@ -47,14 +49,14 @@ def inertia_from_params(theta: ArrayLike) -> Array:
     return tr[..., None, None] * jnp.eye(3, dtype=sigma.dtype) - sigma
 
 
-def second_moment(inertia: ArrayLike) -> Array:
+def second_moment(inertia: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 3 3"]:
     """Second-moment matrix ``Σ = ½ tr(I) 1 - I`` ``(..., 3, 3)`` of an inertia tensor."""
     I = jnp.asarray(inertia)
     tr = jnp.trace(I, axis1=-2, axis2=-1)
     return 0.5 * tr[..., None, None] * jnp.eye(3, dtype=I.dtype) - I
 
 
-def params_from_inertia(inertia: ArrayLike) -> Array:
+def params_from_inertia(inertia: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 6"]:
     """Log-Cholesky parameters ``θ`` ``(..., 6)`` of a physically consistent inertia ``(..., 3, 3)``.
 
     Inverse of :func:`inertia_from_params`: ``Σ = ½ tr(I) 1 - I = L Lᵀ``

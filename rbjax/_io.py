@@ -130,7 +130,8 @@ def _write_npz(path: Path, obj: Any, meta: dict[str, Any]) -> None:
     fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
-            np.savez(f, **{_META_KEY: np.array(json.dumps(meta))}, **arrays)
+            # numpy's stub lets a ** mapping fill allow_pickle; these keys are field names
+            np.savez(f, **{_META_KEY: np.array(json.dumps(meta))}, **arrays)  # pyright: ignore[reportArgumentType]
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
@@ -210,7 +211,7 @@ def _check_expect(meta: dict[str, Any], expect: type | tuple[type, ...] | None, 
 
 def _to_jax(arrays: dict[str, np.ndarray], path: Path) -> dict[str, Any]:
     wide = [k for k, a in arrays.items() if a.dtype in (np.float64, np.complex128, np.int64)]
-    if wide and not jax.config.jax_enable_x64:
+    if wide and not jax.config.read("jax_enable_x64"):
         raise ValueError(
             f"load: {path} holds 64-bit arrays ({wide[0]!r}, ...) but JAX runs in 32-bit mode, which "
             "would round them; enable it first with jax.config.update('jax_enable_x64', True)"

@@ -16,7 +16,9 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 from jax import Array
-from jax.typing import ArrayLike
+from jaxtyping import Float
+
+from ._typing import ArrayLike
 
 __all__ = [
     "cross",
@@ -39,7 +41,7 @@ def _eps(x: Array) -> Array:
     return jnp.asarray(jnp.finfo(x.dtype).eps, x.dtype)
 
 
-def safe_norm(x: ArrayLike, axis: int = -1, keepdims: bool = False) -> Array:
+def safe_norm(x: Float[ArrayLike, " ..."], axis: int = -1, keepdims: bool = False) -> Float[Array, " ..."]:
     """Euclidean norm ``‖x‖`` along ``axis`` whose gradient is 0, not NaN, at ``x = 0``.
 
     Uses the double-``where`` pattern: the square root never sees a zero that
@@ -51,7 +53,7 @@ def safe_norm(x: ArrayLike, axis: int = -1, keepdims: bool = False) -> Array:
     return jnp.where(zero, 0.0, jnp.sqrt(jnp.where(zero, 1.0, sq)))
 
 
-def skew(a: ArrayLike) -> Array:
+def skew(a: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3 3"]:
     """Skew-symmetric matrix ``ã`` with ``ã b = a × b`` (the notes' tilde).
 
     ``a``: ``(..., 3)`` → ``(..., 3, 3)``::
@@ -73,15 +75,50 @@ def skew(a: ArrayLike) -> Array:
     )
 
 
-def cross(a: ArrayLike, b: ArrayLike) -> Array:
+def cross(a: Float[ArrayLike, "... 3"], b: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3"]:
     """Cross product ``a × b`` of ``(..., 3)`` vectors, written by components."""
-    a, b = jnp.asarray(a), jnp.asarray(b)
-    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
-    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
-    return jnp.stack([ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx], axis=-1)
+    return jnp.stack(_cross(_unstack(jnp.asarray(a)), _unstack(jnp.asarray(b))), axis=-1)
 
 
-def quat_multiply(p: ArrayLike, q: ArrayLike) -> Array:
+# Component helpers: the vector functions here index single components and stack
+# once at the end. Multi-component slices (``q[..., 1:]``) and broadcasts of a
+# size-1 slice made XLA:CPU materialise each intermediate vector in its own loop
+# (one pass over the batch each) instead of fusing a whole step into one loop.
+def _unstack(a: Array) -> tuple[Array, ...]:
+    return tuple(a[..., i] for i in range(a.shape[-1]))
+
+
+def _dot3(a: Array, b: Array) -> Array:
+    """``a · b`` of ``(..., 3)`` vectors by components (a sum would be a reduction)."""
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
+def _matmul3(A: Array, B: Array) -> Array:
+    """``A @ B`` of ``(..., 3, 3)`` matrices by components: a batched ``dot`` of 3x3
+    blocks is a separate, unfused XLA:CPU kernel per product."""
+    return jnp.stack(
+        [jnp.stack([sum(A[..., i, k] * B[..., k, j] for k in range(3)) for j in range(3)], axis=-1) for i in range(3)],
+        axis=-2,
+    )
+
+
+def _pure_quat_multiply(w: Array, q: Array) -> Array:
+    """``(0, w) ⊗ q`` for a ``(..., 3)`` vector ``w``: ``(-w·u, q_w w + w × u)`` with ``q = (q_w, u)``.
+
+    The quaternion rate ``q̇ = ½ (0, ω) ⊗ q`` without building ``(0, ω)`` (a
+    zero stacked onto ``ω`` would be an unbatched constant under ``vmap``).
+    """
+    qw, u = q[..., 0], (q[..., 1], q[..., 2], q[..., 3])
+    wv = _unstack(w)
+    c = _cross(wv, u)
+    return jnp.stack([-(wv[0] * u[0] + wv[1] * u[1] + wv[2] * u[2])] + [qw * wv[i] + c[i] for i in range(3)], axis=-1)
+
+
+def _cross(a: tuple, b: tuple) -> tuple:
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def quat_multiply(p: Float[ArrayLike, "... 4"], q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
     """Hamilton product ``p ⊗ q`` of ``(..., 4)`` quaternions ``[w, x, y, z]``.
 
     ``(pw, pv) ⊗ (qw, qv) = (pw qw - pv·qv, pw qv + qw pv + pv × qv)``.
@@ -100,34 +137,38 @@ def quat_multiply(p: ArrayLike, q: ArrayLike) -> Array:
     )
 
 
-def quat_conjugate(q: ArrayLike) -> Array:
+def quat_conjugate(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
     """Conjugate ``q* = [w, -x, -y, -z]``; the inverse rotation for a unit ``q``.
 
     ``q``: ``(..., 4)``; returns ``(..., 4)``.
     """
     q = jnp.asarray(q)
-    return jnp.concatenate([q[..., :1], -q[..., 1:]], axis=-1)
+    return jnp.stack([q[..., 0], -q[..., 1], -q[..., 2], -q[..., 3]], axis=-1)
 
 
-def quat_rotate(q: ArrayLike, v: ArrayLike) -> Array:
+def quat_rotate(q: Float[ArrayLike, "... 4"], v: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3"]:
     """Rotate ``(..., 3)`` vectors by unit quaternions: ``q ⊗ (0, v) ⊗ q*``.
 
     Evaluated as ``v + w t + u × t`` with ``t = 2 u × v`` (``q = [w, u]``): 18
     multiplies, no rotation matrix.
     """
     q, v = jnp.asarray(q), jnp.asarray(v)
-    w, u = q[..., :1], q[..., 1:]
-    t = 2 * cross(u, v)
-    return v + w * t + cross(u, t)
+    w, u = q[..., 0], (q[..., 1], q[..., 2], q[..., 3])
+    t = tuple(2 * c for c in _cross(u, _unstack(v)))
+    ut = _cross(u, t)
+    return jnp.stack([v[..., i] + w * t[i] + ut[i] for i in range(3)], axis=-1)
 
 
-def quat_normalize(q: ArrayLike) -> Array:
+def quat_normalize(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
     """``q / ‖q‖`` for ``(..., 4)`` quaternions (finite gradient; ``q = 0`` is invalid)."""
     q = jnp.asarray(q)
-    return q / jnp.sqrt(jnp.sum(q * q, axis=-1, keepdims=True))
+    # explicit components, not a reduce: a reduction ends an XLA:CPU loop fusion
+    w, x, y, z = _unstack(q)
+    inv = 1 / jnp.sqrt(w * w + x * x + y * y + z * z)
+    return jnp.stack([w * inv, x * inv, y * inv, z * inv], axis=-1)
 
 
-def quat_to_matrix(q: ArrayLike) -> Array:
+def quat_to_matrix(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 3 3"]:
     """Rotation matrix ``R`` (body to world) of unit quaternions ``(..., 4)`` → ``(..., 3, 3)``.
 
     ``R = (w² - u·u) 1 + 2 u uᵀ + 2 w ũ``. Columns of ``R`` are the body axes
@@ -148,7 +189,7 @@ def quat_to_matrix(q: ArrayLike) -> Array:
     )
 
 
-def matrix_to_quat(R: ArrayLike) -> Array:
+def matrix_to_quat(R: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 4"]:
     """Unit quaternion ``[w, x, y, z]`` with ``w ≥ 0`` of rotation matrices ``(..., 3, 3)``.
 
     Shepperd's method: of the four candidate formulas, take the one whose
@@ -179,7 +220,7 @@ def matrix_to_quat(R: ArrayLike) -> Array:
     return quat_normalize(q)
 
 
-def quat_exp(rotvec: ArrayLike) -> Array:
+def quat_exp(rotvec: Float[ArrayLike, "... 3"]) -> Float[Array, "... 4"]:
     """Exponential map: rotation vector ``θ n`` (radians) → unit quaternion.
 
         ``exp(θ n) = [cos(θ/2), sin(θ/2) n]``. Near ``θ = 0`` a Taylor series replaces
@@ -187,15 +228,16 @@ def quat_exp(rotvec: ArrayLike) -> Array:
     ``rotvec``: ``(..., 3)``; returns ``(..., 4)``.
     """
     v = jnp.asarray(rotvec)
-    th2 = jnp.sum(v * v, axis=-1, keepdims=True)
+    th2 = _dot3(v, v)[..., None]
     small = th2 < jnp.sqrt(_eps(v))
     th = jnp.sqrt(jnp.where(small, 1.0, th2))
     half_sinc = jnp.where(small, 0.5 - th2 / 48 + th2 * th2 / 3840, jnp.sin(th / 2) / th)
     cos_half = jnp.where(small, 1 - th2 / 8 + th2 * th2 / 384, jnp.cos(th / 2))
-    return jnp.concatenate([cos_half, half_sinc * v], axis=-1)
+    s = half_sinc[..., 0]
+    return jnp.stack([cos_half[..., 0], s * v[..., 0], s * v[..., 1], s * v[..., 2]], axis=-1)
 
 
-def quat_log(q: ArrayLike) -> Array:
+def quat_log(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 3"]:
     """Logarithm: unit quaternion → rotation vector ``θ n`` with ``θ ∈ [0, π]``.
 
     ``q`` and ``-q`` give the same result (the shorter rotation). Finite
@@ -212,7 +254,7 @@ def quat_log(q: ArrayLike) -> Array:
     return scale * u
 
 
-def quat_angle(p: ArrayLike, q: ArrayLike) -> Array:
+def quat_angle(p: Float[ArrayLike, "... 4"], q: Float[ArrayLike, "... 4"]) -> Float[Array, " ..."]:
     """Angle (radians, in ``[0, π]``) of the rotation taking ``p`` to ``q``.
 
         ``2 atan2(‖vec(p* ⊗ q)‖, |scal(p* ⊗ q)|)``; insensitive to the sign of either
@@ -223,7 +265,7 @@ def quat_angle(p: ArrayLike, q: ArrayLike) -> Array:
     return 2 * jnp.arctan2(safe_norm(d[..., 1:]), jnp.abs(d[..., 0]))
 
 
-def orthonormalize(R: ArrayLike, iterations: int = 2) -> Array:
+def orthonormalize(R: Float[ArrayLike, "... 3 3"], iterations: int = 2) -> Float[Array, "... 3 3"]:
     """Nearest rotation matrix to a nearly orthogonal ``R`` ``(..., 3, 3)``.
 
     Newton–Schulz iteration for the polar factor, ``R ← R (3·1 - RᵀR) / 2``,
@@ -235,6 +277,6 @@ def orthonormalize(R: ArrayLike, iterations: int = 2) -> Array:
     R = jnp.asarray(R)
     eye = jnp.eye(3, dtype=R.dtype)
     for _ in range(iterations):
-        RtR = jnp.einsum("...ki,...kj->...ij", R, R)
-        R = 0.5 * jnp.einsum("...ik,...kj->...ij", R, 3 * eye - RtR)
+        RtR = _matmul3(jnp.swapaxes(R, -1, -2), R)
+        R = 0.5 * _matmul3(R, 3 * eye - RtR)
     return R

@@ -10,13 +10,19 @@ validation runs once, where a user builds the object.
 from __future__ import annotations
 
 import dataclasses
+import sys
 from typing import Any, TypeVar
 
 import jax
 
+if sys.version_info >= (3, 11):
+    from typing import dataclass_transform
+else:  # typing_extensions comes with jax's dependencies (equinox, chex)
+    from typing_extensions import dataclass_transform
+
 T = TypeVar("T")
 
-__all__ = ["pytree_dataclass", "field", "static_field", "replace", "new_unchecked", "core_ndim_of"]
+__all__ = ["pytree_dataclass", "field", "static_field", "replace", "new_unchecked", "core_ndim_of", "data_fields"]
 
 
 def field(*, core_ndim: int = 0, **kwargs: Any) -> Any:
@@ -42,10 +48,12 @@ def _is_static(f: dataclasses.Field) -> bool:
     return bool(f.metadata.get("static", False))
 
 
+# tells type checkers that decorated classes are frozen dataclasses with these field specifiers
+@dataclass_transform(frozen_default=True, field_specifiers=(field, static_field, dataclasses.field))
 def pytree_dataclass(cls: type[T]) -> type[T]:
     """Make ``cls`` a frozen dataclass registered as a pytree with keyed paths."""
     cls = dataclasses.dataclass(frozen=True)(cls)
-    fields = dataclasses.fields(cls)
+    fields = dataclasses.fields(cls)  # pyright: ignore[reportArgumentType]  (a dataclass since the line above)
     data = tuple(f.name for f in fields if not _is_static(f))
     meta = tuple(f.name for f in fields if _is_static(f))
     keys = tuple(jax.tree_util.GetAttrKey(n) for n in data)
@@ -90,6 +98,11 @@ def new_unchecked(cls: type[T], **fields: Any) -> T:
 def core_ndim_of(obj: Any) -> dict[str, int]:
     """Per-field single-body rank of a pytree dataclass made by this module."""
     return type(obj)._rbjax_core_ndim  # type: ignore[attr-defined]
+
+
+def data_fields(obj: Any) -> tuple[str, ...]:
+    """Names of the data (non-static) fields of a pytree dataclass made by this module."""
+    return type(obj)._rbjax_data_fields  # type: ignore[attr-defined]
 
 
 def is_rbjax_dataclass(obj: Any) -> bool:

@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 from jax import Array
-from jax.typing import ArrayLike
+from jaxtyping import Float
 
 from ._batching import lift
-from ._math import cross, matrix_to_quat, quat_conjugate, quat_rotate, quat_to_matrix
+from ._math import _dot3, _matmul3, cross, matrix_to_quat, quat_conjugate, quat_rotate, quat_to_matrix
 from ._pytree import new_unchecked
 from ._state import AnyState, MatrixState, ParticleState, RigidState, State, _apply
+from ._typing import ArrayLike
 
 __all__ = [
     "angular_momentum",
@@ -42,7 +43,7 @@ def _one_angular_velocity(s: RigidState) -> Array:
     return s.angular_velocity
 
 
-def angular_velocity(state: RigidState) -> Array:
+def angular_velocity(state: RigidState) -> Float[Array, "*B 3"]:
     """World-frame angular velocity ``ω`` (rad/s), ``(*B, 3)``.
 
     For :class:`State` ``ω = I_w⁻¹ L = R I_L⁻¹ Rᵀ L``; for :class:`MatrixState`
@@ -54,10 +55,10 @@ def angular_velocity(state: RigidState) -> Array:
 def _one_body_angular_velocity(s: RigidState) -> Array:
     if isinstance(s, State):
         return _apply(s.body.inverse_inertia, quat_rotate(quat_conjugate(s.orientation), s.angular_momentum))
-    return jnp.swapaxes(s.rotation, -1, -2) @ s.angular_velocity
+    return _apply(jnp.swapaxes(s.rotation, -1, -2), s.angular_velocity)
 
 
-def body_angular_velocity(state: RigidState) -> Array:
+def body_angular_velocity(state: RigidState) -> Float[Array, "*B 3"]:
     """Body-frame angular velocity ``ω_L = Rᵀ ω`` (rad/s), ``(*B, 3)``: what a gyroscope reads."""
     return lift(_one_body_angular_velocity)(state)
 
@@ -66,7 +67,7 @@ def _one_rotation(s: RigidState) -> Array:
     return quat_to_matrix(s.orientation) if isinstance(s, State) else s.rotation
 
 
-def rotation_matrix(state: RigidState) -> Array:
+def rotation_matrix(state: RigidState) -> Float[Array, "*B 3 3"]:
     """Rotation matrix ``R`` (body to world), ``(*B, 3, 3)``."""
     return lift(_one_rotation)(state)
 
@@ -75,17 +76,17 @@ def _one_orientation(s: RigidState) -> Array:
     return s.orientation if isinstance(s, State) else matrix_to_quat(s.rotation)
 
 
-def orientation(state: RigidState) -> Array:
+def orientation(state: RigidState) -> Float[Array, "*B 4"]:
     """Unit quaternion ``[w, x, y, z]`` (body to world), ``(*B, 4)``."""
     return lift(_one_orientation)(state)
 
 
 def _one_world_inertia(s: RigidState) -> Array:
     R = _one_rotation(s)
-    return R @ s.body.inertia @ R.T
+    return _matmul3(_matmul3(R, s.body.inertia), R.T)
 
 
-def world_inertia(state: RigidState) -> Array:
+def world_inertia(state: RigidState) -> Float[Array, "*B 3 3"]:
     """World-frame inertia ``I_w = R I_L Rᵀ`` (kg m², about the centre of mass), ``(*B, 3, 3)``."""
     return lift(_one_world_inertia)(state)
 
@@ -96,13 +97,13 @@ def _one_angular_momentum(s: AnyState, about: Array | None) -> Array:
     if isinstance(s, State):
         L = s.angular_momentum
     else:
-        L = s.rotation @ _apply(s.body.inertia, s.rotation.T @ s.angular_velocity)
+        L = _apply(s.rotation, _apply(s.body.inertia, _apply(s.rotation.T, s.angular_velocity)))
     if about is not None:
         L = L + cross(s.position - about, s.body.mass * s.velocity)
     return L
 
 
-def angular_momentum(state: AnyState, about: ArrayLike | None = None) -> Array:
+def angular_momentum(state: AnyState, about: Float[ArrayLike, "*B 3"] | None = None) -> Float[Array, "*B 3"]:
     """Angular momentum (world, kg m²/s), ``(*B, 3)``.
 
     Rigid bodies: spin ``L = I_w ω`` about the centre of mass, plus the orbital
@@ -118,22 +119,22 @@ def _one_linear_momentum(s: AnyState) -> Array:
     return m * s.velocity
 
 
-def linear_momentum(state: AnyState) -> Array:
+def linear_momentum(state: AnyState) -> Float[Array, "*B 3"]:
     """Linear momentum ``p = m v`` (world, kg m/s), ``(*B, 3)``."""
     return lift(_one_linear_momentum)(state)
 
 
 def _one_kinetic_energy(s: AnyState) -> Array:
     m = s.mass if isinstance(s, ParticleState) else s.body.mass
-    e = 0.5 * m * jnp.sum(s.velocity**2)
+    e = 0.5 * m * _dot3(s.velocity, s.velocity)
     if isinstance(s, ParticleState):
         return e
     w = _one_angular_velocity(s)
     L = s.angular_momentum if isinstance(s, State) else _one_angular_momentum(s, None)
-    return e + 0.5 * jnp.dot(w, L)
+    return e + 0.5 * _dot3(w, L)
 
 
-def kinetic_energy(state: AnyState) -> Array:
+def kinetic_energy(state: AnyState) -> Float[Array, "*B"]:
     """Kinetic energy ``½ m ‖v‖² + ½ ω · L`` (J), ``(*B,)``; translation only for particles."""
     return lift(_one_kinetic_energy)(state)
 

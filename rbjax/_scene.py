@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
-from jax.typing import ArrayLike
+from jaxtyping import Float
 
 from . import _methods, _specialise
 from ._body import Body, _is_concrete
@@ -36,7 +36,8 @@ from ._forces import ForceModel, ForceSum
 from ._pytree import pytree_dataclass, static_field
 from ._simulate import simulate as _simulate_fn
 from ._simulate import step as _step_fn
-from ._state import AnyState, MatrixState, ParticleState, State
+from ._state import AnyState, MatrixState, ParticleState, State, StateT
+from ._typing import ArrayLike
 
 __all__ = ["Scene", "body_kind", "register_kernel"]
 
@@ -62,6 +63,9 @@ for _name in ("euler", "rk4"):
     for _kind in ("isotropic", "axisymmetric", "general"):
         for _type in (State, MatrixState):
             register_kernel(_name, _kind, _type, _specialise.explicit_step(_name))
+# rbjax's own kernels lift all per-body work, so they run in either batch layout
+# (rbjax._batching.batch_last); a user's kernel is always given batch-first states
+_LAYOUT_AGNOSTIC = frozenset(_KERNELS.values())
 
 
 def body_kind(body: Body) -> str:
@@ -94,6 +98,11 @@ class _Kernel:
     method: str
     kind: str
     torque_free: bool
+
+    def layout_agnostic(self, state_type: type) -> bool:
+        """Whether the step for ``state_type`` runs in the batch-last layout too."""
+        fn = _KERNELS.get((self.method, self.kind, state_type))
+        return fn is None or fn in _LAYOUT_AGNOSTIC
 
     def __call__(self, state: AnyState, force_fn: Any, t: Array, dt: Array) -> AnyState:
         fn = _KERNELS.get((self.method, self.kind, type(state)))
@@ -167,26 +176,33 @@ class Scene:
 
     @property
     def kernel(self) -> _Kernel:
+        """The hashable batch step ``(state, force_fn, t, dt) -> state`` that this scene compiles."""
         return _Kernel(self.method, self.kind, self.torque_free)
 
     def _check(self, state: AnyState) -> None:
         if (self.kind == "particles") != isinstance(state, ParticleState):
             raise ValueError(f"a {self.kind!r} scene cannot step a {type(state).__name__}")
-        if self.kind in ("particles", "general") or state.body is self.body:
+        if isinstance(state, ParticleState) or self.kind == "general" or state.body is self.body:
             return
         found = body_kind(state.body)
         rank = _specialise.KINDS.index
         if _is_concrete(state.body.inertia) and rank(found) > rank(self.kind):
             raise ValueError(f"this scene is specialised for {self.kind!r} bodies; the state's are {found!r}")
 
-    def step(self, state: AnyState, dt: ArrayLike, t: ArrayLike = 0.0) -> AnyState:
+    def step(self, state: StateT, dt: Float[ArrayLike, ""], t: Float[ArrayLike, ""] = 0.0) -> StateT:
         """One step of ``dt`` seconds from time ``t``; as :func:`rbjax.step` with the scene's forces."""
         self._check(state)
         return _step_fn(state, self.forces, dt, self.kernel, t=t)
 
     def simulate(
-        self, state: AnyState, dt: ArrayLike, steps: int, *, save_every: int = 1, t0: ArrayLike = 0.0
-    ) -> AnyState:
+        self,
+        state: StateT,
+        dt: Float[ArrayLike, ""],
+        steps: int,
+        *,
+        save_every: int = 1,
+        t0: Float[ArrayLike, ""] = 0.0,
+    ) -> StateT:
         """Trajectory of ``steps`` steps, every ``save_every``-th state kept; as :func:`rbjax.simulate`.
 
         Returns the state type with a leading time axis of length

@@ -7,17 +7,19 @@ from collections.abc import Callable
 from typing import Any
 
 import jax
+import jax.core
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
-from jax.typing import ArrayLike
+from jaxtyping import Float
 
 from . import _checked, _methods
-from ._batching import batch_shape
+from ._batching import batch_last, batch_shape, to_batch_first, to_batch_last
 from ._forces import ForceModel
 from ._pytree import replace
 from ._simulate_support import constant_fields
-from ._state import AnyState, ForceLike, Forces
+from ._state import AnyState, ForceLike, Forces, StateT
+from ._typing import ArrayLike
 
 __all__ = ["step", "simulate", "as_force_fn"]
 
@@ -43,7 +45,14 @@ def as_force_fn(forces: ForceLike) -> Callable[[Any, Array], Forces]:
     raise TypeError(f"forces must be Forces, a callable (state, t) -> Forces, or None; got {type(forces)}")
 
 
-def step(state: AnyState, forces: ForceLike, dt: ArrayLike, method: str = "euler", *, t: ArrayLike = 0.0) -> AnyState:
+def step(
+    state: StateT,
+    forces: ForceLike,
+    dt: Float[ArrayLike, ""],
+    method: str | Callable[..., Any] = "euler",
+    *,
+    t: Float[ArrayLike, ""] = 0.0,
+) -> StateT:
     """Advance ``state`` by one step of ``dt`` seconds.
 
     Args:
@@ -85,17 +94,17 @@ def _is_time_series(forces: Forces, state: AnyState, steps: int) -> bool:
 
 
 def simulate(
-    state: AnyState,
+    state: StateT,
     forces: ForceLike,
-    dt: ArrayLike,
+    dt: Float[ArrayLike, ""],
     steps: int,
-    method: str = "euler",
+    method: str | Callable[..., Any] = "euler",
     *,
     save_every: int = 1,
-    t0: ArrayLike = 0.0,
+    t0: Float[ArrayLike, ""] = 0.0,
     checked: bool | _checked.Checks = False,
     checkpoint: int | None = None,
-) -> AnyState:
+) -> StateT:
     """Integrate ``steps`` steps of ``dt`` with ``lax.scan`` and return the trajectory.
 
     Args:
@@ -149,6 +158,7 @@ def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoin
         raise ValueError(f"steps must be a non-negative int, got {steps!r}")
     if not isinstance(save_every, (int, np.integer)) or save_every < 1 or steps % save_every:
         raise ValueError(f"save_every must be a positive int dividing steps={steps}, got {save_every!r}")
+    steps, save_every = int(steps), int(save_every)
     _check_dt(dt)
     _check_checkpoint(checkpoint, steps, save_every)
     force_fn = None
@@ -198,42 +208,74 @@ def _simulate(state, forces, dt, t0, *, steps, method, save_every, series, force
     step_fn = method if callable(method) else _methods.get(method, type(state))
     dtype = state.dtype
     dt, t0 = dt.astype(dtype), t0.astype(dtype)
-    consts = {k: getattr(state, k) for k in constant_fields(state)}
-    strip = lambda s: replace(s, **{k: None for k in consts})  # noqa: E731
     n_out = steps // save_every
+    # Inside the scan the state is carried batch-last ((3, N) per field: one
+    # contiguous row per component), transposed once at each end; the step's
+    # vmapped kernels then compile to one vectorised loop over the batch. Step
+    # functions not known to be layout-agnostic (a user's Scene kernel) and
+    # force callables see the usual batch-first layout.
+    agnostic = getattr(method, "layout_agnostic", None)
+    soa = not callable(method) or (agnostic is not None and agnostic(type(state)))
+    to_soa = to_batch_last if soa else (lambda x: x)  # noqa: E731
+    to_aos = to_batch_first if soa else (lambda x: x)  # noqa: E731
+
+    consts = {k: getattr(state, k) for k in constant_fields(state)}
+    consts_soa = {k: to_soa(v) for k, v in consts.items()}
+    strip = lambda s: replace(s, **{k: None for k in consts})  # noqa: E731
+    user_fn = force_fn if force_fn is not None else as_force_fn(forces)
+
+    def soa_forces(state, t):
+        # force callables and models are batch-level code written batch-first
+        with batch_last(False):
+            out = user_fn(replace(to_aos(strip(state)), **consts), t)
+        return to_soa(out)
+
+    const_forces = to_soa(forces) if isinstance(forces, Forces) and not series else None
 
     # the checked-mode record rides in the carry; None (an empty pytree) when off
     def one(carry, k_and_f):
         dyn, rec = carry
         k, f = k_and_f
-        s = replace(dyn, **consts)
+        s = replace(dyn, **consts_soa)
         if series:
+            f = to_soa(f)
             fn = lambda state, t: f  # noqa: E731
-        elif force_fn is not None:
-            fn = force_fn
+        elif const_forces is not None:
+            fn = lambda state, t: const_forces  # noqa: E731
         else:
-            fn = as_force_fn(forces)
-        new = step_fn(s, fn, t0 + k.astype(dtype) * dt, dt)
+            fn = soa_forces if soa else user_fn
+        with batch_last(soa):
+            new = strip(step_fn(s, fn, t0 + k.astype(dtype) * dt, dt))
         if checks is not None:
-            rec = _checked.after_step(rec, new, k + 1, checks, steps)
-        return (strip(new), rec), None
+            rec = _checked.after_step(rec, replace(to_aos(new), **consts), k + 1, checks, steps)
+        return (new, rec), None
 
     # checkpoint segments inside a saved chunk, or whole chunks grouped into segments
     inner = checkpoint if checkpoint is not None and checkpoint < save_every else None
     outer = checkpoint // save_every if checkpoint is not None and checkpoint >= save_every else None
 
-    def chunk(carry, xs):
+    def advance(carry, xs):
         (dyn, rec), _ = _checkpointed_scan(one, carry, xs, inner)
         if checks is not None:
-            rec = _checked.after_save(rec, replace(dyn, **consts), xs[0][-1] + 1, checks, steps)
-        return (dyn, rec), dyn
+            rec = _checked.after_save(rec, replace(to_aos(dyn), **consts), xs[0][-1] + 1, checks, steps)
+        return dyn, rec
 
     ks = jnp.arange(steps).reshape(n_out, save_every)
-    fs = jax.tree.map(lambda a: a.reshape((n_out, save_every) + a.shape[1:]), forces) if series else None
-    dyn0 = strip(state)
     rec0 = None if checks is None else _checked.init_record(state, checks)
-    (_, rec), traj = _checkpointed_scan(chunk, (dyn0, rec0), (ks, fs), outer)
-    traj = jax.tree.map(lambda a0, a: jnp.concatenate([a0[None], a]), dyn0, traj)
+    carry0 = (to_soa(strip(state)), rec0)
+    fs = jax.tree.map(lambda a: a.reshape((n_out, save_every) + a.shape[1:]), forces) if series else None
+
+    def chunk(carry, xs):
+        carry = advance(carry, xs)
+        return carry, to_aos(carry[0])
+
+    # The initial frame is put in front afterwards: one copy of the saved
+    # trajectory. Emitting each chunk's state before advancing it instead needs
+    # a ``lax.cond`` to skip the last advance, and work inside a cond branch is
+    # not hoisted out of the loop (splitting's per-body ``eigh`` then ran every
+    # step with ``save_every=1``: about 3x slower), so the copy stays.
+    (_, rec), traj = _checkpointed_scan(chunk, carry0, (ks, fs), outer)
+    traj = jax.tree.map(lambda a0, a: jnp.concatenate([a0[None], a]), strip(state), traj)
     traj = replace(traj, **consts)
     return traj if checks is None else (traj, rec)
 

@@ -27,7 +27,8 @@ from typing import Any
 import jax.numpy as jnp
 
 from ._batching import lift
-from ._math import cross, orthonormalize, quat_multiply, quat_normalize, skew
+from ._math import _dot3, _matmul3, _pure_quat_multiply, cross, quat_normalize, skew
+from ._methods._common import project
 from ._pytree import replace
 from ._quantities import _omega_world
 from ._state import Forces, MatrixState, State, _apply
@@ -45,13 +46,13 @@ def _axis_from_quat(q: Any) -> Any:
     """
     w, x, y, z = q[0], q[1], q[2], q[3]
     n = jnp.stack([2 * (x * z + w * y), 2 * (y * z - w * x), w * w - x * x - y * y + z * z])
-    return n / jnp.sum(q * q)
+    return n / (w * w + x * x + y * y + z * z)
 
 
 def _axisym_inv(body: Any, n: Any, u: Any) -> Any:
     """``I_w⁻¹ u = u/a + (1/c - 1/a)(n·u) n`` for ``I = diag(a, a, c)``."""
     a_inv, c_inv = body.inverse_inertia[0, 0], body.inverse_inertia[2, 2]
-    return a_inv * u + (c_inv - a_inv) * jnp.dot(n, u) * n
+    return a_inv * u + (c_inv - a_inv) * _dot3(n, u) * n
 
 
 def omega_of(s: State, kind: str) -> Any:
@@ -76,11 +77,11 @@ def _rates(s: Any, f: Forces, kind: str) -> dict[str, Any]:
     }
     if isinstance(s, State):
         w = omega_of(s, kind)
-        out["orientation"] = 0.5 * quat_multiply(jnp.concatenate([jnp.zeros_like(w[:1]), w]), s.orientation)
+        out["orientation"] = 0.5 * _pure_quat_multiply(w, s.orientation)
         out["angular_momentum"] = f.torque
         return out
     R, w = s.rotation, s.angular_velocity
-    out["rotation"] = skew(w) @ R
+    out["rotation"] = _matmul3(skew(w), R)
     if kind == "isotropic":
         # gyroscopic term i ω × ω = 0; I_w⁻¹ = 1/i
         out["angular_velocity"] = None if f.torque is None else s.body.inverse_inertia[0, 0] * f.torque
@@ -88,12 +89,12 @@ def _rates(s: Any, f: Forces, kind: str) -> dict[str, Any]:
     if kind == "axisymmetric":
         n = R[:, 2]
         a, c = s.body.inertia[0, 0], s.body.inertia[2, 2]
-        gyro = (c - a) * jnp.dot(n, w) * cross(w, n)
+        gyro = (c - a) * _dot3(n, w) * cross(w, n)
         tau = -gyro if f.torque is None else f.torque - gyro
         out["angular_velocity"] = _axisym_inv(s.body, n, tau)
         return out
-    I_w = R @ s.body.inertia @ R.T
-    I_w_inv = R @ s.body.inverse_inertia @ R.T
+    I_w = _matmul3(_matmul3(R, s.body.inertia), R.T)
+    I_w_inv = _matmul3(_matmul3(R, s.body.inverse_inertia), R.T)
     tau = -cross(w, _apply(I_w, w)) if f.torque is None else f.torque - cross(w, _apply(I_w, w))
     out["angular_velocity"] = _apply(I_w_inv, tau)
     return out
@@ -107,20 +108,14 @@ def _axpy(state: Any, h: Any, k: dict[str, Any]) -> Any:
     return replace(state, **{n: getattr(state, n) + h * r for n, r in k.items() if r is not None})
 
 
-def _project(state: Any) -> Any:
-    if isinstance(state, State):
-        return replace(state, orientation=quat_normalize(state.orientation))
-    return replace(state, rotation=orthonormalize(state.rotation))
-
-
 def _drop_torque(forces: Forces, torque_free: bool) -> Forces:
-    return Forces(force=forces.force) if torque_free else forces
+    return replace(forces, torque=None) if torque_free else forces
 
 
 def euler(state: Any, force_fn: Any, t: Any, dt: Any, kind: str, torque_free: bool) -> Any:
     """Explicit Euler ``y ← y + dt f(y)``, then ``q`` normalised / ``R`` re-orthonormalised."""
     k = _rates_batch(state, _drop_torque(force_fn(state, t), torque_free), kind)
-    return _project(_axpy(state, dt, k))
+    return project(_axpy(state, dt, k))
 
 
 def rk4(state: Any, force_fn: Any, t: Any, dt: Any, kind: str, torque_free: bool) -> Any:
@@ -131,7 +126,7 @@ def rk4(state: Any, force_fn: Any, t: Any, dt: Any, kind: str, torque_free: bool
     k3 = f(_axpy(state, dt / 2, k2), t + dt / 2)
     k4 = f(_axpy(state, dt, k3), t + dt)
     incr = {n: None if k1[n] is None else (k1[n] + 2 * k2[n] + 2 * k3[n] + k4[n]) / 6 for n in k1}
-    return _project(_axpy(state, dt, incr))
+    return project(_axpy(state, dt, incr))
 
 
 _EXPLICIT = {"euler": euler, "rk4": rk4}

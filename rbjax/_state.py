@@ -7,23 +7,26 @@ All vectors are in the world frame unless a name says otherwise; SI units
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, Union
+from typing import TYPE_CHECKING, Any, TypeVar, Union
 
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
-from jax.typing import ArrayLike
+from jaxtyping import Float
 
 from ._body import Body, _as_float, _is_concrete
 from ._math import cross, quat_rotate, quat_to_matrix
 from ._pytree import field, pytree_dataclass
+from ._typing import ArrayLike
 
 __all__ = [
     "Forces",
     "MatrixState",
     "ParticleState",
     "RigidState",
+    "RigidStateT",
     "State",
+    "StateT",
     "quat_tolerance",
 ]
 
@@ -38,7 +41,7 @@ def quat_tolerance(dtype: Any) -> float:
     return max(1e-6, 128 * float(np.finfo(dtype).eps))
 
 
-def _check_vectors(cls: str, **arrays: Array) -> None:
+def _check_vectors(cls: str, **arrays: Array | None) -> None:
     for name, a in arrays.items():
         if a is None:
             continue
@@ -85,7 +88,7 @@ def _dtype_of(body: Body | None, *xs: Any) -> Any:
     return jnp.result_type(*floats) if floats else jnp.result_type(float)
 
 
-def _vec(x: ArrayLike | None, default: ArrayLike, dtype: Any) -> Array:
+def _vec(x: ArrayLike | None, default: tuple[float, ...], dtype: Any) -> Array:
     return jnp.asarray(default if x is None else x, dtype=dtype)
 
 
@@ -106,10 +109,10 @@ class State:
     """
 
     body: Body
-    position: Array = field(core_ndim=1)
-    velocity: Array = field(core_ndim=1)
-    orientation: Array = field(core_ndim=1)
-    angular_momentum: Array = field(core_ndim=1)
+    position: Float[Array, "*B 3"] = field(core_ndim=1)
+    velocity: Float[Array, "*B 3"] = field(core_ndim=1)
+    orientation: Float[Array, "*B 4"] = field(core_ndim=1)
+    angular_momentum: Float[Array, "*B 3"] = field(core_ndim=1)
 
     def __post_init__(self) -> None:
         _check_vectors(
@@ -126,10 +129,10 @@ class State:
         cls,
         body: Body,
         *,
-        position: ArrayLike | None = None,
-        velocity: ArrayLike | None = None,
-        orientation: ArrayLike | None = None,
-        angular_velocity: ArrayLike | None = None,
+        position: Float[ArrayLike, "*B 3"] | None = None,
+        velocity: Float[ArrayLike, "*B 3"] | None = None,
+        orientation: Float[ArrayLike, "*B 4"] | None = None,
+        angular_velocity: Float[ArrayLike, "*B 3"] | None = None,
     ) -> State:
         """State from kinematic quantities; missing ones are zero / identity.
 
@@ -138,10 +141,10 @@ class State:
         body's batch shape.
         """
         dtype = _dtype_of(body, position, velocity, orientation, angular_velocity)
-        q = _vec(orientation, [1.0, 0.0, 0.0, 0.0], dtype)
-        w = _vec(angular_velocity, [0.0, 0.0, 0.0], dtype)
-        x = _vec(position, [0.0, 0.0, 0.0], dtype)
-        v = _vec(velocity, [0.0, 0.0, 0.0], dtype)
+        q = _vec(orientation, (1.0, 0.0, 0.0, 0.0), dtype)
+        w = _vec(angular_velocity, (0.0, 0.0, 0.0), dtype)
+        x = _vec(position, (0.0, 0.0, 0.0), dtype)
+        v = _vec(velocity, (0.0, 0.0, 0.0), dtype)
         _check_vectors("State.create", position=x, velocity=v, orientation=q, angular_velocity=w)
         shape = jnp.broadcast_shapes(body.batch_shape, x.shape[:-1], v.shape[:-1], q.shape[:-1], w.shape[:-1])
         _check_unit_quaternion("State.create", q)
@@ -151,10 +154,12 @@ class State:
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
+        """Leading batch shape ``B`` (``()`` for a single body)."""
         return tuple(self.position.shape[:-1])
 
     @property
     def dtype(self) -> Any:
+        """Floating dtype of the state's arrays (float32 or float64)."""
         return self.position.dtype
 
 
@@ -172,10 +177,10 @@ class MatrixState:
     """
 
     body: Body
-    position: Array = field(core_ndim=1)
-    velocity: Array = field(core_ndim=1)
-    rotation: Array = field(core_ndim=2)
-    angular_velocity: Array = field(core_ndim=1)
+    position: Float[Array, "*B 3"] = field(core_ndim=1)
+    velocity: Float[Array, "*B 3"] = field(core_ndim=1)
+    rotation: Float[Array, "*B 3 3"] = field(core_ndim=2)
+    angular_velocity: Float[Array, "*B 3"] = field(core_ndim=1)
 
     def __post_init__(self) -> None:
         _check_vectors(
@@ -192,10 +197,10 @@ class MatrixState:
         cls,
         body: Body,
         *,
-        position: ArrayLike | None = None,
-        velocity: ArrayLike | None = None,
-        orientation: ArrayLike | None = None,
-        angular_velocity: ArrayLike | None = None,
+        position: Float[ArrayLike, "*B 3"] | None = None,
+        velocity: Float[ArrayLike, "*B 3"] | None = None,
+        orientation: Float[ArrayLike, "*B 4"] | Float[ArrayLike, "*B 3 3"] | None = None,
+        angular_velocity: Float[ArrayLike, "*B 3"] | None = None,
     ) -> MatrixState:
         """State from kinematic quantities, as :meth:`State.create`.
 
@@ -203,15 +208,15 @@ class MatrixState:
         rotation matrix; ``angular_velocity`` is world-frame ``ω`` (rad/s).
         """
         dtype = _dtype_of(body, position, velocity, orientation, angular_velocity)
-        o = _vec(orientation, [1.0, 0.0, 0.0, 0.0], dtype)
+        o = _vec(orientation, (1.0, 0.0, 0.0, 0.0), dtype)
         if o.shape[-1:] == (4,):
             _check_unit_quaternion("MatrixState.create", o)
             R = quat_to_matrix(o)
         else:
             R = o
-        w = _vec(angular_velocity, [0.0, 0.0, 0.0], dtype)
-        x = _vec(position, [0.0, 0.0, 0.0], dtype)
-        v = _vec(velocity, [0.0, 0.0, 0.0], dtype)
+        w = _vec(angular_velocity, (0.0, 0.0, 0.0), dtype)
+        x = _vec(position, (0.0, 0.0, 0.0), dtype)
+        v = _vec(velocity, (0.0, 0.0, 0.0), dtype)
         _check_vectors("MatrixState.create", position=x, velocity=v, rotation=R, angular_velocity=w)
         shape = jnp.broadcast_shapes(body.batch_shape, x.shape[:-1], v.shape[:-1], R.shape[:-2], w.shape[:-1])
         bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])  # noqa: E731
@@ -219,10 +224,12 @@ class MatrixState:
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
+        """Leading batch shape ``B`` (``()`` for a single body)."""
         return tuple(self.position.shape[:-1])
 
     @property
     def dtype(self) -> Any:
+        """Floating dtype of the state's arrays (float32 or float64)."""
         return self.position.dtype
 
 
@@ -236,9 +243,9 @@ class ParticleState:
         mass: ``(*B,)`` kg, > 0.
     """
 
-    position: Array = field(core_ndim=1)
-    velocity: Array = field(core_ndim=1)
-    mass: Array = field(core_ndim=0)
+    position: Float[Array, "*B 3"] = field(core_ndim=1)
+    velocity: Float[Array, "*B 3"] = field(core_ndim=1)
+    mass: Float[Array, "*B"] = field(core_ndim=0)
 
     def __post_init__(self) -> None:
         _check_vectors("ParticleState", position=self.position, velocity=self.velocity)
@@ -250,16 +257,16 @@ class ParticleState:
     @classmethod
     def create(
         cls,
-        mass: ArrayLike,
+        mass: Float[ArrayLike, "*B"],
         *,
-        position: ArrayLike | None = None,
-        velocity: ArrayLike | None = None,
+        position: Float[ArrayLike, "*B 3"] | None = None,
+        velocity: Float[ArrayLike, "*B 3"] | None = None,
     ) -> ParticleState:
         """Particles from mass (kg) and optional position and velocity (zeros)."""
         m = _as_float(mass)
         dtype = _dtype_of(None, m, position, velocity)
-        x = _vec(position, [0.0, 0.0, 0.0], dtype)
-        v = _vec(velocity, [0.0, 0.0, 0.0], dtype)
+        x = _vec(position, (0.0, 0.0, 0.0), dtype)
+        v = _vec(velocity, (0.0, 0.0, 0.0), dtype)
         shape = jnp.broadcast_shapes(m.shape, x.shape[:-1], v.shape[:-1])
         return cls(
             jnp.broadcast_to(x, shape + (3,)),
@@ -269,15 +276,20 @@ class ParticleState:
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
+        """Leading batch shape ``B`` (``()`` for a single body)."""
         return tuple(self.position.shape[:-1])
 
     @property
     def dtype(self) -> Any:
+        """Floating dtype of the state's arrays (float32 or float64)."""
         return self.position.dtype
 
 
 RigidState = Union[State, MatrixState]
 AnyState = Union[State, MatrixState, ParticleState]
+# a function returning "the same state type as its input" (step, simulate, ...)
+StateT = TypeVar("StateT", bound=AnyState)
+RigidStateT = TypeVar("RigidStateT", bound=RigidState)
 
 
 @pytree_dataclass
@@ -292,8 +304,14 @@ class Forces:
     Forces add with ``+``.
     """
 
-    force: Array | None = field(core_ndim=1, default=None)
-    torque: Array | None = field(core_ndim=1, default=None)
+    force: Float[Array, "*B 3"] | None = field(core_ndim=1, default=None)
+    torque: Float[Array, "*B 3"] | None = field(core_ndim=1, default=None)
+
+    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
+
+        def __init__(
+            self, force: Float[ArrayLike, "*B 3"] | None = None, torque: Float[ArrayLike, "*B 3"] | None = None
+        ) -> None: ...
 
     def __post_init__(self) -> None:
         for name in ("force", "torque"):
@@ -304,13 +322,15 @@ class Forces:
         _check_vectors("Forces", force=self.force, torque=self.torque)
 
     @classmethod
-    def at_point(cls, force: ArrayLike, point: ArrayLike, state: AnyState) -> Forces:
+    def at_point(cls, force: Float[ArrayLike, "*B 3"], point: Float[ArrayLike, "*B 3"], state: AnyState) -> Forces:
         """Force ``F`` applied at world point ``p``: torque ``τ = (p - x) × F``."""
         f = _as_float(force)
         return cls(force=f, torque=cross(jnp.asarray(point) - state.position, f))
 
     @classmethod
-    def gravity(cls, state: AnyState, g: ArrayLike = (0.0, 0.0, -9.81)) -> Forces:
+    def gravity(
+        cls, state: AnyState, g: Float[ArrayLike, " 3"] | tuple[float, float, float] = (0.0, 0.0, -9.81)
+    ) -> Forces:
         """Uniform gravity ``F = m g`` (world frame, m/s²), no torque."""
         m = state.mass if isinstance(state, ParticleState) else state.body.mass
         g = jnp.asarray(g, dtype=state.dtype)
@@ -336,4 +356,6 @@ def _conj(q: Array) -> Array:
 
 def _apply(A: Array, v: Array) -> Array:
     """``A v`` for ``(..., 3, 3)`` and ``(..., 3)``, by components (fuses under vmap)."""
-    return A[..., 0] * v[..., 0:1] + A[..., 1] * v[..., 1:2] + A[..., 2] * v[..., 2:3]
+    # single components only (see rbjax._math._unstack): rows of A dotted with v
+    v0, v1, v2 = v[..., 0], v[..., 1], v[..., 2]
+    return jnp.stack([A[..., i, 0] * v0 + A[..., i, 1] * v1 + A[..., i, 2] * v2 for i in range(3)], axis=-1)

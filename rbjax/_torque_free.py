@@ -59,20 +59,22 @@ reduces everything to regular precession.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import cast
 
 import jax
+import jax.core
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
-from jax.typing import ArrayLike
+from jaxtyping import Float
 
 from . import _elliptic as ell
 from ._batching import lift
 from ._math import matrix_to_quat, quat_conjugate, quat_exp, quat_multiply, quat_rotate
 from ._pytree import new_unchecked
 from ._quantities import _omega_world, to_matrix_state, to_state
-from ._state import MatrixState, State
+from ._state import MatrixState, RigidStateT, State
+from ._typing import ArrayLike
 
 __all__ = ["torque_free"]
 
@@ -279,7 +281,7 @@ def _solve(state: State, ts: Array) -> State:
     )
 
 
-def torque_free(state: State | MatrixState, t: ArrayLike) -> Any:
+def torque_free(state: RigidStateT, t: Float[ArrayLike, "*T"]) -> RigidStateT:
     """Exact state of torque-free rigid bodies at time(s) ``t``: the ground truth for integrators.
 
     Args:
@@ -366,4 +368,4 @@ def torque_free(state: State | MatrixState, t: ArrayLike) -> Any:
             orientation=out.orientation[0],
             angular_momentum=out.angular_momentum[0],
         )
-    return out
+    return cast(RigidStateT, out)  # state is a State here, so RigidStateT is State

@@ -11,7 +11,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import rbjax as rb
-from rbjax._methods.implicit_midpoint import _NEWTON, _newton
+from rbjax._methods.implicit_midpoint import _NEWTON, _newton, midpoint_momentum
 from tests.reference import quat_angle, reference_rotation
 
 METHODS = sorted(rb.methods(rb.State))
@@ -95,17 +95,26 @@ def test_convergence_order(method, conv_reference):
     # errors far above the DOP853 reference's ~1e-12.
     order = rb.methods()[method].order
     # steps per case; rk4 needs 320 on the rod (stiff) but at 320 its generic-case
-    # errors are below what the reference resolves, so it gets 40 there
-    ns = {1: [12800] * 4, 2: [400] * 4, 4: [40, 40, 40, 320]}[order]
-    errs = np.zeros((2, len(CASES)))
-    for n in sorted(set(ns)):
+    # errors are below what the reference resolves, so it gets 40 there. Orders 6
+    # and 8 (splitting6/8): the fewest steps past the pre-asymptotic range (local
+    # slopes over n = 4..128 measured flat from there), errors 1e-6..1e-10 at 2n.
+    ns = {1: [12800] * 4, 2: [400] * 4, 4: [40, 40, 40, 320], 6: [16, 16, 16, 32], 8: [8, 8, 8, 24]}[order]
+    if method == "rk8":
+        # rk8 on the generic tumble is pre-asymptotic until its error meets the reference's
+        # ~1e-12 floor (local slopes 7.4 -> 7.7 from n = 8 to 48; 8.0 only against the exact
+        # torque_free solution at n = 32 -> 64): its generic cases are skipped here (None);
+        # tests/test_rk8.py measures its order on the 1:30:1000 box, torque-free and driven.
+        ns = [None, None, 8, 24]
+    errs = np.ones((2, len(CASES)))  # skipped cases: log2(1/1) = 0, masked below
+    for n in sorted(set(ns) - {None}):
         for j, k in enumerate((n, 2 * n)):
             q, w = _errors(method, k)
             for i, (qr, wr) in enumerate(conv_reference):
                 if ns[i] == n:
                     errs[j, i] = quat_angle(q[i], qr) + np.linalg.norm(w[i] - wr) / np.linalg.norm(wr)
     observed = np.log2(errs[0] / errs[1])
-    assert np.all(np.abs(observed - order) < 0.3), (method, errs, observed)
+    checked = np.array([n is not None for n in ns])
+    assert np.all(np.abs(observed[checked] - order) < 0.3), (method, errs, observed)
 
 
 def test_newton_converges_on_extreme_body():
@@ -125,6 +134,32 @@ def test_newton_converges_on_extreme_body():
         y = np.asarray(y)
         res = y - pi0 - 0.5 * h * np.cross(y, I_inv @ y)
         assert np.linalg.norm(res) < 1e-13 * np.linalg.norm(pi0)
+
+
+def test_newton_float32_iteration_count_converges():
+    # float32 runs one Newton iteration fewer (_newton_iterations). On the same
+    # extreme body and h|ω| = 1.5 its result must be as good as float32 can hold:
+    # the midpoint residual, evaluated in float64 from the float32 Π_½, below
+    # 64 eps32 |Π| (Cramer's-rule round-off of a 3x3 Jacobian of condition ~10;
+    # the float64 iterate's own residual is < 1e-13 |Π|, test above), and Π_½
+    # equal to the float64 solution to the same relative tolerance.
+    rng = np.random.default_rng(2)
+    I = BODIES["aniso"][0]
+    I_inv = np.linalg.inv(I)
+    eps32 = float(np.finfo(np.float32).eps)
+    for _ in range(20):
+        w = rng.normal(size=3)
+        w /= np.linalg.norm(w)
+        pi0 = I @ w
+        h = 1.5
+        y32 = np.asarray(
+            midpoint_momentum(jnp.asarray(pi0, jnp.float32), jnp.asarray(I_inv, jnp.float32), jnp.float32(h)),
+            np.float64,
+        )
+        y64 = np.asarray(midpoint_momentum(jnp.asarray(pi0), jnp.asarray(I_inv), h))
+        res = y32 - pi0 - 0.5 * h * np.cross(y32, I_inv @ y32)
+        assert np.linalg.norm(res) < 64 * eps32 * np.linalg.norm(pi0)
+        assert np.linalg.norm(y32 - y64) < 64 * eps32 * np.linalg.norm(pi0)
 
 
 @pytest.mark.parametrize("method", ["splitting", "implicit_midpoint"])

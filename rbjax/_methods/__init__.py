@@ -4,6 +4,11 @@ A method is a batch-level function ``step(state, force_fn, t, dt) -> state``:
 ``force_fn(state, t) -> Forces`` sees the whole batch (so forces may couple
 bodies) and may be called at intermediate stages; the per-body arithmetic
 inside is written for one body and lifted with :func:`rbjax._batching.lift`.
+
+Step functions must not depend on where the batch axes are: ``simulate`` runs
+them with the state in the batch-last layout (:func:`rbjax._batching.batch_last`),
+so batch-level code outside ``lift`` may only be elementwise (``x + h k``);
+anything that names an axis (a norm, a ``@``) goes inside a lifted one-body function.
 """
 
 from __future__ import annotations
@@ -66,5 +71,10 @@ from . import euler as euler  # noqa: E402  (each module registers itself)
 from . import implicit_gyroscopic as implicit_gyroscopic  # noqa: E402
 from . import implicit_midpoint as implicit_midpoint  # noqa: E402
 from . import rk4 as rk4  # noqa: E402
+from . import rk8 as rk8  # noqa: E402
 from . import semi_implicit_euler as semi_implicit_euler  # noqa: E402
 from . import splitting as splitting  # noqa: E402
+
+# isort: split
+# composition builds on registered methods ("splitting"): it must come after them
+from . import composition as composition  # noqa: E402

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from .._batching import lift
-from .._math import matrix_to_quat
+from .._math import _dot3, cross, matrix_to_quat, orthonormalize, quat_normalize
 from .._pytree import replace
 from .._quantities import to_matrix_state, to_state
 from .._state import Forces, MatrixState, State, _apply
@@ -26,10 +26,10 @@ def kick(s: State, f: Forces, h) -> State:
 
 def solve3(A: Array, b: Array) -> Array:
     """``A⁻¹ b`` for one ``3x3`` ``A`` by Cramer's rule (explicit components, no LAPACK)."""
-    c0 = jnp.cross(A[1], A[2])
-    c1 = jnp.cross(A[2], A[0])
-    c2 = jnp.cross(A[0], A[1])
-    det = jnp.dot(A[0], c0)
+    c0 = cross(A[1], A[2])
+    c1 = cross(A[2], A[0])
+    c2 = cross(A[0], A[1])
+    det = _dot3(A[0], c0)
     # adj(A) = [c0 c1 c2] (as columns), so A⁻¹ b = (c0 b0 + c1 b1 + c2 b2) / det
     return (c0 * b[0] + c1 * b[1] + c2 * b[2]) / det
 
@@ -87,6 +87,20 @@ def batch(kernel):
         return lift(kernel)(state, force_fn(state, t), dt)
 
     return step
+
+
+def _project_one(s):
+    if isinstance(s, State):
+        return replace(s, orientation=quat_normalize(s.orientation))
+    if isinstance(s, MatrixState):
+        return replace(s, rotation=orthonormalize(s.rotation))
+    return s
+
+
+def project(state):
+    """Back onto the rotation group: ``q ← q/‖q‖`` (``State``) or ``R`` re-orthonormalised
+    (``MatrixState``); particles unchanged. Batch-level (lifted), any layout."""
+    return lift(_project_one)(state)
 
 
 def via_state(state_step):

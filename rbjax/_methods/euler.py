@@ -16,10 +16,8 @@ terms): choose it for teaching and for matching the notes, not for long runs.
 
 from __future__ import annotations
 
-import jax.numpy as jnp
-
 from .._batching import lift
-from .._math import cross, orthonormalize, quat_multiply, quat_normalize, skew
+from .._math import _matmul3, _pure_quat_multiply, cross, orthonormalize, quat_normalize, skew
 from .._pytree import replace
 from .._quantities import _omega_world
 from .._state import Forces, MatrixState, ParticleState, State, _apply
@@ -36,8 +34,7 @@ def euler_state(s: State, f: Forces, dt) -> State:
     x, v = _translate(s.position, s.velocity, s.body.mass, f, dt)
     w = _omega_world(s)
     q = s.orientation
-    wq = jnp.concatenate([jnp.zeros_like(w[:1]), w])
-    q = quat_normalize(q + 0.5 * dt * quat_multiply(wq, q))
+    q = quat_normalize(q + 0.5 * dt * _pure_quat_multiply(w, q))
     L = s.angular_momentum if f.torque is None else s.angular_momentum + f.torque * dt
     return replace(s, position=x, velocity=v, orientation=q, angular_momentum=L)
 
@@ -46,10 +43,10 @@ def euler_matrix(s: MatrixState, f: Forces, dt) -> MatrixState:
     """One explicit-Euler step of one body in the ``(x, v, R, ω)`` form."""
     x, v = _translate(s.position, s.velocity, s.body.mass, f, dt)
     R, w = s.rotation, s.angular_velocity
-    I_w = R @ s.body.inertia @ R.T
-    I_w_inv = R @ s.body.inverse_inertia @ R.T
+    I_w = _matmul3(_matmul3(R, s.body.inertia), R.T)
+    I_w_inv = _matmul3(_matmul3(R, s.body.inverse_inertia), R.T)
     tau = -cross(w, _apply(I_w, w)) if f.torque is None else f.torque - cross(w, _apply(I_w, w))
-    R_new = orthonormalize(R + skew(w) @ R * dt)
+    R_new = orthonormalize(R + _matmul3(skew(w), R) * dt)
     w_new = w + _apply(I_w_inv, tau) * dt
     return replace(s, position=x, velocity=v, rotation=R_new, angular_velocity=w_new)
 

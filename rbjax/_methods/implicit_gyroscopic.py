@@ -20,7 +20,7 @@ never for long-horizon physics or energy studies.
 
 from __future__ import annotations
 
-from .._math import cross, quat_conjugate, quat_exp, quat_multiply, quat_normalize, quat_rotate, skew
+from .._math import _matmul3, cross, quat_conjugate, quat_exp, quat_multiply, quat_normalize, quat_rotate, skew
 from .._pytree import replace
 from .._state import Forces, MatrixState, State, _apply
 from . import Method, register
@@ -36,7 +36,7 @@ def implicit_gyroscopic_state(s: State, f: Forces, dt) -> State:
     rhs = cross(w0, pi)
     if f.torque is not None:
         rhs = rhs - quat_rotate(quat_conjugate(q), f.torque)
-    J = I + dt * (skew(w0) @ I - skew(pi))
+    J = I + dt * (_matmul3(skew(w0), I) - skew(pi))
     w1 = w0 - solve3(J, dt * rhs)
     q = quat_normalize(quat_multiply(q, quat_exp(w1 * dt)))
     L = quat_rotate(q, _apply(I, w1))

@@ -18,11 +18,11 @@ from __future__ import annotations
 import jax
 
 from .._dynamics import derivative
-from .._math import orthonormalize, quat_normalize
 from .._pytree import replace
 from .._simulate_support import constant_fields
 from .._state import MatrixState, ParticleState, State
 from . import Method, register
+from ._common import project
 
 
 def _axpy(state, h, k):
@@ -44,11 +44,7 @@ def rk4(state, force_fn, t, dt):
         *(replace(k, **{n: None for n in consts}) for k in (k1, k2, k3, k4)),
     )
     out = _axpy(state, dt, replace(incr, **{n: getattr(state, n) for n in consts}))
-    if isinstance(out, State):
-        out = replace(out, orientation=quat_normalize(out.orientation))
-    elif isinstance(out, MatrixState):
-        out = replace(out, rotation=orthonormalize(out.rotation))
-    return out
+    return project(out)
 
 
 register(

@@ -23,6 +23,7 @@ a game engine would: cheap, robust, one force evaluation per step, first order.
 from __future__ import annotations
 
 from .._math import (
+    _matmul3,
     orthonormalize,
     quat_conjugate,
     quat_exp,
@@ -50,13 +51,13 @@ def semi_implicit_matrix(s: MatrixState, f: Forces, dt) -> MatrixState:
     """One semi-implicit Euler step of one body in the ``(x, v, R, ω)`` form."""
     R, I, I_inv = s.rotation, s.body.inertia, s.body.inverse_inertia
     v = s.velocity if f.force is None else s.velocity + f.force / s.body.mass * dt
-    L = R @ _apply(I, R.T @ s.angular_velocity)
+    L = _apply(R, _apply(I, _apply(R.T, s.angular_velocity)))
     if f.torque is not None:
         L = L + f.torque * dt
-    w = R @ _apply(I_inv, R.T @ L)
+    w = _apply(R, _apply(I_inv, _apply(R.T, L)))
     # one Newton–Schulz pass stops round-off in the product from accumulating
-    R = orthonormalize(quat_to_matrix(quat_exp(w * dt)) @ R, iterations=1)
-    w = R @ _apply(I_inv, R.T @ L)
+    R = orthonormalize(_matmul3(quat_to_matrix(quat_exp(w * dt)), R), iterations=1)
+    w = _apply(R, _apply(I_inv, _apply(R.T, L)))
     return replace(s, position=s.position + v * dt, velocity=v, rotation=R, angular_velocity=w)
 
 

@@ -35,7 +35,7 @@ import jax
 import jax.numpy as jnp
 
 from .._batching import lift
-from .._math import cross, quat_conjugate, quat_multiply, quat_normalize, quat_rotate
+from .._math import quat_conjugate, quat_multiply, quat_normalize, quat_rotate
 from .._pytree import replace
 from .._state import MatrixState, ParticleState, State
 from . import Method, register
@@ -45,18 +45,26 @@ from ._common import kick, principal_frame, via_state
 _SEQUENCE = ((0, 0.5), (1, 0.5), (2, 1.0), (1, 0.5), (0, 0.5))
 
 
-def _rotate_about(qp, m, d, e, h):
-    """Exact flow of ``m_i²/(2 d_i)`` over ``h`` about the principal axis ``e = e_i``.
+def _rotate_about(qp, m, d, i, h):
+    """Exact flow of ``m_i²/(2 d_i)`` over ``h`` about principal axis ``i`` (static).
 
-    Angle ``θ = h m_i/d_i``; ``qp ← qp ⊗ (cos θ/2, sin θ/2 e)``,
-    ``m ← Rot_e(-θ) m = c m - s e × m + (1 - c)(e·m) e``.
+    Angle ``θ = h m_i/d_i``; ``qp ← qp ⊗ (cos θ/2, sin θ/2 e_i)``,
+    ``m ← Rot_i(-θ) m``: with ``(i, j, k)`` cyclic, ``m_j ← c m_j + s m_k``,
+    ``m_k ← c m_k - s m_j`` (``c, s = cos θ, sin θ``), ``m_i`` unchanged.
     """
-    me = jnp.sum(e * m)
-    theta = h * me / jnp.sum(e * d)
-    c2, s2 = jnp.cos(theta / 2), jnp.sin(theta / 2)
+    j, k = (i + 1) % 3, (i + 2) % 3
+    theta = h * m[i] / d[i]
+    # one sincos per body: without the barrier XLA:CPU re-evaluates the angle and
+    # its sincos inside the loop for each of the seven components it feeds
+    c2, s2 = jax.lax.optimization_barrier(jnp.stack([jnp.cos(theta / 2), jnp.sin(theta / 2)]))
     c, s = 1 - 2 * s2 * s2, 2 * s2 * c2
-    qp = quat_multiply(qp, jnp.concatenate([c2[None], s2 * e]))
-    return qp, c * m - s * cross(e, m) + (1 - c) * me * e
+    qw, u = qp[0], (qp[1], qp[2], qp[3])
+    # (qw, u) ⊗ (c2, s2 e_i) = (qw c2 - s2 u_i, c2 u + s2 (qw e_i + u × e_i)), (u × e_i) = (0, u_k, -u_j) in (i, j, k)
+    nu = [None, None, None]
+    nu[i], nu[j], nu[k] = c2 * u[i] + s2 * qw, c2 * u[j] + s2 * u[k], c2 * u[k] - s2 * u[j]
+    nm = [None, None, None]
+    nm[i], nm[j], nm[k] = m[i], c * m[j] + s * m[k], c * m[k] - s * m[j]
+    return jnp.stack([qw * c2 - s2 * u[i], *nu]), jnp.stack(nm)
 
 
 def free_rotor(q, L, inertia, h):
@@ -64,14 +72,12 @@ def free_rotor(q, L, inertia, h):
     d, p = principal_frame(inertia)
     qp = quat_multiply(q, p)  # principal frame -> world
     m = quat_rotate(quat_conjugate(qp), L)
-    # Whole vectors with a one-hot axis ``e``, not per-component updates: chained
-    # scalar components made XLA:CPU fuse the five sub-steps into one kernel
-    # that recomputed each sub-step for each of its three consumers (3⁵ times the
-    # work: 125 ms instead of ~1 ms per step of 10⁴ bodies).
-    eye = jnp.eye(3, dtype=m.dtype)
+    # A barrier after each sub-step: chained scalar components made XLA:CPU fuse
+    # the five sub-steps into one kernel that recomputed each sub-step for each
+    # of its consumers (3⁵ times the work: 125 ms instead of ~1 ms per step of
+    # 10⁴ bodies).
     for axis, frac in _SEQUENCE:
-        qp, m = _rotate_about(qp, m, d, eye[axis], frac * h)
-        qp, m = jax.lax.optimization_barrier((qp, m))
+        qp, m = jax.lax.optimization_barrier(_rotate_about(qp, m, d, axis, frac * h))
     return quat_normalize(quat_multiply(qp, quat_conjugate(p)))
 
 
