@@ -26,6 +26,7 @@ from collections.abc import Callable
 from typing import Any
 
 import jax
+import jax.core
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
@@ -134,7 +135,7 @@ def shoot(
     force_fn = as_force_fn(forces)
     n_save = steps // save_every
     run = lambda s, d, t: _scan_segment(s, force_fn, d.reshape(n_save, save_every), t, step_fn)  # noqa: E731
-    traj = jax.vmap(run, in_axes=(_in_axes(starts, 0, nd), 0, 0))(starts, dts, t0)
+    traj = jax.vmap(run, in_axes=(_in_axes(starts, 0, nd, last=False), 0, 0))(starts, dts, t0)
     consts = constant_fields(starts)
     # vmap put segments first; time leads in rbjax trajectories, constant fields stay as given
     moved = {

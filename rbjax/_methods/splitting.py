@@ -60,11 +60,9 @@ def _rotate_about(qp, m, d, i, h):
     c, s = 1 - 2 * s2 * s2, 2 * s2 * c2
     qw, u = qp[0], (qp[1], qp[2], qp[3])
     # (qw, u) ⊗ (c2, s2 e_i) = (qw c2 - s2 u_i, c2 u + s2 (qw e_i + u × e_i)), (u × e_i) = (0, u_k, -u_j) in (i, j, k)
-    nu = [None, None, None]
-    nu[i], nu[j], nu[k] = c2 * u[i] + s2 * qw, c2 * u[j] + s2 * u[k], c2 * u[k] - s2 * u[j]
-    nm = [None, None, None]
-    nm[i], nm[j], nm[k] = m[i], c * m[j] + s * m[k], c * m[k] - s * m[j]
-    return jnp.stack([qw * c2 - s2 * u[i], *nu]), jnp.stack(nm)
+    nu = {i: c2 * u[i] + s2 * qw, j: c2 * u[j] + s2 * u[k], k: c2 * u[k] - s2 * u[j]}
+    nm = {i: m[i], j: c * m[j] + s * m[k], k: c * m[k] - s * m[j]}
+    return jnp.stack([qw * c2 - s2 * u[i], nu[0], nu[1], nu[2]]), jnp.stack([nm[0], nm[1], nm[2]])
 
 
 def free_rotor(q, L, inertia, h):
