@@ -328,11 +328,12 @@ T = 4.0
 exact = rb.torque_free(s1, T)
 
 methods = list(rb.methods(rb.State))
-dts = [0.02, 0.01, 0.005]
+# orders 6 and 8 reach float64 round-off (1e-13) by dt = 0.1 here: they get 40x larger steps
+dts_for = lambda m: [0.8, 0.4, 0.2] if rb.methods()[m].order >= 6 else [0.02, 0.01, 0.005]
 results = {}  # method -> list of (dt, error rad, seconds per body-step)
 for m in methods:
     results[m] = []
-    for dt in dts:
+    for dt in dts_for(m):
         steps = int(round(T / dt))
         def run(dt=dt, steps=steps, m=m):
             return jax.block_until_ready(rb.simulate(s0, None, dt, steps, m, save_every=steps))
@@ -363,7 +364,7 @@ fig.tight_layout()
 
 Each method's error follows `err ≈ C dtᵖ`. Fitting `C` and `p` on the two smallest steps gives
 the `dt` that just meets a tolerance, and from the measured cost per step the wall time to reach
-`T`. The cheapest row wins. (On this problem: high accuracy favours `rk4`; the symplectic
+`T`. The cheapest row wins. (On this problem: high accuracy favours `rk8`, then `rk4`; the symplectic
 `splitting` is the choice for long runs where energy must not drift, even at loose tolerances.
 Without torque `semi_implicit_euler` reduces to `euler`; the implicit first-order
 `implicit_gyroscopic` buys stability for stiff fast spins, not accuracy. Timings on a shared CPU
@@ -382,7 +383,7 @@ def plan(tol):
 for tol in [1e-3, 1e-6]:
     print(f"target attitude error {tol:g} rad at T = {T} s:")
     for us, m, dt_needed, p in plan(tol):
-        note = "  (extrapolated beyond the sweep: check stability)" if dt_needed > max(dts) else ""
+        note = "  (extrapolated beyond the sweep: check stability)" if dt_needed > max(dts_for(m)) else ""
         print(f"   {m:>20}: order {p:4.2f}, dt = {dt_needed:.1e} s, ~{us:9.1f} µs per body{note}")
 """),
     code("""
@@ -395,14 +396,16 @@ else:
 """),
     code("""
 # Physical/numerical checks (these can fail): each method converges at its registered order,
-# observed on the two smallest steps (dt = 0.01, 0.005: asymptotic regime here, errors >> 1e-13
-# round-off); 0.3 allows for the pre-asymptotic error constant.
+# observed on the two smallest steps (asymptotic regime here, errors >> 1e-13 round-off);
+# 0.3 allows for the pre-asymptotic error constant.
 for m, r in results.items():
     (dt1, e1, _), (dt2, e2, _) = r[-2], r[-1]
     p = np.log(e1 / e2) / np.log(dt1 / dt2)
     assert abs(p - rb.methods()[m].order) < 0.3, (m, p)
-# and the fourth-order method is the most accurate at the smallest step.
-assert min(results, key=lambda m: results[m][-1][1]) == "rk4"
+    assert e2 > 1e-12, (m, e2)  # the slope was measured above round-off
+# and among the low-order sweep (the same three steps) a fourth-order method is the most accurate.
+low = [m for m in results if rb.methods()[m].order <= 4]
+assert rb.methods()[min(low, key=lambda m: results[m][-1][1])].order == 4
 print("all checks passed")
 """),
 ]
