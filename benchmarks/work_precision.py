@@ -464,6 +464,12 @@ def plot(results: dict, probs: dict[str, Problem], path: str) -> None:
     plt.close(fig)
 
 
+def default_methods(quick: bool) -> list[str]:
+    """Every registered method; ``--quick`` (which checks that the benchmark runs) only two,
+    which cover its code paths without every method's compile time (rk8 alone takes ~10 s)."""
+    return ["euler", "rk4"] if quick else list(rb.methods(rb.State))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="tiny sizes, < 1 minute (checks it runs)")
@@ -498,12 +504,7 @@ def main(argv=None) -> int:
             jnp.float64: [10.0 ** (-k / 2) for k in range(4, 27)],
         }  # 1e-2 .. 1e-13
     dtypes = [{"float32": jnp.float32, "float64": jnp.float64}[d] for d in args.dtypes.split(",")]
-    if args.methods == "all":
-        # --quick checks that the benchmark runs: two methods cover its code paths without the
-        # compile time of every registered method (rk8 alone compiles for ~10 s)
-        methods = ["euler", "rk4"] if args.quick else list(rb.methods(rb.State))
-    else:
-        methods = args.methods.split(",")
+    methods = default_methods(args.quick) if args.methods == "all" else args.methods.split(",")
     unknown = set(methods) - set(rb.methods(rb.State))
     if unknown:
         ap.error(f"unknown methods {sorted(unknown)}; available: {sorted(rb.methods(rb.State))}")
