@@ -23,6 +23,9 @@ from rbjax._methods.composition import COEFFICIENTS
 # cases); tests/test_rk8.py checks its derivative against central differences, and its driver
 # given rk4's tableau reproduces "rk4" (tested here) to 1e-13.
 METHODS = sorted(set(rb.methods(rb.State)) - set(COEFFICIENTS) - {"rk8"})
+# the implicit methods' Newton loops compile for ~30 s per case under both modes: their
+# finite-difference and checkpoint cases run with --runslow (the others stay in the quick suite)
+HEAVY = [pytest.param(m, marks=pytest.mark.slow) if m.startswith("implicit") else m for m in METHODS]
 STEPS = 12
 
 
@@ -51,7 +54,7 @@ def _args(seed=0, w0=(0.4, 2.0, -0.3), r0=(0.2, -0.1, 0.3), I=(1.0, 2.0, 2.6, 0.
     )
 
 
-@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("method", HEAVY)
 def test_fwd_and_rev_match_finite_differences(method):
     # a random projection makes a scalar loss touching every output component
     proj = jnp.asarray(np.random.default_rng(1).normal(size=18))
@@ -98,7 +101,7 @@ def test_sign_of_quaternion_does_not_change_gradients(method):
     np.testing.assert_allclose(Jp, Jm, rtol=1e-12, atol=1e-13)
 
 
-@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("method", HEAVY)
 def test_checkpointing_gives_the_same_gradient(method):
     steps = 48
     rng = np.random.default_rng(2)
