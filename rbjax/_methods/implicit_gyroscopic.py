@@ -51,6 +51,6 @@ register(
         order=1,
         steps={State: implicit_gyroscopic, MatrixState: via_state(implicit_gyroscopic)},
         conserves="nothing; dissipates rotational energy and |L| (stable at large dt)",
-        cost=3.2,
+        cost=2.8,
     )
 )

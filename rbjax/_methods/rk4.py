@@ -8,7 +8,7 @@ re-orthonormalised).
 
 Order 4. Conserves nothing exactly: energy and ``|L|`` drift slowly (``O(h⁴)``
 per unit time) and the drift accumulates over long horizons. Cost ≈ 4 force
-evaluations and 4 derivative evaluations; measured about 2x ``"euler"`` per step
+evaluations and 4 derivative evaluations; measured 1.2x ``"euler"`` per step
 (benchmarks/integrator_cost.py: the step is not arithmetic-bound). Choose it for
 short, accurate horizons and smooth time-varying forces.
 """
@@ -53,6 +53,6 @@ register(
         order=4,
         steps={State: rk4, MatrixState: rk4, ParticleState: rk4},
         conserves="nothing exactly; energy and |L| drift as O(dt^4) per unit time",
-        cost=2.0,
+        cost=1.2,
     )
 )

@@ -16,7 +16,7 @@ symplectic in translation). Its rotation ``exp(ω dt)`` with ``ω`` frozen over
 the step (Lie–Euler) keeps ``|L|`` in body axes, but torque-free the map agrees
 with explicit Euler to ``O(dt²)`` per step, so the rotational energy of a
 tumbling body grows as Euler's does (measured in tests/test_stability.py).
-Cost ≈ 1.5x ``"euler"`` (measured, benchmarks/integrator_cost.py). Choose it where
+Cost ≈ 1.6x ``"euler"`` (measured, benchmarks/integrator_cost.py). Choose it where
 a game engine would: cheap, robust, one force evaluation per step, first order.
 """
 
@@ -77,6 +77,6 @@ register(
             ParticleState: batch(semi_implicit_particles),
         },
         conserves="torque-free: L exactly, |L| in body axes; energy drifts O(dt) (particles: bounded)",
-        cost=1.5,
+        cost=1.6,
     )
 )
