@@ -22,7 +22,7 @@ from .._pytree import replace
 from .._simulate_support import constant_fields
 from .._state import MatrixState, ParticleState, State
 from . import Method, register
-from ._common import project
+from ._common import materialise, project, torque_varies
 
 
 def _axpy(state, h, k):
@@ -35,9 +35,11 @@ def _axpy(state, h, k):
 def rk4(state, force_fn, t, dt):
     f = lambda s, tt: derivative(s, force_fn(s, tt))  # noqa: E731
     k1 = f(state, t)
-    k2 = f(_axpy(state, dt / 2, k1), t + dt / 2)
-    k3 = f(_axpy(state, dt / 2, k2), t + dt / 2)
-    k4 = f(_axpy(state, dt, k3), t + dt)
+    # a varying torque makes every stage feed the next through L and ω: see materialise
+    m = (lambda y: materialise(y, dt)) if torque_varies(force_fn, state, t) else (lambda y: y)  # noqa: E731
+    k2 = f(m(_axpy(state, dt / 2, k1)), t + dt / 2)
+    k3 = f(m(_axpy(state, dt / 2, k2)), t + dt / 2)
+    k4 = f(m(_axpy(state, dt, k3)), t + dt)
     consts = constant_fields(state)
     incr = jax.tree.map(
         lambda a, b, c, d: (a + 2 * b + 2 * c + d) / 6,

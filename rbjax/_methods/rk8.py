@@ -37,7 +37,7 @@ from .._pytree import replace
 from .._simulate_support import constant_fields
 from .._state import MatrixState, ParticleState, State
 from . import Method, StepFn, register
-from ._common import project
+from ._common import materialise, project, torque_varies
 
 __all__ = ["DOP853_A", "DOP853_B", "DOP853_C", "explicit_rk"]
 
@@ -192,9 +192,12 @@ def explicit_rk(a: Sequence[Sequence[float]], b: Sequence[float], c: Sequence[fl
     c = tuple(float(x) for x in c)
 
     def step(state, force_fn, t, dt):
+        # a varying torque makes every stage feed the next through L and ω: see materialise
+        stage = (lambda y: materialise(y, dt)) if torque_varies(force_fn, state, t) else (lambda y: y)
         ks = []
         for i in range(s):
             y = _combine(state, dt, a[i], ks[:i])
+            y = stage(y) if i > 0 else y
             ks.append(derivative(y, force_fn(y, t + c[i] * dt)))
         # lifted, so it holds in simulate's batch-last layout too
         return project(_combine(state, dt, b, ks))
