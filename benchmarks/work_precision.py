@@ -430,8 +430,10 @@ def plot(results: dict, probs: dict[str, Problem], path: str) -> None:
         ("err_energy", "relative energy error"),
     ]
     fig, axes = plt.subplots(len(keys), len(results), figsize=(4.2 * len(results), 3.4 * len(keys)), squeeze=False)
-    colors = {}
-    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    # one colour per method (tab20 has enough for every rbjax method and both diffrax solvers);
+    # the line style says the dtype, the marker the library
+    cycle = plt.get_cmap("tab20").colors
+    colors: dict[str, object] = {}
     for j, (name, rows) in enumerate(results.items()):
         curves = sorted({(r["solver"], r["method"], r["dtype"]) for r in rows})
         for i, (key, label) in enumerate(keys):
@@ -444,22 +446,29 @@ def plot(results: dict, probs: dict[str, Problem], path: str) -> None:
                 )
                 if not pts:
                     continue
-                c = colors.setdefault(m, cycle[len(colors) % len(cycle)])
+                c = colors.setdefault(f"{solver} {m}", cycle[(2 * len(colors)) % 20 + (len(colors) >= 10)])
                 ax.loglog(
                     *zip(*pts, strict=True),
                     ls="-" if d == "float64" else "--",
                     marker="o" if solver == "rbjax" else "s",
                     ms=3,
+                    lw=1.2,
                     color=c,
-                    label=f"{'diffrax ' if solver == 'diffrax' else ''}{m} {d}",
                 )
             ax.set_xlabel("wall time per body to T (s), batch of copies")
             ax.set_ylabel(label)
             ax.grid(True, which="major", alpha=0.3)
             if i == 0:
                 ax.set_title(probs[name].title)
-    axes[0, -1].legend(fontsize=7, loc="best")
-    fig.tight_layout()
+    from matplotlib.lines import Line2D
+
+    handles = [
+        Line2D([], [], color=c, marker="o" if k.startswith("rbjax") else "s", ms=4, label=k.removeprefix("rbjax "))
+        for k, c in colors.items()
+    ]
+    handles += [Line2D([], [], color="k", ls="-", label="float64"), Line2D([], [], color="k", ls="--", label="float32")]
+    fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 8), fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)
 

@@ -387,7 +387,7 @@ for tol in [1e-3, 1e-6]:
         print(f"   {m:>20}: order {p:4.2f}, dt = {dt_needed:.1e} s, ~{us:9.1f} µs per body{note}")
 """),
     code("""
-png = Path("../benchmarks/results/work_precision_thruster_quiet.png")
+png = Path("../benchmarks/results/work_precision.png")
 if png.exists():  # the full study, from `python benchmarks/work_precision.py`
     from IPython.display import Image, display
     display(Image(filename=str(png), width=900))
