@@ -4,6 +4,7 @@ Each distinct (shape, options) compiles once (~10-20 s); the fast tests share
 the shapes below so they reuse compiled programs.
 """
 
+import jax
 import numpy as np
 import pytest
 from reference import qmul, qrot, reference_rotation
@@ -51,9 +52,9 @@ def test_clean_orientations_regular_and_irregular_times():
     rng = np.random.default_rng(3)
     t_irr = T_FAST + np.concatenate([[0.0], rng.uniform(-0.002, 0.002, 399), [0.0]])
     q_irr, _ = _record(t_irr)
-    n_compiled = _fit._fit_batch._cache_size()
+    n_compiled = _fit._fit_batch_jit(jax.default_backend())._cache_size()
     res = rb.fit_inertia(t_irr, q_irr)
-    assert _fit._fit_batch._cache_size() == n_compiled
+    assert _fit._fit_batch_jit(jax.default_backend())._cache_size() == n_compiled
     # gaps up to 9 ms (|ω| h ≈ 0.03 rad): rk4 error ~(ωh)⁴ ≈ 1e-6 per step at the coarsest
     assert _rel(res.inertia, I_BAR) < 1e-5
 
@@ -96,10 +97,10 @@ def test_batch_compiles_once_and_matches_single_fits():
     spins = [W0, [2.0, 0.5, 1.0], [0.4, 2.5, 0.6]]
     recs = [_record(T_FAST, I=I, w0=w) for I, w in zip(bodies, spins, strict=True)]
     qs = np.stack([_noisy(q, wb, rng)[0] for q, wb in recs])
-    before = _fit._fit_batch._cache_size()
+    before = _fit._fit_batch_jit(jax.default_backend())._cache_size()
     res = rb.fit_inertia(T_FAST, qs, segments=2)
     res2 = rb.fit_inertia(T_FAST, qs[::-1], segments=2)  # new data, same shapes: no new trace
-    assert _fit._fit_batch._cache_size() == before + 1
+    assert _fit._fit_batch_jit(jax.default_backend())._cache_size() == before + 1
     for k, I in enumerate(bodies):
         Ib = I / np.trace(I)
         assert _rel(res.inertia[k], Ib) < 0.02  # orientation-only, 1e-3 rad noise, 2 s
@@ -111,9 +112,9 @@ def test_similar_lengths_share_one_compiled_program():
     # the second recording reuses the compiled solver
     q, _ = _record(T_FAST)
     rb.fit_inertia(T_FAST, q)
-    n_compiled = _fit._fit_batch._cache_size()
+    n_compiled = _fit._fit_batch_jit(jax.default_backend())._cache_size()
     res = rb.fit_inertia(T_FAST[:389], q[:389])
-    assert _fit._fit_batch._cache_size() == n_compiled
+    assert _fit._fit_batch_jit(jax.default_backend())._cache_size() == n_compiled
     assert _rel(res.inertia, I_BAR) < 1e-6  # padding (dt = 0, masked) does not bias the clean fit
 
 
