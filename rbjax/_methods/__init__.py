@@ -68,6 +68,7 @@ def available(state_type: type | None = None) -> dict[str, Method]:
 
 
 from . import euler as euler  # noqa: E402  (each module registers itself)
+from . import explicit_rk as explicit_rk  # noqa: E402
 from . import implicit_gyroscopic as implicit_gyroscopic  # noqa: E402
 from . import implicit_midpoint as implicit_midpoint  # noqa: E402
 from . import rk4 as rk4  # noqa: E402

@@ -1,16 +1,4 @@
-"""Explicit Runge–Kutta from a Butcher tableau, and ``"rk8"``: the 8th-order DOP853 tableau at fixed step.
-
-For a tableau ``(A, b, c)`` with ``A`` strictly lower triangular, one step of
-``y' = f(y, t)`` is ::
-
-    k_i = f(y + h Σ_{j<i} a_ij k_j,  t + c_i h),   i = 1 … s
-    y  ← y + h Σ_i b_i k_i
-
-with ``f`` the Newton–Euler right-hand side (:func:`rbjax.derivative`, world
-frame, SI units) and forces evaluated at every stage time. Only the fields an
-integrator changes are combined; zero tableau entries are skipped. Afterwards
-the quaternion is normalised (``MatrixState``: ``R`` re-orthonormalised), as
-in ``"rk4"``.
+"""``"rk8"``: the 8th-order DOP853 tableau at fixed step, through the explicit Runge–Kutta driver.
 
 ``"rk8"`` uses the 12-stage, 8th-order solution of Dormand & Prince's
 DOP853 (E. Hairer, S. P. Nørsett & G. Wanner, *Solving Ordinary Differential
@@ -28,18 +16,9 @@ few dozen steps, like every method.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from .explicit_rk import register_tableau
 
-import jax.numpy as jnp
-
-from .._dynamics import derivative
-from .._pytree import replace
-from .._simulate_support import constant_fields
-from .._state import MatrixState, ParticleState, State
-from . import Method, StepFn, register
-from ._common import materialise, project, torque_varies
-
-__all__ = ["DOP853_A", "DOP853_B", "DOP853_C", "explicit_rk"]
+__all__ = ["DOP853_A", "DOP853_B", "DOP853_C"]
 
 # DOP853 (Hairer, Nørsett & Wanner; dop853.f): 30 significant digits as published,
 # which float64 rounds once. Row i of A holds a_i1 … a_i,i-1 (stage 1 has none).
@@ -153,66 +132,4 @@ DOP853_B: tuple[float, ...] = (
 )
 
 
-def _combine(state, dt, weights: Sequence[float], ks: Sequence):
-    """``state + dt Σ_j w_j k_j`` on the changing fields; zero weights cost nothing."""
-    terms = [(w, k) for w, k in zip(weights, ks, strict=True) if w != 0.0]
-    if not terms:
-        return state
-    consts = constant_fields(state)
-    out = {}
-    for n in type(state)._rbjax_data_fields:
-        if n in consts:
-            continue
-        x = getattr(state, n)
-        # weights cast to the field's dtype: a float32 state stays float32
-        incr = sum(jnp.asarray(w, x.dtype) * getattr(k, n) for w, k in terms)
-        out[n] = x + dt * incr
-    return replace(state, **out)
-
-
-def explicit_rk(a: Sequence[Sequence[float]], b: Sequence[float], c: Sequence[float]) -> StepFn:
-    """A batch-level step ``(state, force_fn, t, dt) -> state`` for an explicit Runge–Kutta tableau.
-
-    ``a[i]`` holds ``a_i1 … a_i,i-1`` (``len(a[i]) == i``), ``b`` the weights and
-    ``c`` the stage times (as fractions of ``dt``). Works for ``State``,
-    ``MatrixState`` and ``ParticleState``: the stages are
-    ``k_i = derivative(y_i, force_fn(y_i, t + c_i dt))`` with
-    ``y_i = y + dt Σ_j a_ij k_j``; the result is ``y + dt Σ_i b_i k_i`` with
-    the quaternion normalised (``R`` re-orthonormalised). ``ValueError`` for
-    a tableau that is not explicit or whose sizes disagree.
-    """
-    s = len(b)
-    if len(a) != s or len(c) != s or any(len(row) != i for i, row in enumerate(a)):
-        raise ValueError(
-            f"explicit tableau needs len(a[i]) == i and len(a) == len(b) == len(c); got rows "
-            f"{[len(r) for r in a]}, {len(b)} weights, {len(c)} nodes"
-        )
-    a = tuple(tuple(float(x) for x in row) for row in a)
-    b = tuple(float(x) for x in b)
-    c = tuple(float(x) for x in c)
-
-    def step(state, force_fn, t, dt):
-        # a varying torque makes every stage feed the next through L and ω: see materialise
-        stage = (lambda y: materialise(y, dt)) if torque_varies(force_fn, state, t) else (lambda y: y)
-        ks = []
-        for i in range(s):
-            y = _combine(state, dt, a[i], ks[:i])
-            y = stage(y) if i > 0 else y
-            ks.append(derivative(y, force_fn(y, t + c[i] * dt)))
-        # lifted, so it holds in simulate's batch-last layout too
-        return project(_combine(state, dt, b, ks))
-
-    return step
-
-
-rk8 = explicit_rk(DOP853_A, DOP853_B, DOP853_C)
-
-register(
-    Method(
-        name="rk8",
-        order=8,
-        steps={State: rk8, MatrixState: rk8, ParticleState: rk8},
-        conserves="nothing exactly; energy and |L| drift as O(dt^8) per unit time",
-        cost=6.0,
-    )
-)
+rk8 = register_tableau("rk8", 8, DOP853_A, DOP853_B, DOP853_C, cost=3.5)
