@@ -47,6 +47,14 @@ def _as_float(x: ArrayLike) -> Array:
     return x
 
 
+def _floats(obj: Any, *names: str) -> None:
+    """In ``__post_init__`` of a frozen pytree dataclass: the named fields as float arrays (``None`` stays)."""
+    for name in names:
+        v = getattr(obj, name)
+        if v is not None:
+            object.__setattr__(obj, name, _as_float(v))
+
+
 def _is_concrete(*xs: Any) -> bool:
     return all(
         isinstance(x, (np.ndarray, np.generic, float, int, jax.Array)) and not isinstance(x, jax.core.Tracer)

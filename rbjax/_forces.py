@@ -26,7 +26,7 @@ from jax import Array
 from jax.sharding import NamedSharding, PartitionSpec
 from jaxtyping import Float, Int
 
-from ._body import _as_float
+from ._body import _as_float, _floats
 from ._math import cross, quat_rotate, safe_norm
 from ._pytree import field, pytree_dataclass, static_field
 from ._quantities import angular_velocity
@@ -142,9 +142,7 @@ class LinearDrag(ForceModel):
         ) -> None: ...
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "linear", _as_float(self.linear))
-        if self.angular is not None:
-            object.__setattr__(self, "angular", _as_float(self.angular))
+        _floats(self, "linear", "angular")
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         f = -_cast(self.linear, state)[..., None] * state.velocity
@@ -173,9 +171,7 @@ class QuadraticDrag(ForceModel):
         ) -> None: ...
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "linear", _as_float(self.linear))
-        if self.angular is not None:
-            object.__setattr__(self, "angular", _as_float(self.angular))
+        _floats(self, "linear", "angular")
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         v = state.velocity
@@ -301,10 +297,7 @@ class Spring(ForceModel):
             object.__setattr__(self, "other", _as_index(self.other))
         elif self.anchor is None:
             raise ValueError("Spring: a world anchor is required when other is None")
-        for name in ("stiffness", "point", "anchor", "rest_length", "damping"):
-            v = getattr(self, name)
-            if v is not None:
-                object.__setattr__(self, name, _as_float(v))
+        _floats(self, "stiffness", "point", "anchor", "rest_length", "damping")
 
     @classmethod
     def to_anchor(
@@ -412,10 +405,7 @@ class Thruster(ForceModel):
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "body", _as_index(self.body))
-        for name in ("direction", "thrust", "point"):
-            v = getattr(self, name)
-            if v is not None:
-                object.__setattr__(self, name, _as_float(v))
+        _floats(self, "direction", "thrust", "point")
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         n = _check_flat("Thruster", state)
@@ -449,10 +439,7 @@ class ConstantForce(ForceModel):
         ) -> None: ...
 
     def __post_init__(self) -> None:
-        for name in ("force", "torque"):
-            v = getattr(self, name)
-            if v is not None:
-                object.__setattr__(self, name, _as_float(v))
+        _floats(self, "force", "torque")
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         f = None if self.force is None else _full(_cast(self.force, state), state)

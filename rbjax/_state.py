@@ -14,7 +14,7 @@ import numpy as np
 from jax import Array
 from jaxtyping import Float
 
-from ._body import Body, _as_float, _is_concrete
+from ._body import Body, _as_float, _floats, _is_concrete
 from ._math import cross, quat_rotate, quat_to_matrix
 from ._pytree import field, pytree_dataclass
 from ._typing import ArrayLike
@@ -314,11 +314,7 @@ class Forces:
         ) -> None: ...
 
     def __post_init__(self) -> None:
-        for name in ("force", "torque"):
-            v = getattr(self, name)
-            if v is not None:
-                v = _as_float(v)
-                object.__setattr__(self, name, v)
+        _floats(self, "force", "torque")
         _check_vectors("Forces", force=self.force, torque=self.torque)
 
     @classmethod
