@@ -139,7 +139,11 @@ _dw_rev = jax.jit(jax.jacrev(_final, argnums=1))
 _rhs = jax.jit(jax.vmap(_rhs_q, in_axes=(None, None, 0)))
 
 
-@pytest.mark.parametrize("name", ["non-diagonal", "oblate", "prolate", "sphere", "spin-major", "at-rest"])
+# the sphere (ω constant) runs with --runslow: 23 s of compile for the simplest branch
+@pytest.mark.parametrize(
+    "name",
+    ["non-diagonal", "oblate", "prolate", pytest.param("sphere", marks=pytest.mark.slow), "spin-major", "at-rest"],
+)
 def test_time_derivative_is_newton_euler(name):
     # d/dt of the exact solution (forward-mode AD through sn/cn/dn and Π) equals the
     # Newton-Euler right-hand side at the solution: 1e-12 (rounding in Π' and in AD
@@ -163,7 +167,10 @@ _GRAD_CASES = {
 }
 
 
-@pytest.mark.parametrize("name", list(_GRAD_CASES))
+# prolate shares oblate's axisymmetric branch; it runs with --runslow (37 s of compile here)
+@pytest.mark.parametrize(
+    "name", [pytest.param(n, marks=pytest.mark.slow) if n == "prolate" else n for n in _GRAD_CASES]
+)
 def test_gradient_wrt_initial_rate_matches_finite_differences(name):
     inertia, wb = _GRAD_CASES[name]
     t = 7.0
