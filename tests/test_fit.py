@@ -91,12 +91,17 @@ def test_known_torques_give_absolute_inertia():
     rb.Body(1.0, np.asarray(res.inertia))  # physically consistent by construction
 
 
-def test_batch_compiles_once_and_matches_single_fits():
+def _three_noisy_recordings():
+    """Three bodies, three spins, 1e-3 rad orientation noise: ``(bodies, (3, T, 4) orientations)``."""
     rng = np.random.default_rng(5)
     bodies = [I_TRUE, np.diag([1.0, 1.5, 2.2]), np.diag([2.0, 1.1, 2.9])]
     spins = [W0, [2.0, 0.5, 1.0], [0.4, 2.5, 0.6]]
     recs = [_record(T_FAST, I=I, w0=w) for I, w in zip(bodies, spins, strict=True)]
-    qs = np.stack([_noisy(q, wb, rng)[0] for q, wb in recs])
+    return bodies, np.stack([_noisy(q, wb, rng)[0] for q, wb in recs])
+
+
+def test_batch_compiles_once_and_matches_single_fits():
+    bodies, qs = _three_noisy_recordings()
     before = _fit._fit_batch_jit(jax.default_backend())._cache_size()
     res = rb.fit_inertia(T_FAST, qs, segments=2)
     res2 = rb.fit_inertia(T_FAST, qs[::-1], segments=2)  # new data, same shapes: no new trace
@@ -113,11 +118,7 @@ def test_batch_members_report_their_own_iterations():
     # count must freeze when it converges. If the count were the batch's, all would equal
     # the largest. The batched and single programs round differently, so a member's path
     # (and count) can differ from its single fit's; its optimum must not.
-    rng = np.random.default_rng(5)
-    bodies = [I_TRUE, np.diag([1.0, 1.5, 2.2]), np.diag([2.0, 1.1, 2.9])]
-    spins = [W0, [2.0, 0.5, 1.0], [0.4, 2.5, 0.6]]
-    recs = [_record(T_FAST, I=I, w0=w) for I, w in zip(bodies, spins, strict=True)]
-    qs = np.stack([_noisy(q, wb, rng)[0] for q, wb in recs])
+    bodies, qs = _three_noisy_recordings()
     batch = rb.fit_inertia(T_FAST, qs, segments=2)
     counts = np.asarray(batch.iterations)
     assert counts.min() < counts.max(), counts  # measured 7, 46, 7
