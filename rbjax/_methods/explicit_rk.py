@@ -23,8 +23,7 @@ import jax.numpy as jnp
 from .._dynamics import derivative
 from .._pytree import replace
 from .._simulate_support import constant_fields
-from .._state import MatrixState, ParticleState
-from .._state import State as State
+from .._state import MatrixState, ParticleState, State
 from . import Method, StepFn, register
 from ._common import materialise, project, torque_varies
 
