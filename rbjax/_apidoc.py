@@ -28,6 +28,7 @@ _GROUPS = {
     "_torque_free": "Simulation",
     "_math": "Rotations and vector algebra",
     "_fit": "Fitting inertia tensors",
+    "_fit_data": "Fitting inertia tensors",
     "_inertia_param": "Fitting inertia tensors",
     "_forces": "Scenes and force models",
     "_scene": "Scenes and force models",

@@ -16,8 +16,9 @@ rugged. Two standard remedies, both built on :func:`rbjax.step` /
   between chunks): each chunk's gradient is exact with respect to everything
   but the chunk's start, and nothing flows across a cut. Biased, but bounded.
 
-:func:`rbjax.fit_inertia` runs its segments through the same kernel as
-:func:`shoot` (per-step ``dt``, so irregular samples and padding are one path).
+:func:`rbjax.fit_inertia` shoots the same way, with the step functions of
+:func:`rbjax.step`, but carries forward sensitivities through its own scan
+(:mod:`rbjax._fit_model`): its solver needs the Jacobian, not just the states.
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ import pytest
 from reference import qmul, qrot, reference_rotation
 
 import rbjax as rb
-from rbjax import _fit
+from rbjax import _fit, _fit_data, _fit_model
 
 # a generic asymmetric body with off-diagonal products of inertia (unit-trace shape below)
 I_TRUE = np.array([[1.0, 0.1, -0.05], [0.1, 2.0, 0.08], [-0.05, 0.08, 2.6]])
@@ -91,6 +91,28 @@ def test_known_torques_give_absolute_inertia():
     rb.Body(1.0, np.asarray(res.inertia))  # physically consistent by construction
 
 
+@pytest.mark.parametrize("segments", [1, 3])
+def test_model_jacobian_matches_autodiff(segments):
+    # The solver's Jacobian is assembled by hand: sensitivities carried through the
+    # scan per segment, chained through the joins. Against JAX's own forward mode
+    # through the residuals, with torques, gyro, irregular times and padded segments.
+    # Both differentiate the same float64 arithmetic: agreement to rounding (1e-9).
+    t = np.cumsum(np.r_[0.0, np.random.default_rng(3).uniform(0.01, 0.03, 61)])  # 62 samples
+    q, wb = _record(t, torque=_torque)
+    tau = np.stack([_torque(ti, None, None) for ti in t])
+    prob = _fit_data.prepare(
+        t, q, wb, tau, initial_inertia=None, method="rk4", segments=segments, substeps=None,
+        orientation_std=1e-3, rate_std=1e-2, continuity_weight=1000.0, excitation_tol=1e-3,
+    )  # fmt: skip
+    model = jax.jit(lambda y, d: _fit_model._model(y, d, **prob.static))
+    data = jax.tree.map(lambda a: a[0], prob.data)
+    y = prob.y0[0] + np.random.default_rng(4).normal(0, 0.05, prob.y0.shape[1])  # off the optimum
+    assert data["seg"]["mask"].min() == 0  # 61 intervals / 3 segments: padding exercised
+    _, J = model(y, data)
+    J_ad = jax.jit(jax.jacfwd(lambda y: model(y, data)[0]))(y)
+    np.testing.assert_allclose(J, J_ad, rtol=1e-9, atol=1e-9 * np.abs(J_ad).max())
+
+
 def _three_noisy_recordings():
     """Three bodies, three spins, 1e-3 rad orientation noise: ``(bodies, (3, T, 4) orientations)``."""
     rng = np.random.default_rng(5)
@@ -121,12 +143,15 @@ def test_batch_members_report_their_own_iterations():
     bodies, qs = _three_noisy_recordings()
     batch = rb.fit_inertia(T_FAST, qs, segments=2)
     counts = np.asarray(batch.iterations)
-    assert counts.min() < counts.max(), counts  # measured 7, 46, 7
+    assert counts.min() < counts.max(), counts  # measured 7, 21, 5
     assert np.all(np.asarray(batch.converged))
     for k, q in enumerate(qs):
         single = rb.fit_inertia(T_FAST, q, segments=2)
-        # both stop at rtol = atol = 1e-8 on the parameters: the same optimum to ~1e-6
-        np.testing.assert_allclose(batch.inertia[k], single.inertia, rtol=0, atol=1e-6)
+        # both stop by the relative-reduction test (ftol = rtol = 1e-8): the step left
+        # is at most sqrt(ftol (n - p)) ≈ 0.004 σ long (n - p ≈ 1200), so the two stops
+        # agree to 0.01 σ (measured 0.001 σ)
+        diff = np.abs(np.asarray(batch.principal_moments[k]) - np.asarray(single.principal_moments))
+        np.testing.assert_array_less(diff, 0.01 * np.asarray(single.moment_std))
 
 
 def test_similar_lengths_share_one_compiled_program():
