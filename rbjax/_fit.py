@@ -307,10 +307,15 @@ def fit_inertia(
             information; measured on 4 s @ 1 kHz with 1e-3 rad + 0.01 rad/s noise
             (5 draws): mean error 1.7e-4 / 5.4e-5 / 4.5e-5 at weights 10 / 100 /
             1000, 14-29 Levenberg–Marquardt steps at 100 but 5 at 1000, 35-40 at
-            10 000 (stiff); hence the default 1000.
+            10 000 (stiff; counts before the relative-reduction stop); hence
+            the default 1000.
         excitation_tol: relative singular value below which a direction of the
             linearised problem counts as unidentifiable (``ValueError``).
         rtol, atol, max_steps: Levenberg–Marquardt tolerances and step limit.
+            The solve stops when an accepted step is within ``atol + rtol·|y|``
+            and changes the residuals by less than ``atol + rtol·|r|``, or when
+            a trial step's actual and predicted reductions of the sum of
+            squares are both below ``rtol`` of it (MINPACK's ``ftol`` test).
 
     Returns:
         :class:`FitResult` (with a leading ``N`` axis for batched input).
