@@ -305,10 +305,10 @@ def fit_inertia(
             (a join gap of ``σ / continuity_weight`` costs as much as one
             ``σ`` data residual). Soft joins let segments drift apart and lose
             information; measured on 4 s @ 1 kHz with 1e-3 rad + 0.01 rad/s noise
-            (5 draws): mean error 1.7e-4 / 5.4e-5 / 4.5e-5 at weights 10 / 100 /
-            1000, 14-29 Levenberg–Marquardt steps at 100 but 5 at 1000, 35-40 at
-            10 000 (stiff; counts before the relative-reduction stop); hence
-            the default 1000.
+            (5 draws, ``benchmarks/fit_weight.py``): mean error 1.7e-4 / 5.4e-5 /
+            4.5e-5 / 4.5e-5 at weights 10 / 100 / 1000 / 10 000, reported σ
+            calibrated (rms z ≈ 1) from 1000 on, 4-6 Levenberg–Marquardt
+            steps at every weight; hence the default 1000.
         excitation_tol: relative singular value below which a direction of the
             linearised problem counts as unidentifiable (``ValueError``).
         rtol, atol, max_steps: Levenberg–Marquardt tolerances and step limit.
