@@ -91,7 +91,8 @@ def test_known_torques_give_absolute_inertia():
     rb.Body(1.0, np.asarray(res.inertia))  # physically consistent by construction
 
 
-@pytest.mark.parametrize("segments", [1, 3])
+# one segment (no joins) compiles its own ~20 s program: with --runslow
+@pytest.mark.parametrize("segments", [pytest.param(1, marks=pytest.mark.slow), 3])
 def test_model_jacobian_matches_autodiff(segments):
     # The solver's Jacobian is assembled by hand: sensitivities carried through the
     # scan per segment, chained through the joins. Against JAX's own forward mode

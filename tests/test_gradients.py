@@ -23,9 +23,13 @@ from rbjax._methods.composition import COEFFICIENTS
 # cases); tests/test_rk8.py checks its derivative against central differences, and its driver
 # given rk4's tableau reproduces "rk4" (tested here) to 1e-13.
 METHODS = sorted(set(rb.methods(rb.State)) - set(COEFFICIENTS) - {"rk8"})
-# the implicit methods' Newton loops compile for ~30 s per case under both modes: their
-# finite-difference and checkpoint cases run with --runslow (the others stay in the quick suite)
+# the implicit methods' Newton loops compile for 15-35 s per case under both modes: their
+# finite-difference and degenerate-state cases run with --runslow (tests/test_integrators.py
+# checks their gradients at symmetric bodies at rest in the quick suite)
 HEAVY = [pytest.param(m, marks=pytest.mark.slow) if m.startswith("implicit") else m for m in METHODS]
+# checkpointing wraps whichever step it is given in the same segment loop: the quick suite
+# checks it with rk4, --runslow with every method
+CHECKPOINT = [m if m == "rk4" else pytest.param(m, marks=pytest.mark.slow) for m in METHODS]
 STEPS = 12
 
 
@@ -58,7 +62,9 @@ def _args(seed=0, w0=(0.4, 2.0, -0.3), r0=(0.2, -0.1, 0.3), I=(1.0, 2.0, 2.6, 0.
 def test_fwd_and_rev_match_finite_differences(method):
     # a random projection makes a scalar loss touching every output component
     proj = jnp.asarray(np.random.default_rng(1).normal(size=18))
-    loss = lambda *a: jnp.dot(proj, _final(method, *a))  # noqa: E731
+    # jitted so the finite differences and both modes each compile once (eager evaluation
+    # would recompile the scan on every call)
+    loss = jax.jit(lambda *a: jnp.dot(proj, _final(method, *a)))
     # float64 central differences with step 1e-4 (check_grads default): truncation ~1e-8
     # relative; check_grads' default float64 tolerance (1e-5) has a wide margin
     check_grads(loss, _args(), order=1, modes=("fwd", "rev"), eps=1e-4)
@@ -71,7 +77,7 @@ def test_fwd_and_rev_match_finite_differences(method):
         np.testing.assert_allclose(x, y, rtol=1e-10, atol=1e-12)
 
 
-@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("method", HEAVY)
 def test_gradients_finite_at_degenerate_states(method):
     # zero angular velocity, identity orientation, a sphere (three equal moments), and q -> -q
     sphere = (0.4, 0.4, 0.4, 0.0, 0.0, 0.0)
@@ -94,14 +100,15 @@ def test_sign_of_quaternion_does_not_change_gradients(method):
         s = rb.State.create(rb.Body(a[0], jnp.diag(a[1][:3])), orientation=q0, angular_velocity=w0)
         return rb.rotation_matrix(rb.simulate(s, None, a[8], STEPS, method))[-1]
 
-    Jp = jax.jacfwd(final_R)(a[5], q0)
-    Jm = jax.jacfwd(final_R)(a[5], -q0)
+    jac = jax.jit(jax.jacfwd(final_R))  # one program for both signs
+    Jp = jac(a[5], q0)
+    Jm = jac(a[5], -q0)
     assert np.all(np.isfinite(Jm))
     # R(q) = R(-q) and every update is odd in q: identical to round-off
     np.testing.assert_allclose(Jp, Jm, rtol=1e-12, atol=1e-13)
 
 
-@pytest.mark.parametrize("method", HEAVY)
+@pytest.mark.parametrize("method", CHECKPOINT)
 def test_checkpointing_gives_the_same_gradient(method):
     steps = 48
     rng = np.random.default_rng(2)

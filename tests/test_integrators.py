@@ -11,6 +11,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import rbjax as rb
+from rbjax._methods.composition import COEFFICIENTS
 from rbjax._methods.implicit_midpoint import _NEWTON, _newton, midpoint_momentum
 from tests.reference import quat_angle, reference_rotation
 
@@ -217,8 +218,12 @@ SYMMETRIC = {
 }
 
 
-# rk8's 12 unrolled stages take ~30 s to compile under reverse mode: with --runslow
-@pytest.mark.parametrize("method", [pytest.param(m, marks=pytest.mark.slow) if m == "rk8" else m for m in METHODS])
+# rk8's 12 unrolled stages take ~30 s to compile under reverse mode, and the compositions
+# splitting4/6/8 repeat the "splitting" step (quick suite) 5-17 times: both with --runslow
+@pytest.mark.parametrize(
+    "method",
+    [pytest.param(m, marks=pytest.mark.slow) if m == "rk8" or m in COEFFICIENTS else m for m in METHODS],
+)
 def test_symmetric_bodies_finite_values_and_gradients(method):
     # eigh's gradient is NaN at repeated moments; no method may pass it through.
     # One batch: each symmetric body at rest and tumbling (a zero ω is the other
