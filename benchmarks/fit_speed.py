@@ -28,7 +28,7 @@ import jax
 import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests"))
-from reference import qrot, reference_rotation  # noqa: E402
+from reference import imu_noise, reference_rotation, to_body  # noqa: E402
 
 import rbjax as rb  # noqa: E402
 
@@ -42,10 +42,7 @@ def recording(rng, times):
         I = np.diag([1.0, 2.0, 2.6])
     w0 = rng.normal(0, 1, 3) + np.array([0, 3.0, 0])
     q, w = reference_rotation(I, np.array([1.0, 0, 0, 0]), w0, times, rtol=1e-10, atol=1e-10)
-    wb = np.stack([qrot(qi * np.array([1, -1, -1, -1]), wi) for qi, wi in zip(q, w, strict=True)])
-    rv = rng.normal(0, 1e-3, wb.shape)
-    qn = np.asarray(rb.quat_multiply(q, rb.quat_exp(rv)))
-    return I / np.trace(I), qn, wb + rng.normal(0, 0.01, wb.shape)
+    return I / np.trace(I), *imu_noise(q, to_body(q, w), rng)
 
 
 def timed(fn):

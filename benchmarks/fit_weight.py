@@ -29,7 +29,7 @@ import jax
 import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests"))
-from reference import qrot, reference_rotation  # noqa: E402
+from reference import imu_noise, reference_rotation, to_body  # noqa: E402
 
 import rbjax as rb  # noqa: E402
 
@@ -45,13 +45,7 @@ def torque(t, q, w):
 
 def record(times, with_torque):
     q, w = reference_rotation(I_TRUE, np.array([1.0, 0, 0, 0]), W0, times, torque_world=torque if with_torque else None)
-    wb = np.stack([qrot(qi * np.array([1, -1, -1, -1]), wi) for qi, wi in zip(q, w, strict=True)])
-    return q, wb
-
-
-def noisy(q, wb, rng, sq, sw):
-    qn = np.asarray(rb.quat_multiply(q, rb.quat_exp(rng.normal(0, sq, wb.shape))))
-    return qn, wb + rng.normal(0, sw, wb.shape)
+    return q, to_body(q, w)
 
 
 def rel(a, b):
@@ -79,14 +73,14 @@ def main():
         clean = rel(fit(w, q).inertia, i_bar)
         errs, zs, sds, steps, conv, terrs = [], [], [], [], [], []
         for d in range(draws):
-            qn, wn = noisy(q, wb, np.random.default_rng(d), 1e-3, 0.01)
+            qn, wn = imu_noise(q, wb, np.random.default_rng(d))
             res = fit(w, qn, body_rates=wn)
             errs.append(rel(res.inertia, i_bar))
             zs.extend((np.asarray(res.principal_moments) - moments) / np.asarray(res.moment_std))
             sds.append(float(np.mean(res.moment_std)))
             steps.append(int(res.iterations))
             conv.append(bool(res.converged))
-            qn, wn = noisy(qt, wbt, np.random.default_rng(100 + d), 1e-3, 0.01)
+            qn, wn = imu_noise(qt, wbt, np.random.default_rng(100 + d))
             terrs.append(rel(fit(w, qn, body_rates=wn, torques=tau).inertia, I_TRUE))
         zs = np.asarray(zs)
         rows.append(

@@ -69,6 +69,23 @@ def reference_rotation(
     return q, w
 
 
+def to_body(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """World-frame vectors ``v (T, 3)`` in the body frames of ``q (T, 4)``: ``R(q)ᵀ v`` (a gyro's view of ω)."""
+    conj = np.array([1, -1, -1, -1])
+    return np.stack([qrot(qi * conj, vi) for qi, vi in zip(q, v, strict=True)])
+
+
+def imu_noise(
+    q: np.ndarray, wb: np.ndarray, rng: np.random.Generator, sq: float = 1e-3, sw: float = 0.01
+) -> tuple[np.ndarray, np.ndarray]:
+    """A noisy recording: ``q ⊗ exp(r)`` with ``r ~ N(0, sq²)`` per axis (rad), gyro ``wb + N(0, sw²)`` (rad/s)."""
+    rv = rng.normal(0, sq, wb.shape)
+    ang = np.linalg.norm(rv, axis=1, keepdims=True)
+    dq = np.concatenate([np.cos(ang / 2), np.sin(ang / 2) * rv / ang], axis=1)
+    qn = np.stack([qmul(a, b) for a, b in zip(q, dq, strict=True)])
+    return qn / np.linalg.norm(qn, axis=1, keepdims=True), wb + rng.normal(0, sw, wb.shape)
+
+
 def quat_angle(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     """Rotation angle between unit quaternions (sign-insensitive), radians.
 

@@ -77,14 +77,14 @@ def test_fit_reads_a_csv_recording_and_recovers_the_inertia(tmp_path, capsys):
     import json
 
     import numpy as np
-    from reference import qrot, reference_rotation
+    from reference import reference_rotation, to_body
 
     from rbjax._cli import main
 
     I_true = np.diag([1.0, 2.0, 2.6])
     t = np.linspace(0.0, 1.0, 201)
     q, w = reference_rotation(I_true, np.array([1.0, 0, 0, 0]), np.array([1.0, 0.3, -2.0]), t)
-    gyro = np.stack([qrot(qi * np.array([1, -1, -1, -1]), wi) for qi, wi in zip(q, w)])
+    gyro = to_body(q, w)
     path = tmp_path / "rec.csv"
     np.savetxt(path, np.column_stack([t, q, gyro]), delimiter=",", header="t,qw,qx,qy,qz,gx,gy,gz", comments="")
     out = tmp_path / "fit.json"

@@ -7,7 +7,7 @@ the shapes below so they reuse compiled programs.
 import jax
 import numpy as np
 import pytest
-from reference import qmul, qrot, reference_rotation
+from reference import imu_noise, reference_rotation, to_body
 
 import rbjax as rb
 from rbjax import _fit, _fit_data, _fit_model
@@ -20,16 +20,7 @@ W0 = np.array([0.3, 3.0, 0.4])  # near the intermediate axis: a tumble that exci
 
 def _record(times, torque=None, I=I_TRUE, w0=W0):
     q, w = reference_rotation(I, np.array([1.0, 0, 0, 0]), w0, times, torque_world=torque)
-    wb = np.stack([qrot(qi * np.array([1, -1, -1, -1]), wi) for qi, wi in zip(q, w, strict=True)])
-    return q, wb
-
-
-def _noisy(q, wb, rng, sq=1e-3, sw=0.01):
-    rv = rng.normal(0, sq, wb.shape)
-    ang = np.linalg.norm(rv, axis=1, keepdims=True)
-    dq = np.concatenate([np.cos(ang / 2), np.sin(ang / 2) * rv / ang], axis=1)
-    qn = np.stack([qmul(a, b) for a, b in zip(q, dq, strict=True)])
-    return qn / np.linalg.norm(qn, axis=1, keepdims=True), wb + rng.normal(0, sw, wb.shape)
+    return q, to_body(q, w)
 
 
 def _rel(a, b):
@@ -61,7 +52,7 @@ def test_clean_orientations_regular_and_irregular_times():
 
 def test_noisy_with_gyro_beats_linear_baseline_and_uncertainty_covers_truth():
     q, wb = _record(T_FAST)
-    qn, wn = _noisy(q, wb, np.random.default_rng(0))
+    qn, wn = imu_noise(q, wb, np.random.default_rng(0))
     res = rb.fit_inertia(T_FAST, qn, body_rates=wn)
     err = _rel(res.inertia, I_BAR)
     lls = _rel(rb.fit_inertia_linear(T_FAST, wn), I_BAR)
@@ -83,7 +74,7 @@ def _torque(t, q, w):
 def test_known_torques_give_absolute_inertia():
     q, wb = _record(T_FAST, torque=_torque)
     tau = np.stack([_torque(t, None, None) for t in T_FAST])
-    qn, wn = _noisy(q, wb, np.random.default_rng(1), sq=1e-4, sw=1e-3)
+    qn, wn = imu_noise(q, wb, np.random.default_rng(1), sq=1e-4, sw=1e-3)
     res = rb.fit_inertia(T_FAST, qn, body_rates=wn, torques=tau)
     assert res.scale_fixed
     # absolute (kg m²) within 1%; torques are linearly interpolated, exact here to O(dt²) ≈ 1e-5
@@ -120,7 +111,7 @@ def _three_noisy_recordings():
     bodies = [I_TRUE, np.diag([1.0, 1.5, 2.2]), np.diag([2.0, 1.1, 2.9])]
     spins = [W0, [2.0, 0.5, 1.0], [0.4, 2.5, 0.6]]
     recs = [_record(T_FAST, I=I, w0=w) for I, w in zip(bodies, spins, strict=True)]
-    return bodies, np.stack([_noisy(q, wb, rng)[0] for q, wb in recs])
+    return bodies, np.stack([imu_noise(q, wb, rng)[0] for q, wb in recs])
 
 
 def test_batch_compiles_once_and_matches_single_fits():
@@ -219,7 +210,7 @@ def test_full_rate_recordings_4s_1khz():
     res = rb.fit_inertia(times, q)
     assert _rel(res.inertia, I_BAR) < 1e-4
     # 1e-3 rad + 0.01 rad/s noise: within 1%, better than LLS (measured ~13% on this draw), 3 sigma
-    qn, wn = _noisy(q, wb, np.random.default_rng(0))
+    qn, wn = imu_noise(q, wb, np.random.default_rng(0))
     res = rb.fit_inertia(times, qn, body_rates=wn)
     err = _rel(res.inertia, I_BAR)
     assert err < 0.01 and err < _rel(rb.fit_inertia_linear(times, wn), I_BAR) / 10

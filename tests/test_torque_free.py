@@ -139,25 +139,20 @@ _dw_rev = jax.jit(jax.jacrev(_final, argnums=1))
 _rhs = jax.jit(jax.vmap(_rhs_q, in_axes=(None, None, 0)))
 
 
-# All cases in one test: the programs above take 20-50 s to compile per process, and one
-# test runs in one pytest-xdist worker, so they compile once (parametrised cases landed on
-# both workers and compiled twice). Each later case costs well under a second.
-DERIVATIVE_CASES = ["non-diagonal", "oblate", "prolate", "sphere", "spin-major", "at-rest"]
-
-
-def test_time_derivative_is_newton_euler():
+# every case, the sphere and prolate included: with `--dist loadfile` this module runs in one
+# worker, so the programs above compile once and each further case costs well under a second
+@pytest.mark.parametrize("name", ["non-diagonal", "oblate", "prolate", "sphere", "spin-major", "at-rest"])
+def test_time_derivative_is_newton_euler(name):
     # d/dt of the exact solution (forward-mode AD through sn/cn/dn and Π) equals the
     # Newton-Euler right-hand side at the solution: 1e-12 (rounding in Π' and in AD
     # through the 12-step recurrences, |q'| ≈ 0.5). Reverse mode agrees to 1e-12.
+    inertia, w = CASES[name]
+    w_world = np.asarray(rbjax.quat_rotate(Q0, _omega_body(inertia, w)))
     t = jnp.asarray(TIMES)
-    for name in DERIVATIVE_CASES:
-        inertia, w = CASES[name]
-        w_world = np.asarray(rbjax.quat_rotate(Q0, _omega_body(inertia, w)))
-        dq = _dt_fwd(inertia, w_world, t)
-        assert np.all(np.isfinite(np.asarray(dq))), name
-        np.testing.assert_allclose(dq[:, :4], _rhs(inertia, w_world, t), rtol=0, atol=1e-12, err_msg=name)
-        rev = _dt_rev(inertia, w_world, t)
-        np.testing.assert_allclose(rev, dq @ jnp.arange(1.0, 8.0), rtol=0, atol=1e-12, err_msg=name)
+    dq = _dt_fwd(inertia, w_world, t)
+    assert np.all(np.isfinite(np.asarray(dq)))
+    np.testing.assert_allclose(dq[:, :4], _rhs(inertia, w_world, t), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(_dt_rev(inertia, w_world, t), dq @ jnp.arange(1.0, 8.0), rtol=0, atol=1e-12)
 
 
 _GRAD_CASES = {
@@ -170,20 +165,20 @@ _GRAD_CASES = {
 }
 
 
-def test_gradient_wrt_initial_rate_matches_finite_differences():
-    # every case in one test: one compile of each program (see DERIVATIVE_CASES)
+@pytest.mark.parametrize("name", list(_GRAD_CASES))
+def test_gradient_wrt_initial_rate_matches_finite_differences(name):
+    inertia, wb = _GRAD_CASES[name]
     t = 7.0
+    w0 = np.asarray(rbjax.quat_rotate(Q0, np.asarray(wb)))
+    jac = np.asarray(_dw_fwd(inertia, w0, t))
+    jac_rev = np.asarray(_dw_rev(inertia, w0, t))
+    assert np.all(np.isfinite(jac)) and np.all(np.isfinite(jac_rev))
     h = 1e-5
-    for name, (inertia, wb) in _GRAD_CASES.items():
-        w0 = np.asarray(rbjax.quat_rotate(Q0, np.asarray(wb)))
-        jac = np.asarray(_dw_fwd(inertia, w0, t))
-        jac_rev = np.asarray(_dw_rev(inertia, w0, t))
-        assert np.all(np.isfinite(jac)) and np.all(np.isfinite(jac_rev)), name
-        f = lambda w: np.asarray(_final_jit(inertia, w, t))  # noqa: B023, E731
-        fd = np.stack([(f(w0 + h * e) - f(w0 - h * e)) / (2 * h) for e in np.eye(3)], axis=1)
-        # central differences: truncation h^2 |f'''| ~ 1e-9 (|f'''| ~ t^3 = 350), rounding eps/h ~ 1e-11
-        np.testing.assert_allclose(jac, fd, rtol=0, atol=2e-8, err_msg=name)
-        np.testing.assert_allclose(jac_rev, jac, rtol=0, atol=1e-12, err_msg=name)
+    f = lambda w: np.asarray(_final_jit(inertia, w, t))  # noqa: E731
+    fd = np.stack([(f(w0 + h * e) - f(w0 - h * e)) / (2 * h) for e in np.eye(3)], axis=1)
+    # central differences: truncation h^2 |f'''| ~ 1e-9 (|f'''| ~ t^3 = 350), rounding eps/h ~ 1e-11
+    np.testing.assert_allclose(jac, fd, rtol=0, atol=2e-8)
+    np.testing.assert_allclose(jac_rev, jac, rtol=0, atol=1e-12)
 
 
 def test_gradient_wrt_inertia():
