@@ -142,6 +142,9 @@ def test_checkpoint_with_save_every_and_bad_values():
             rb.simulate(s, None, 0.01, 40, "rk4", save_every=10, checkpoint=bad)
 
 
+# two reverse-mode compiles of a 1024-step rk4 scan (~20 s): with --runslow;
+# benchmarks/grad_memory.py measures the same saving up to 1e5 steps
+@pytest.mark.slow
 def test_checkpoint_reduces_compiled_memory():
     def loss(w, ck):
         body = rb.box(1.0, jnp.array([1.0, 2.0, 3.0]))
