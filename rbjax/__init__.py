@@ -143,6 +143,12 @@ from ._state import (
 )
 
 # isort: split
+# --- trajectories and batches: frames, slices, bodies, concatenation, sharding ---
+from ._body import symmetric_part as symmetric_part
+from ._sharding import batch_sharding as batch_sharding
+from ._trajectory import concatenate as concatenate
+
+# isort: split
 # --- tools: saving/loading, chunked long runs, checked mode ---
 from ._checked import Checks as Checks
 from ._chunked import simulate_chunked as simulate_chunked

@@ -93,6 +93,8 @@ def batch_shape(*trees: Any) -> tuple[int, ...]:
     for i in range(nd):
         sizes = {s[len(s) - nd + i] for s in shapes if len(s) >= nd - i}
         if len(sizes) > 1:
+            sizes.discard(1)  # NumPy rules: a size-1 axis is shared (a trajectory's shared body)
+        if len(sizes) > 1:
             raise ValueError(
                 f"batch shapes {sorted(set(shapes))} do not broadcast: each leaf must have "
                 "the full batch shape or a trailing part of it (shared over the rest)"
@@ -123,12 +125,30 @@ def _in_axes(obj: Any, level: int, nd: int, last: bool) -> Any:
     return replace(obj, **changes)
 
 
+def _expand_ones(obj: Any, full: tuple[int, ...], last: bool) -> Any:
+    """Broadcast the size-1 batch axes of ``obj``'s leaves to ``full`` (``vmap`` cannot share them)."""
+    nd = len(full)
+
+    def expand(a: Any, core: int) -> Any:
+        k = a.ndim - core
+        batch = a.shape[core:] if last else a.shape[:k]
+        want = tuple(n if b == 1 else b for b, n in zip(batch, full[nd - k :]))
+        if want == tuple(batch):
+            return a
+        return jnp.broadcast_to(a, a.shape[:core] + want if last else want + a.shape[k:])
+
+    return _map_leaves(obj, expand)
+
+
 def lift(fn: Callable[..., Any]) -> Callable[..., Any]:
     """Map a one-body function over the broadcast batch shape of its arguments."""
 
     def lifted(*args: Any) -> Any:
         last = _BATCH_LAST.get()
-        nd = len(batch_shape(*args))
+        full = batch_shape(*args)
+        nd = len(full)
+        if 1 in [s for a in args if is_rbjax_dataclass(a) for d in _batch_dims(a) for s in d]:
+            args = tuple(_expand_ones(a, full, last) for a in args)
         f = fn
         # innermost vmap maps the last batch dimension; batch-last, each level's
         # output axis goes just before those of the levels inside it

@@ -17,7 +17,8 @@ from jax import Array
 from jaxtyping import Float
 
 from ._math import skew
-from ._pytree import field, pytree_dataclass
+from ._pytree import field, new_unchecked, pytree_dataclass
+from ._trajectory import BatchIndexing
 from ._typing import ArrayLike
 
 __all__ = [
@@ -30,6 +31,7 @@ __all__ = [
     "parallel_axis",
     "rotate_inertia",
     "sphere",
+    "symmetric_part",
     "TRIANGLE_RTOL",
 ]
 
@@ -112,16 +114,32 @@ def _check_body(mass: Array, inertia: Array) -> None:
         )
 
 
+def symmetric_part(A: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 3 3"]:
+    """``½ (A + Aᵀ)`` of ``(..., 3, 3)`` matrices.
+
+    The value of a symmetric ``A`` is unchanged; what changes is the derivative:
+    a function that reads an inertia through this has a symmetric gradient with
+    respect to it, so one gradient step keeps the inertia symmetric.
+    """
+    A = jnp.asarray(A)
+    return 0.5 * (A + jnp.swapaxes(A, -1, -2))
+
+
 @pytree_dataclass
-class Body:
+class Body(BatchIndexing):
     """Mass properties of one rigid body, or of a batch of them.
 
     Attributes:
         mass: ``(*B,)`` mass ``m`` in kg.
         inertia: ``(*B, 3, 3)`` inertia tensor ``I_L`` in kg m², body frame, about
-            the centre of mass.
-        inverse_inertia: ``(*B, 3, 3)`` ``I_L⁻¹``, computed once at construction so
-            that no step solves a linear system.
+            the centre of mass (stored as its symmetric part ``½ (I + Iᵀ)``).
+
+    ``inverse_inertia`` (``I_L⁻¹``, ``(*B, 3, 3)``) is derived from ``inertia``,
+    not a second pytree leaf: ``jax.grad`` with respect to a ``Body`` returns the
+    total derivative in its ``inertia`` (symmetric, as rbjax reads the inertia
+    through :func:`symmetric_part`), and a gradient step cannot leave a stale
+    inverse behind. ``step`` and ``simulate`` compute the inverse once per call,
+    outside the time loop.
 
     ``Body(mass, inertia)`` checks, outside ``jit`` (when values are concrete),
     that the mass is positive and finite and that the inertia is symmetric,
@@ -132,19 +150,17 @@ class Body:
 
     mass: Float[Array, "*B"] = field(core_ndim=0)
     inertia: Float[Array, "*B 3 3"] = field(core_ndim=2)
-    # ``None`` only as the constructor's default: __post_init__ always fills it in
-    inverse_inertia: Float[Array, "*B 3 3"] = field(core_ndim=2, default=None)
+    # Set only inside step/simulate (see `prepare`): the inverse computed once from
+    # the symmetrised inertia, so the time loop never inverts. Never user-facing.
+    _inverse: Float[Array, "*B 3 3"] | None = field(core_ndim=2, default=None, repr=False)
 
     if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
 
-        def __init__(
-            self,
-            mass: Float[ArrayLike, "*B"],
-            inertia: Float[ArrayLike, "*B 3 3"],
-            inverse_inertia: Float[ArrayLike, "*B 3 3"] | None = None,
-        ) -> None: ...
+        def __init__(self, mass: Float[ArrayLike, "*B"], inertia: Float[ArrayLike, "*B 3 3"]) -> None: ...
 
     def __post_init__(self) -> None:
+        if self._inverse is not None:
+            raise TypeError("Body(mass, inertia): the inverse inertia is derived, not an argument")
         mass = _as_float(self.mass)
         inertia = _as_float(self.inertia)
         dtype = jnp.result_type(mass, inertia)
@@ -153,11 +169,15 @@ class Body:
             raise ValueError(f"Body: inertia must end in (3, 3), got shape {inertia.shape}")
         if _is_concrete(mass, inertia):
             _check_body(mass, inertia)
-        inv = self.inverse_inertia
-        inv = inverse_3x3(inertia) if inv is None else jnp.asarray(inv, dtype)
         object.__setattr__(self, "mass", mass)
-        object.__setattr__(self, "inertia", inertia)
-        object.__setattr__(self, "inverse_inertia", inv)
+        object.__setattr__(self, "inertia", symmetric_part(inertia))
+
+    @property
+    def inverse_inertia(self) -> Float[Array, "*B 3 3"]:
+        """``I_L⁻¹`` ``(*B, 3, 3)`` (kg⁻¹ m⁻², body frame), from the symmetric inertia."""
+        if self._inverse is not None:
+            return self._inverse
+        return inverse_3x3(symmetric_part(self.inertia))
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
@@ -179,6 +199,23 @@ class Body:
         moments, axes = jnp.linalg.eigh(self.inertia)
         sign = jnp.sign(jnp.linalg.det(axes))
         return moments, axes * sign[..., None, None]
+
+
+def prepare(body: Body) -> Body:
+    """``body`` with its inertia symmetrised and its inverse computed, for a time loop.
+
+    Inside ``step`` and ``simulate`` every read of the inertia then costs nothing
+    extra per step, and the derivative still flows through ``inertia`` alone.
+    """
+    if body._inverse is not None:
+        return body
+    I = symmetric_part(body.inertia)
+    return new_unchecked(Body, mass=body.mass, inertia=I, _inverse=inverse_3x3(I))
+
+
+def inertia_of(body: Body) -> Array:
+    """``body.inertia`` read through :func:`symmetric_part` (free for a prepared body)."""
+    return body.inertia if body._inverse is not None else symmetric_part(body.inertia)
 
 
 def _diag(d0: Array, d1: Array, d2: Array) -> Array:

@@ -19,9 +19,7 @@ from jaxtyping import Float
 
 from ._checked import Checks
 from ._io import ChunkWriter
-from ._pytree import data_fields, replace
-from ._simulate import _is_time_series, _run
-from ._simulate_support import constant_fields
+from ._simulate import _is_time_series, _run, start_time
 from ._state import ForceLike, Forces, StateT
 from ._typing import ArrayLike
 
@@ -40,14 +38,8 @@ def _progress_bar(progress: bool, total: int) -> Any:
 
 
 def _frames(traj: Any, sl: slice | int) -> Any:
-    """Slice the time axis of the changing fields (``body`` is not stacked)."""
-    consts = constant_fields(traj)
-    return replace(
-        traj,
-        **{
-            n: jax.tree.map(lambda a: a[sl], getattr(traj, n)) for n in type(traj)._rbjax_data_fields if n not in consts
-        },
-    )
+    """Slice the time axis (every leaf of a trajectory has it)."""
+    return jax.tree.map(lambda a: a[sl], traj)
 
 
 def simulate_chunked(
@@ -59,7 +51,7 @@ def simulate_chunked(
     *,
     save_every: int = 1,
     chunk_steps: int | None = None,
-    t0: Float[ArrayLike, ""] = 0.0,
+    t0: Float[ArrayLike, ""] | None = None,
     progress: bool = True,
     writer: ChunkWriter | None = None,
     keep: bool = True,
@@ -85,7 +77,7 @@ def simulate_chunked(
         checked: as in :func:`rbjax.simulate`; errors name the absolute step.
 
     Returns the trajectory with a leading time axis of ``steps // save_every +
-    1`` frames (``body`` not stacked), equal to ``simulate``'s to round-off in
+    1`` frames (as :func:`rbjax.simulate`), equal to ``simulate``'s to round-off in
     the time ``t`` passed to callable forces (each chunk starts at
     ``t0 + k dt``). Time-series forces ``(steps, *B, 3)`` are sliced per
     chunk. Not differentiable as a whole (it is a host loop); use ``simulate``
@@ -101,6 +93,7 @@ def simulate_chunked(
         raise ValueError(f"chunk_steps must be a positive multiple of save_every={save_every}, got {chunk_steps!r}")
     chunk_steps = int(min(chunk_steps, max(steps, save_every)))
     series = isinstance(forces, Forces) and _is_time_series(forces, state, steps)
+    t0 = start_time(state) if t0 is None else t0
     if writer is not None:
         writer.set_defaults(method=method, dt=dt, save_every=save_every, t0=t0)
     bar = _progress_bar(progress, steps)
@@ -119,7 +112,7 @@ def simulate_chunked(
                 n,
                 method,
                 save_every=save_every,
-                t0=t0_arr + done * dt_arr,
+                t0=t0_arr,
                 checked=checked,
                 step_offset=done,
             )
@@ -142,12 +135,4 @@ def simulate_chunked(
         return current
     if len(kept) == 1:
         return kept[0]
-    consts = constant_fields(state)
-    return replace(
-        kept[0],
-        **{
-            name: jax.tree.map(lambda *a: jnp.concatenate(a), *(getattr(k, name) for k in kept))
-            for name in data_fields(state)
-            if name not in consts
-        },
-    )
+    return jax.tree.map(lambda *a: jnp.concatenate(a), *kept)

@@ -17,6 +17,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from ._batching import lift
+from ._body import inertia_of
 from ._math import _matmul3, _pure_quat_multiply, cross, skew
 from ._pytree import replace
 from ._quantities import _omega_world
@@ -41,7 +42,7 @@ def _one_derivative(s: AnyState, f: Forces) -> AnyState:
             angular_momentum=tau,
         )
     R, w = s.rotation, s.angular_velocity
-    I_w = _matmul3(_matmul3(R, s.body.inertia), R.T)
+    I_w = _matmul3(_matmul3(R, inertia_of(s.body)), R.T)
     I_w_inv = _matmul3(_matmul3(R, s.body.inverse_inertia), R.T)
     return replace(
         s,

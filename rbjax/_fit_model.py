@@ -43,10 +43,11 @@ def _start(x, d, *, n_theta, scale_fixed):
     delta, w0 = x[n_theta : n_theta + 3], x[n_theta + 3 :]
     q0 = quat_multiply(d["q_start"], quat_exp(delta))
     one = jnp.ones((), I.dtype)
-    body = new_unchecked(Body, mass=one, inertia=I, inverse_inertia=inverse_3x3(I))
+    body = new_unchecked(Body, mass=one, inertia=I, _inverse=inverse_3x3(I))
     zero = jnp.zeros(3, I.dtype)
     L0 = quat_rotate(q0, _apply(I, w0))
-    return new_unchecked(State, body=body, position=zero, velocity=zero, orientation=q0, angular_momentum=L0)
+    return new_unchecked(State, body=body, position=zero, velocity=zero, orientation=q0, angular_momentum=L0, time=zero[0]
+    )
 
 
 def _sample(s, q_meas, w_meas, weight, d):

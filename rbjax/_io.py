@@ -75,6 +75,9 @@ def _rebuild(spec: dict[str, Any], prefix: str, arrays: dict[str, Any]) -> Any:
     if cls is None:
         raise ValueError(f"load: unknown pytree type {spec.get('type')!r} in the metadata")
     values = {}
+    for f in dataclasses.fields(cls):
+        if f.name not in spec["fields"] and f.default is not dataclasses.MISSING:
+            values[f.name] = None if f.default is None else jnp.asarray(f.default)  # a field newer than the file
     for name, sub in spec["fields"].items():
         path = f"{prefix}{name}"
         if sub is None:
@@ -90,8 +93,8 @@ def _rebuild(spec: dict[str, Any], prefix: str, arrays: dict[str, Any]) -> Any:
 def _time_stacked(obj: Any) -> list[str]:
     """Top-level fields of a trajectory that carry the leading time axis."""
     if isinstance(obj, (State, MatrixState, ParticleState)):
-        consts = constant_fields(obj)
-        return [f.name for f in dataclasses.fields(obj) if f.name not in consts]
+        # every field of a trajectory has the time axis (see rbjax._trajectory)
+        return [f.name for f in dataclasses.fields(obj) if getattr(obj, f.name) is not None]
     return []
 
 

@@ -48,11 +48,22 @@ def _is_static(f: dataclasses.Field) -> bool:
     return bool(f.metadata.get("static", False))
 
 
+def _summary_repr(self: Any) -> str:
+    # shapes and dtypes, not values: a batch of 1,000 states printed as numbers was
+    # 7,000 characters (equinox's tree printer, which rbjax already depends on)
+    import equinox as eqx
+
+    return eqx.tree_pformat(self, short_arrays=True)
+
+
 # tells type checkers that decorated classes are frozen dataclasses with these field specifiers
 @dataclass_transform(frozen_default=True, field_specifiers=(field, static_field, dataclasses.field))
 def pytree_dataclass(cls: type[T]) -> type[T]:
     """Make ``cls`` a frozen dataclass registered as a pytree with keyed paths."""
-    cls = dataclasses.dataclass(frozen=True)(cls)
+    own_repr = "__repr__" in cls.__dict__
+    cls = dataclasses.dataclass(frozen=True, repr=False)(cls)
+    if not own_repr:
+        cls.__repr__ = _summary_repr  # type: ignore[method-assign]
     fields = dataclasses.fields(cls)  # pyright: ignore[reportArgumentType]  (a dataclass since the line above)
     data = tuple(f.name for f in fields if not _is_static(f))
     meta = tuple(f.name for f in fields if _is_static(f))

@@ -11,6 +11,7 @@ from jax import Array
 from jaxtyping import Float
 
 from ._batching import lift
+from ._body import inertia_of
 from ._math import _dot3, _matmul3, cross, matrix_to_quat, quat_conjugate, quat_rotate, quat_to_matrix
 from ._pytree import new_unchecked
 from ._state import AnyState, MatrixState, ParticleState, RigidState, State, _apply
@@ -83,7 +84,7 @@ def orientation(state: RigidState) -> Float[Array, "*B 4"]:
 
 def _one_world_inertia(s: RigidState) -> Array:
     R = _one_rotation(s)
-    return _matmul3(_matmul3(R, s.body.inertia), R.T)
+    return _matmul3(_matmul3(R, inertia_of(s.body)), R.T)
 
 
 def world_inertia(state: RigidState) -> Float[Array, "*B 3 3"]:
@@ -97,7 +98,7 @@ def _one_angular_momentum(s: AnyState, about: Array | None) -> Array:
     if isinstance(s, State):
         L = s.angular_momentum
     else:
-        L = _apply(s.rotation, _apply(s.body.inertia, _apply(s.rotation.T, s.angular_velocity)))
+        L = _apply(s.rotation, _apply(inertia_of(s.body), _apply(s.rotation.T, s.angular_velocity)))
     if about is not None:
         L = L + cross(s.position - about, s.body.mass * s.velocity)
     return L
@@ -152,6 +153,7 @@ def to_matrix_state(state: State) -> MatrixState:
         velocity=state.velocity,
         rotation=R,
         angular_velocity=w,
+        time=state.time,
     )
 
 
@@ -168,4 +170,5 @@ def to_state(state: MatrixState) -> State:
         velocity=state.velocity,
         orientation=q,
         angular_momentum=L,
+        time=state.time,
     )

@@ -189,7 +189,7 @@ class Scene:
         if _is_concrete(state.body.inertia) and rank(found) > rank(self.kind):
             raise ValueError(f"this scene is specialised for {self.kind!r} bodies; the state's are {found!r}")
 
-    def step(self, state: StateT, dt: Float[ArrayLike, ""], t: Float[ArrayLike, ""] = 0.0) -> StateT:
+    def step(self, state: StateT, dt: Float[ArrayLike, ""], t: Float[ArrayLike, ""] | None = None) -> StateT:
         """One step of ``dt`` seconds from time ``t``; as :func:`rbjax.step` with the scene's forces."""
         self._check(state)
         return _step_fn(state, self.forces, dt, self.kernel, t=t)
@@ -201,12 +201,12 @@ class Scene:
         steps: int,
         *,
         save_every: int = 1,
-        t0: Float[ArrayLike, ""] = 0.0,
+        t0: Float[ArrayLike, ""] | None = None,
     ) -> StateT:
         """Trajectory of ``steps`` steps, every ``save_every``-th state kept; as :func:`rbjax.simulate`.
 
         Returns the state type with a leading time axis of length
-        ``steps // save_every + 1`` (initial state first); ``body`` is not stacked.
+        ``steps // save_every + 1`` (initial state first) on every leaf.
         A batch sharded over devices on its body axis stays sharded.
         """
         self._check(state)

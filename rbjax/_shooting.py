@@ -37,7 +37,8 @@ from . import _methods
 from ._batching import _in_axes, batch_shape
 from ._math import quat_conjugate, quat_log, quat_multiply
 from ._pytree import replace
-from ._simulate import as_force_fn, simulate
+from ._simulate import as_force_fn, simulate, start_time
+from ._trajectory import stack_frames
 from ._simulate_support import constant_fields
 from ._state import AnyState, ForceLike, Forces, State
 
@@ -60,12 +61,12 @@ def _scan_segment(state: Any, force_fn: Callable, dts: Array, t0: Array, step_fn
 
     def row(carry, dts_row):
         carry, _ = jax.lax.scan(sub, carry, dts_row)
-        return carry, carry[0]
+        return carry, carry
 
     dyn0 = strip(state)
-    _, frames = jax.lax.scan(row, (dyn0, t0), dts)
+    _, (frames, times) = jax.lax.scan(row, (dyn0, t0), dts)
     traj = jax.tree.map(lambda a0, a: jnp.concatenate([a0[None], a]), dyn0, frames)
-    return replace(traj, **consts)
+    return replace(traj, **{**consts, "time": jnp.concatenate([t0[None], times])})
 
 
 def shoot(
@@ -104,8 +105,8 @@ def shoot(
     Returns:
         ``(trajectories, ends)``: trajectories with leading axes
         ``(steps // save_every + 1, S, *B)`` (time first, as
-        :func:`rbjax.simulate`; constant fields not stacked over time) and the
-        end states ``(S, *B)``.
+        :func:`rbjax.simulate`, every leaf; ``time`` is ``(T, S, 1, ...)``, each
+        segment's own) and the end states ``(S, *B)``.
     """
     save_every = steps if save_every is None else save_every
     if not isinstance(steps, (int, np.integer)) or steps < 1:
@@ -138,15 +139,17 @@ def shoot(
     run = lambda s, d, t: _scan_segment(s, force_fn, d.reshape(n_save, save_every), t, step_fn)  # noqa: E731
     traj = jax.vmap(run, in_axes=(_in_axes(starts, 0, nd, last=False), 0, 0))(starts, dts, t0)
     consts = constant_fields(starts)
-    # vmap put segments first; time leads in rbjax trajectories, constant fields stay as given
+    # vmap put segments first; time leads in rbjax trajectories
     moved = {
         n: jax.tree.map(lambda a: jnp.moveaxis(a, 1, 0), getattr(traj, n))
         for n in type(traj)._rbjax_data_fields
         if n not in consts
     }
-    traj = replace(traj, **moved, **{n: getattr(starts, n) for n in consts})
-    ends = jax.tree.map(lambda a: a[-1], replace(traj, **{n: None for n in consts}))
-    return traj, replace(ends, **{n: getattr(starts, n) for n in consts})
+    times = jnp.moveaxis(traj.time, 1, 0)  # (T, S)
+    frames = replace(traj, **moved, **{n: None for n in consts})
+    ends = replace(jax.tree.map(lambda a: a[-1], frames), **{n: getattr(starts, n) for n in consts if n != "time"})
+    ends = replace(ends, time=times[-1].reshape(times.shape[1:] + (1,) * (nd - 1)))
+    return stack_frames(frames, starts, times.reshape(times.shape + (1,) * (nd - 1))), ends
 
 
 def defects(ends: State, starts: State) -> Float[Array, "S-1 *B 12"]:
@@ -192,7 +195,7 @@ def simulate_truncated(
     *,
     truncate_every: int,
     save_every: int = 1,
-    t0: Float[ArrayLike, ""] = 0.0,
+    t0: Float[ArrayLike, ""] | None = None,
 ) -> AnyState:
     """:func:`rbjax.simulate` with the derivative cut every ``truncate_every`` steps.
 
@@ -216,11 +219,11 @@ def simulate_truncated(
         method: integrator name.
         truncate_every: chunk length in steps (static); must be a multiple of ``save_every``.
         save_every: keep every ``save_every``-th state.
-        t0: start time (s).
+        t0: start time (s); default ``state.time``.
 
     Returns:
         Trajectory as :func:`rbjax.simulate`: leading time axis
-        ``steps // save_every + 1``; constant fields not stacked.
+        ``steps // save_every + 1`` on every leaf.
     """
     k = truncate_every
     if not isinstance(k, (int, np.integer)) or k < 1 or steps % k or k % save_every:
@@ -238,7 +241,7 @@ def simulate_truncated(
     )
     fs = jax.tree.map(lambda a: a.reshape((n_chunks, k) + a.shape[1:]), forces) if series else None
     dtype = state.dtype
-    t0 = jnp.asarray(t0, dtype)
+    t0 = start_time(state) if t0 is None else jnp.asarray(t0, dtype)
 
     def chunk(dyn, xs):
         i, f = xs
@@ -255,4 +258,5 @@ def simulate_truncated(
     _, rest = jax.lax.scan(chunk, carry, (jnp.arange(1, n_chunks, dtype=dtype), rest_f))
     rest = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:]), rest)
     traj = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), first, rest)
-    return replace(traj, **const_vals)
+    times = t0 + (save_every * jnp.arange(steps // save_every + 1)).astype(dtype) * dt  # as simulate's
+    return stack_frames(traj, state, times)

@@ -14,11 +14,13 @@ from jax import Array
 from jaxtyping import Float
 
 from . import _checked, _methods
-from ._batching import batch_last, batch_shape, to_batch_first, to_batch_last
+from ._batching import _map_leaves, batch_last, batch_shape, to_batch_first, to_batch_last
+from ._body import prepare
 from ._forces import ForceModel
 from ._pytree import replace
 from ._simulate_support import constant_fields
-from ._state import AnyState, ForceLike, Forces, StateT
+from ._state import AnyState, ForceLike, Forces, ParticleState, StateT
+from ._trajectory import stack_frames
 from ._typing import ArrayLike
 
 __all__ = ["step", "simulate", "as_force_fn"]
@@ -45,13 +47,68 @@ def as_force_fn(forces: ForceLike) -> Callable[[Any, Array], Forces]:
     raise TypeError(f"forces must be Forces, a callable (state, t) -> Forces, or None; got {type(forces)}")
 
 
+def cast_forces(forces: Forces, dtype: Any) -> Forces:
+    """``forces`` with its arrays in the state's ``dtype`` (a float64 force must not promote a float32 state)."""
+    cast = lambda a: None if a is None else a.astype(dtype)  # noqa: E731
+    if all(a is None or a.dtype == dtype for a in (forces.force, forces.torque)):
+        return forces
+    return replace(forces, force=cast(forces.force), torque=cast(forces.torque))
+
+
+def _cast_fn(fn: Callable[[Any, Array], Forces], dtype: Any) -> Callable[[Any, Array], Forces]:
+    def cast_fn(state: Any, t: Array) -> Forces:
+        out = fn(state, t)
+        return cast_forces(out, dtype) if isinstance(out, Forces) else out
+
+    return cast_fn
+
+
+def start_time(state: AnyState) -> Array:
+    """The one time ``t`` (s) of a state or batch, from ``state.time``."""
+    t = state.time
+    if t.size != 1:
+        if isinstance(t, jax.core.Tracer) or np.ptp(np.asarray(t)) != 0:
+            raise ValueError(
+                f"the states of a batch must share one time to be stepped together; state.time has shape "
+                f"{t.shape}. Set one with dataclasses.replace(state, time=t) or pass t0="
+            )
+    return jnp.reshape(t, (-1,))[0]
+
+
+def _canonical(state: Any) -> Any:
+    """A frame of a trajectory in the shapes of a fresh state: one compiled program for both.
+
+    Drops the leading size-1 batch axes of the shared fields (``body``: ``(1,)``
+    → ``()``) and makes a one-element ``time`` a scalar.
+    """
+    t = state.time
+    if t.ndim and t.size == 1:
+        state = replace(state, time=jnp.reshape(t, ()))
+    if isinstance(state, ParticleState) or 1 not in state.body.mass.shape:
+        return state
+
+    def squeeze(a: Array, core: int) -> Array:
+        k = a.ndim - core
+        drop = 0
+        while drop < k and a.shape[drop] == 1:  # leading size-1 axes broadcast: drop them
+            drop += 1
+        return a.reshape(a.shape[drop:])
+
+    return replace(state, body=_map_leaves(state.body, squeeze))
+
+
+def _prepared(state: Any) -> Any:
+    """``state`` with its body prepared for a time loop (see :func:`rbjax._body.prepare`)."""
+    return state if isinstance(state, ParticleState) else replace(state, body=prepare(state.body))
+
+
 def step(
     state: StateT,
     forces: ForceLike,
     dt: Float[ArrayLike, ""],
     method: str | Callable[..., Any] = "euler",
     *,
-    t: Float[ArrayLike, ""] = 0.0,
+    t: Float[ArrayLike, ""] | None = None,
 ) -> StateT:
     """Advance ``state`` by one step of ``dt`` seconds.
 
@@ -63,17 +120,24 @@ def step(
             where it needs it, or ``None``.
         dt: step (s), > 0.
         method: integrator name (static); see :func:`rbjax.methods`.
-        t: time (s) at the start of the step, passed to a callable ``forces``.
+        t: time (s) at the start of the step, passed to a callable ``forces``;
+            default ``state.time``.
 
-    Returns the new state, of the same type and shape. Pure; ``jit`` it with
+    Returns the new state, of the same type and shape, with ``time = t + dt``.
+    Forces are cast to the state's dtype. Pure; ``jit`` it with
     ``static_argnames="method"``.
     """
     fn = method if callable(method) else _methods.get(method, type(state))
     _check_dt(dt)
+    dtype = state.dtype
     if isinstance(forces, Forces):
+        forces = cast_forces(forces, dtype)
         batch_shape(state, forces)
-    dt = jnp.asarray(dt, state.dtype)
-    return fn(state, as_force_fn(forces), jnp.asarray(t, state.dtype), dt)
+    dt = jnp.asarray(dt, dtype)
+    t = start_time(state) if t is None else jnp.asarray(t, dtype)
+    new = fn(_prepared(_canonical(state)), _cast_fn(as_force_fn(forces), dtype), t, dt)
+    keep = {k: getattr(state, k) for k in constant_fields(state) if k != "time"}
+    return replace(new, **keep, time=jnp.broadcast_to(t + dt, jnp.shape(state.time)).astype(dtype))
 
 
 def _is_time_series(forces: Forces, state: AnyState, steps: int) -> bool:
@@ -101,7 +165,7 @@ def simulate(
     method: str | Callable[..., Any] = "euler",
     *,
     save_every: int = 1,
-    t0: Float[ArrayLike, ""] = 0.0,
+    t0: Float[ArrayLike, ""] | None = None,
     checked: bool | _checked.Checks = False,
     checkpoint: int | None = None,
 ) -> StateT:
@@ -123,7 +187,8 @@ def simulate(
         method: integrator name (static), or a hashable batch step function
             ``(state, force_fn, t, dt) -> state`` such as a :class:`rbjax.Scene`'s kernel.
         save_every: keep every ``save_every``-th state (static); must divide ``steps``.
-        t0: start time (s).
+        t0: start time (s); default ``state.time``, so ``simulate(traj[-1], ...)``
+            continues a run where it ended.
         checked: ``True`` or an :class:`rbjax.Checks` to test every step for a
             non-finite state or an orientation off the unit sphere, and every saved
             frame for an energy jump, raising an error that names the step and the
@@ -139,11 +204,16 @@ def simulate(
             gradients are unchanged (to round-off). See :func:`_checkpointed_scan`.
 
     Returns:
-        The trajectory, the same pytree type as ``state`` with a leading time axis
-        of length ``steps // save_every + 1`` on every changing field, starting
-        with the initial state. Constant fields (``body``; ``mass`` of particles)
-        are not repeated over time: they keep the initial state's shape and
-        broadcast against the time axis in every rbjax function.
+        The trajectory: the same pytree type as ``state`` with a leading time axis
+        of length ``T = steps // save_every + 1`` on every leaf, starting with the
+        initial state. ``time`` holds each frame's time ``t0 + k save_every dt``
+        as ``(T, 1, ..., 1)``. Fields no integrator changes (``body``; ``mass`` of
+        particles) are repeated per frame but not per body where the batch
+        shares them (a shared body is ``(T, 1, ...)``: one body per frame), so
+        ``jax.tree.map(lambda x: x[-1], traj)``, ``jax.vmap`` over frames and
+        concatenation along axis 0 all work on it; ``traj[i]``, ``traj[a:b]``,
+        ``traj[:, j]``, iteration and :func:`rbjax.concatenate` do the same with
+        checks. Forces are cast to the state's dtype.
 
     A new callable ``forces`` object compiles anew (it is a static argument).
     """
@@ -151,7 +221,12 @@ def simulate(
 
 
 def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoint=None, step_offset=0):
-    """``simulate`` after its signature; ``step_offset`` numbers steps in checked-mode errors."""
+    """``simulate`` after its signature.
+
+    ``step_offset`` is the number of steps already done from ``t0`` (a chunked
+    run): step ``k`` runs at ``t0 + (step_offset + k) dt``, and checked-mode
+    errors count from it.
+    """
     if not callable(method):  # a callable is a step fn, e.g. a Scene's specialised kernel
         _methods.get(method, type(state))
     if not isinstance(steps, (int, np.integer)) or steps < 0:
@@ -162,7 +237,10 @@ def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoin
     _check_dt(dt)
     _check_checkpoint(checkpoint, steps, save_every)
     force_fn = None
+    state = _canonical(state)
+    t0 = start_time(state) if t0 is None else t0
     if isinstance(forces, Forces):
+        forces = cast_forces(forces, state.dtype)
         series = _is_time_series(forces, state, steps)
         if not series:
             batch_shape(state, forces)
@@ -178,6 +256,7 @@ def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoin
         forces,
         jnp.asarray(dt),
         jnp.asarray(t0),
+        jnp.asarray(step_offset),
         steps=int(steps),
         method=method,
         save_every=int(save_every),
@@ -204,7 +283,7 @@ def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoin
     jax.jit,
     static_argnames=("steps", "method", "save_every", "series", "force_fn", "checks", "checkpoint"),
 )
-def _simulate(state, forces, dt, t0, *, steps, method, save_every, series, force_fn, checks=None, checkpoint=None):
+def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, force_fn, checks=None, checkpoint=None):
     step_fn = method if callable(method) else _methods.get(method, type(state))
     dtype = state.dtype
     dt, t0 = dt.astype(dtype), t0.astype(dtype)
@@ -219,15 +298,18 @@ def _simulate(state, forces, dt, t0, *, steps, method, save_every, series, force
     to_soa = to_batch_last if soa else (lambda x: x)  # noqa: E731
     to_aos = to_batch_first if soa else (lambda x: x)  # noqa: E731
 
+    initial = state
+    state = _prepared(state)
     consts = {k: getattr(state, k) for k in constant_fields(state)}
     consts_soa = {k: to_soa(v) for k, v in consts.items()}
+    # the time rides outside the carry too: one scalar per step, not one per body
     strip = lambda s: replace(s, **{k: None for k in consts})  # noqa: E731
-    user_fn = force_fn if force_fn is not None else as_force_fn(forces)
+    user_fn = _cast_fn(force_fn if force_fn is not None else as_force_fn(forces), dtype)
 
     def soa_forces(state, t):
         # force callables and models are batch-level code written batch-first
         with batch_last(False):
-            out = user_fn(replace(to_aos(strip(state)), **consts), t)
+            out = user_fn(replace(to_aos(strip(state)), **{**consts, "time": t}), t)
         return to_soa(out)
 
     const_forces = to_soa(forces) if isinstance(forces, Forces) and not series else None
@@ -242,10 +324,12 @@ def _simulate(state, forces, dt, t0, *, steps, method, save_every, series, force
             fn = lambda state, t: f  # noqa: E731
         elif const_forces is not None:
             fn = lambda state, t: const_forces  # noqa: E731
+        elif soa:
+            fn = soa_forces
         else:
-            fn = soa_forces if soa else user_fn
+            fn = lambda state, t: user_fn(replace(state, time=t), t)  # noqa: E731
         with batch_last(soa):
-            new = strip(step_fn(s, fn, t0 + k.astype(dtype) * dt, dt))
+            new = strip(step_fn(s, fn, t0 + (k0 + k).astype(dtype) * dt, dt))
         if checks is not None:
             rec = _checked.after_step(rec, replace(to_aos(new), **consts), k + 1, checks, steps)
         return (new, rec), None
@@ -276,7 +360,9 @@ def _simulate(state, forces, dt, t0, *, steps, method, save_every, series, force
     # step with ``save_every=1``: about 3x slower), so the copy stays.
     (_, rec), traj = _checkpointed_scan(chunk, carry0, (ks, fs), outer)
     traj = jax.tree.map(lambda a0, a: jnp.concatenate([a0[None], a]), strip(state), traj)
-    traj = replace(traj, **consts)
+    # t0 + (absolute step) dt, as the steps saw it: a chunked run gives the same bits
+    times = t0 + (k0 + save_every * jnp.arange(n_out + 1)).astype(dtype) * dt
+    traj = stack_frames(traj, initial, times)
     return traj if checks is None else (traj, rec)
 
 

@@ -8,11 +8,12 @@ from ._state import ParticleState
 
 __all__ = ["constant_fields"]
 
-# Fields that do not change along a trajectory: carried outside the scan and not
-# stacked over time in a returned trajectory.
-_CONSTANT_FIELDS: dict[type, tuple[str, ...]] = {ParticleState: ("mass",)}
+# Fields that no integrator method changes: carried outside the scan. ``time`` is
+# among them because a method is given ``t`` as an argument; ``step`` and
+# ``simulate`` advance it.
+_CONSTANT_FIELDS: dict[type, tuple[str, ...]] = {ParticleState: ("mass", "time")}
 
 
 def constant_fields(state: Any) -> tuple[str, ...]:
-    """Names of the fields of ``state`` that no integrator changes."""
-    return _CONSTANT_FIELDS.get(type(state), ("body",))
+    """Names of the fields of ``state`` that no integrator method changes (``body``, ``time``, ...)."""
+    return _CONSTANT_FIELDS.get(type(state), ("body", "time"))

@@ -9,14 +9,17 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, TypeVar, Union
 
+import jax
+import jax.core
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
 from jaxtyping import Float
 
-from ._body import Body, _as_float, _floats, _is_concrete
+from ._body import Body, _as_float, _floats, _is_concrete, inertia_of
 from ._math import cross, quat_rotate, quat_to_matrix
 from ._pytree import field, pytree_dataclass
+from ._trajectory import BatchIndexing
 from ._typing import ArrayLike
 
 __all__ = [
@@ -80,6 +83,26 @@ def _check_rotation(cls: str, R: Array) -> None:
         )
 
 
+def _convert(obj: Any, *names: str) -> None:
+    """In ``__post_init__``: array-likes (nested lists too) as float arrays of one dtype, and ``time`` with them.
+
+    The dtype is that of the state's arrays (and body), so a float32 state built
+    from Python lists stays float32 rather than taking ``time``'s default.
+    """
+    _floats(obj, *names)
+    body = getattr(obj, "body", None)
+    dtype = _dtype_of(body, *(getattr(obj, n) for n in names))
+    for n in names:
+        a = getattr(obj, n)
+        if a.dtype != dtype and not isinstance(a, jax.core.Tracer):
+            object.__setattr__(obj, n, a.astype(dtype))
+    t = getattr(obj, "time")
+    if isinstance(t, (int, float)) or not jnp.issubdtype(jnp.asarray(t).dtype, jnp.floating):
+        object.__setattr__(obj, "time", jnp.asarray(t, dtype))
+    elif _is_concrete(t) and not np.all(np.isfinite(np.asarray(t))):
+        raise ValueError(f"{type(obj).__name__}: time must be finite")
+
+
 def _dtype_of(body: Body | None, *xs: Any) -> Any:
     arrays = [jnp.asarray(x) for x in xs if x is not None]
     if body is not None:
@@ -93,7 +116,7 @@ def _vec(x: ArrayLike | None, default: tuple[float, ...], dtype: Any) -> Array:
 
 
 @pytree_dataclass
-class State:
+class State(BatchIndexing):
     """Rigid-body state in the notes' ``(x, v, q, L)`` form.
 
     Attributes:
@@ -102,10 +125,14 @@ class State:
         velocity: ``(*B, 3)`` centre-of-mass velocity ``v`` (world, m/s).
         orientation: ``(*B, 4)`` unit quaternion ``q = [w, x, y, z]``, body to world.
         angular_momentum: ``(*B, 3)`` ``L`` about the centre of mass (world, kg m²/s).
+        time: time ``t`` (s) of the state, ``()`` or broadcastable to ``B`` (a
+            trajectory's is ``(T, 1, ...)``). ``step`` advances it by ``dt``;
+            ``simulate`` starts from it, so continuing a run needs no ``t0``.
 
     The angular velocity is derived: ``ω = I_w⁻¹ L`` with ``I_w = R I_L Rᵀ``.
-    Direct construction validates shapes, finiteness and ``‖q‖ = 1`` (tolerance
-    :func:`quat_tolerance`) when values are concrete.
+    Direct construction takes array-likes (nested lists too) and validates shapes,
+    finiteness and ``‖q‖ = 1`` (tolerance :func:`quat_tolerance`) when values
+    are concrete.
     """
 
     body: Body
@@ -113,8 +140,22 @@ class State:
     velocity: Float[Array, "*B 3"] = field(core_ndim=1)
     orientation: Float[Array, "*B 4"] = field(core_ndim=1)
     angular_momentum: Float[Array, "*B 3"] = field(core_ndim=1)
+    time: Float[Array, "*B"] = field(core_ndim=0, default=0.0)
+
+    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
+
+        def __init__(
+            self,
+            body: Body,
+            position: Float[ArrayLike, "*B 3"],
+            velocity: Float[ArrayLike, "*B 3"],
+            orientation: Float[ArrayLike, "*B 4"],
+            angular_momentum: Float[ArrayLike, "*B 3"],
+            time: Float[ArrayLike, "*B"] = 0.0,
+        ) -> None: ...
 
     def __post_init__(self) -> None:
+        _convert(self, "position", "velocity", "orientation", "angular_momentum")
         _check_vectors(
             "State",
             position=self.position,
@@ -133,12 +174,13 @@ class State:
         velocity: Float[ArrayLike, "*B 3"] | None = None,
         orientation: Float[ArrayLike, "*B 4"] | None = None,
         angular_velocity: Float[ArrayLike, "*B 3"] | None = None,
+        time: Float[ArrayLike, ""] = 0.0,
     ) -> State:
         """State from kinematic quantities; missing ones are zero / identity.
 
         ``angular_velocity`` ``ω`` is in the world frame (rad/s); the stored
         momentum is ``L = R I_L Rᵀ ω``. All arguments broadcast against the
-        body's batch shape.
+        body's batch shape; ``time`` (s) is the state's ``t``.
         """
         dtype = _dtype_of(body, position, velocity, orientation, angular_velocity)
         q = _vec(orientation, (1.0, 0.0, 0.0, 0.0), dtype)
@@ -148,9 +190,9 @@ class State:
         _check_vectors("State.create", position=x, velocity=v, orientation=q, angular_velocity=w)
         shape = jnp.broadcast_shapes(body.batch_shape, x.shape[:-1], v.shape[:-1], q.shape[:-1], w.shape[:-1])
         _check_unit_quaternion("State.create", q)
-        L = quat_rotate(q, _apply(body.inertia, quat_rotate(_conj(q), w)))
+        L = quat_rotate(q, _apply(inertia_of(body), quat_rotate(_conj(q), w)))
         bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])  # noqa: E731
-        return cls(body, bc(x), bc(v), bc(q), bc(L))
+        return cls(body, bc(x), bc(v), bc(q), bc(L), jnp.asarray(time, dtype))
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
@@ -164,7 +206,7 @@ class State:
 
 
 @pytree_dataclass
-class MatrixState:
+class MatrixState(BatchIndexing):
     """Rigid-body state in the notes' ``(x, v, R, ω)`` form.
 
     Attributes:
@@ -174,6 +216,7 @@ class MatrixState:
         rotation: ``(*B, 3, 3)`` rotation matrix ``R``, body to world (columns are
             the body axes in world coordinates).
         angular_velocity: ``(*B, 3)`` ``ω`` (world, rad/s).
+        time: time ``t`` (s), as :attr:`State.time`.
     """
 
     body: Body
@@ -181,8 +224,22 @@ class MatrixState:
     velocity: Float[Array, "*B 3"] = field(core_ndim=1)
     rotation: Float[Array, "*B 3 3"] = field(core_ndim=2)
     angular_velocity: Float[Array, "*B 3"] = field(core_ndim=1)
+    time: Float[Array, "*B"] = field(core_ndim=0, default=0.0)
+
+    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
+
+        def __init__(
+            self,
+            body: Body,
+            position: Float[ArrayLike, "*B 3"],
+            velocity: Float[ArrayLike, "*B 3"],
+            rotation: Float[ArrayLike, "*B 3 3"],
+            angular_velocity: Float[ArrayLike, "*B 3"],
+            time: Float[ArrayLike, "*B"] = 0.0,
+        ) -> None: ...
 
     def __post_init__(self) -> None:
+        _convert(self, "position", "velocity", "rotation", "angular_velocity")
         _check_vectors(
             "MatrixState",
             position=self.position,
@@ -201,6 +258,7 @@ class MatrixState:
         velocity: Float[ArrayLike, "*B 3"] | None = None,
         orientation: Float[ArrayLike, "*B 4"] | Float[ArrayLike, "*B 3 3"] | None = None,
         angular_velocity: Float[ArrayLike, "*B 3"] | None = None,
+        time: Float[ArrayLike, ""] = 0.0,
     ) -> MatrixState:
         """State from kinematic quantities, as :meth:`State.create`.
 
@@ -220,7 +278,7 @@ class MatrixState:
         _check_vectors("MatrixState.create", position=x, velocity=v, rotation=R, angular_velocity=w)
         shape = jnp.broadcast_shapes(body.batch_shape, x.shape[:-1], v.shape[:-1], R.shape[:-2], w.shape[:-1])
         bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])  # noqa: E731
-        return cls(body, bc(x), bc(v), jnp.broadcast_to(R, shape + (3, 3)), bc(w))
+        return cls(body, bc(x), bc(v), jnp.broadcast_to(R, shape + (3, 3)), bc(w), jnp.asarray(time, dtype))
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
@@ -234,20 +292,33 @@ class MatrixState:
 
 
 @pytree_dataclass
-class ParticleState:
+class ParticleState(BatchIndexing):
     """Point masses (the notes' first slide): no orientation, nothing rotational.
 
     Attributes:
         position: ``(*B, 3)`` (world, m).
         velocity: ``(*B, 3)`` (world, m/s).
         mass: ``(*B,)`` kg, > 0.
+        time: time ``t`` (s), as :attr:`State.time`.
     """
 
     position: Float[Array, "*B 3"] = field(core_ndim=1)
     velocity: Float[Array, "*B 3"] = field(core_ndim=1)
     mass: Float[Array, "*B"] = field(core_ndim=0)
+    time: Float[Array, "*B"] = field(core_ndim=0, default=0.0)
+
+    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
+
+        def __init__(
+            self,
+            position: Float[ArrayLike, "*B 3"],
+            velocity: Float[ArrayLike, "*B 3"],
+            mass: Float[ArrayLike, "*B"],
+            time: Float[ArrayLike, "*B"] = 0.0,
+        ) -> None: ...
 
     def __post_init__(self) -> None:
+        _convert(self, "position", "velocity", "mass")
         _check_vectors("ParticleState", position=self.position, velocity=self.velocity)
         if _is_concrete(self.mass):
             m = np.asarray(self.mass)
@@ -261,8 +332,9 @@ class ParticleState:
         *,
         position: Float[ArrayLike, "*B 3"] | None = None,
         velocity: Float[ArrayLike, "*B 3"] | None = None,
+        time: Float[ArrayLike, ""] = 0.0,
     ) -> ParticleState:
-        """Particles from mass (kg) and optional position and velocity (zeros)."""
+        """Particles from mass (kg), optional position and velocity (zeros) and time (s)."""
         m = _as_float(mass)
         dtype = _dtype_of(None, m, position, velocity)
         x = _vec(position, (0.0, 0.0, 0.0), dtype)
@@ -272,6 +344,7 @@ class ParticleState:
             jnp.broadcast_to(x, shape + (3,)),
             jnp.broadcast_to(v, shape + (3,)),
             jnp.broadcast_to(m.astype(dtype), shape),
+            jnp.asarray(time, dtype),
         )
 
     @property

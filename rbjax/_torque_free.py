@@ -72,6 +72,7 @@ from . import _elliptic as ell
 from ._batching import lift
 from ._math import matrix_to_quat, quat_conjugate, quat_exp, quat_multiply, quat_rotate
 from ._pytree import new_unchecked
+from ._trajectory import stack_frames
 from ._quantities import _omega_world, to_matrix_state, to_state
 from ._state import MatrixState, RigidStateT, State
 from ._typing import ArrayLike
@@ -271,14 +272,16 @@ def _solve(state: State, ts: Array) -> State:
     q = jnp.moveaxis(q, -2, 0)
     shape = q.shape[:-1]
     tb = ts.reshape(ts.shape + (1,) * (len(shape) - 1) + (1,))
-    return new_unchecked(
+    frames = new_unchecked(
         State,
-        body=state.body,
+        body=None,
         position=state.position + tb * state.velocity,
         velocity=jnp.broadcast_to(state.velocity, shape + (3,)),
         orientation=q,
         angular_momentum=jnp.broadcast_to(state.angular_momentum, shape + (3,)),
+        time=None,
     )
+    return stack_frames(frames, state, jnp.reshape(state.time, (-1,))[0] + ts)
 
 
 def torque_free(state: RigidStateT, t: Float[ArrayLike, "*T"]) -> RigidStateT:
@@ -292,8 +295,8 @@ def torque_free(state: RigidStateT, t: Float[ArrayLike, "*T"]) -> RigidStateT:
 
     Returns:
         A state of the same type: batch shape ``B`` for scalar ``t``, or a
-        trajectory ``(T, *B)`` with a leading time axis as from
-        :func:`rbjax.simulate` (``body`` is not stacked over time).
+        trajectory ``(T, *B)`` with a leading time axis on every leaf, as from
+        :func:`rbjax.simulate`; each frame's ``time`` is ``state.time + t``.
         ``x(t) = x0 + v0 t``, ``v`` and world ``L`` are constant, and the
         attitude is the closed-form Euler–Poinsot solution: body angular
         momentum from the Jacobi functions ``sn, cn, dn`` (AGM / Landen), and the
@@ -367,5 +370,6 @@ def torque_free(state: RigidStateT, t: Float[ArrayLike, "*T"]) -> RigidStateT:
             velocity=out.velocity[0],
             orientation=out.orientation[0],
             angular_momentum=out.angular_momentum[0],
+            time=state.time + ts,
         )
     return cast(RigidStateT, out)  # state is a State here, so RigidStateT is State

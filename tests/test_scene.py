@@ -154,9 +154,8 @@ def test_mixed_batch_equals_per_body_runs():
         )
         alone = rb.Scene.build(one, forces, "rk4", kind="general")
         ref = alone.simulate(one, 0.01, 100, save_every=50)
-        mine = rb._pytree.replace(got, body=None)
-        mine = jax.tree.map(lambda a, i=i: a[:, i : i + 1], mine)
-        assert _max_rel(mine, rb._pytree.replace(ref, body=None)) < 1e-13, i
+        # got[:, i : i + 1]: every frame of body i, its body and time included
+        assert _max_rel(got[:, i : i + 1], ref) < 1e-13, i
 
 
 def _count_eqns(jaxpr):
@@ -232,12 +231,13 @@ SHARDING_CHECK = textwrap.dedent(
     runs = [(explicit, lambda st: scene.simulate(st, 0.01, 20, save_every=5)),
             (auto, lambda st: rb.simulate(st, rb.Gravity(), 0.01, 20, "euler", save_every=5))]
     for mesh, run in runs:
-        put = lambda a: jax.device_put(a, NamedSharding(mesh, P("bodies", *([None] * (a.ndim - 1)))))
-        traj, ref = run(jax.tree.map(put, s)), run(s)
+        traj, ref = run(jax.device_put(s, rb.batch_sharding(s, mesh))), run(s)
         for leaf in jax.tree.leaves(traj):
-            body_axis = 1 if leaf.shape[0] == 5 else 0  # 5 saved frames lead; body fields do not
             assert len(leaf.sharding.device_set) == 8, leaf.sharding
-            assert leaf.sharding.spec[body_axis] == "bodies", (leaf.shape, leaf.sharding)
+            if leaf.shape[1] == n:  # 5 saved frames lead, then the bodies
+                assert leaf.sharding.spec[1] == "bodies", (leaf.shape, leaf.sharding)
+            else:  # time: shared by the batch, (5, 1)
+                assert leaf.shape == (5, 1), leaf.shape
         err = jax.tree.map(lambda a, b: float(jnp.max(jnp.abs(a - b)) / jnp.max(jnp.abs(b))), traj, ref)
         worst = max(worst, max(jax.tree.leaves(err)))
     print("WORST", worst)
@@ -247,8 +247,8 @@ SHARDING_CHECK = textwrap.dedent(
 
 def test_sharded_simulate_keeps_sharding_and_results():
     # 8 host devices need XLA_FLAGS before JAX starts, hence a fresh process. Every output leaf
-    # must stay split over the 8 devices on its body axis (axis 1 behind time; the body, not
-    # stacked over time, on axis 0) for both mesh axis types (explicit: a Scene with springs that
+    # must stay split over the 8 devices on its body axis (axis 1, behind time) for both mesh
+    # axis types (explicit: a Scene with springs that
     # gather and scatter by body index; auto: rbjax.simulate), and equal the unsharded run to
     # round-off (the partitioned program may fuse differently): 1e-13 relative.
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=8", PYTHONPATH=ROOT, JAX_PLATFORMS="cpu")

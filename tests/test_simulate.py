@@ -89,7 +89,8 @@ def test_particles_euler_has_the_discrete_closed_form():
     g = np.array([0, 0, -9.81])
     expect = p.position + n * dt * p.velocity + n * (n - 1) / 2 * dt**2 * g
     np.testing.assert_allclose(traj.position[-1], expect, rtol=1e-12, atol=1e-12)
-    assert traj.mass.shape == (2,)  # constant fields are not stacked over time
+    # every leaf has the time axis (see rbjax._trajectory): the mass is each frame's
+    np.testing.assert_array_equal(traj.mass, np.broadcast_to(np.asarray(p.mass), (51, 2)))
 
 
 @pytest.mark.parametrize("cls", [rb.State, rb.MatrixState])
