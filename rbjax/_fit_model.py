@@ -46,7 +46,8 @@ def _start(x, d, *, n_theta, scale_fixed):
     body = new_unchecked(Body, mass=one, inertia=I, _inverse=inverse_3x3(I))
     zero = jnp.zeros(3, I.dtype)
     L0 = quat_rotate(q0, _apply(I, w0))
-    return new_unchecked(State, body=body, position=zero, velocity=zero, orientation=q0, angular_momentum=L0, time=zero[0]
+    return new_unchecked(
+        State, body=body, position=zero, velocity=zero, orientation=q0, angular_momentum=L0, time=zero[0]
     )
 
 

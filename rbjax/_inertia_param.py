@@ -18,9 +18,11 @@ in ``√(kg) m``, so ``I`` in kg m².
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
 from jaxtyping import Float
 
+from ._body import TRIANGLE_RTOL, _is_concrete
 from ._typing import ArrayLike
 
 __all__ = ["inertia_from_params", "params_from_inertia", "second_moment"]
@@ -56,23 +58,42 @@ def second_moment(inertia: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 3 3
     return 0.5 * tr[..., None, None] * jnp.eye(3, dtype=I.dtype) - I
 
 
-def params_from_inertia(inertia: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 6"]:
+def params_from_inertia(inertia: Float[ArrayLike, "... 3 3"], rtol: float = TRIANGLE_RTOL) -> Float[Array, "... 6"]:
     """Log-Cholesky parameters ``θ`` ``(..., 6)`` of a physically consistent inertia ``(..., 3, 3)``.
 
     Inverse of :func:`inertia_from_params`: ``Σ = ½ tr(I) 1 - I = L Lᵀ``
-    (Cholesky), ``θ = (log diag L, L10, L20, L21)``. An inertia that is not
-    strictly consistent (``Σ`` not positive definite: a flat plate, a rod, or
-    an impossible tensor) gives NaN; check it with :class:`rbjax.Body` first.
+    (Cholesky), ``θ = (log diag L, L10, L20, L21)``; ``I`` in kg m², body frame.
+
+    On the boundary of consistent inertias (``Σ`` singular: ``I1 + I2 = I3``,
+    a flat plate or a rod, which :class:`rbjax.Body` accepts) ``log L_ii`` would
+    be ``-∞``. Each Cholesky pivot is therefore floored at ``rtol · tr I``: the
+    parameters and their gradients stay finite, and ``inertia_from_params(θ)``
+    moves such an inertia inside by at most ``rtol · tr I`` (Body's own
+    tolerance, :data:`rbjax.TRIANGLE_RTOL`, by default); interior inertias,
+    whose pivots are above the floor, round-trip exactly. A concrete inertia
+    that breaks the triangle inequality by more than that raises ``ValueError``.
     """
-    L = jnp.linalg.cholesky(second_moment(inertia))
-    return jnp.stack(
-        [
-            jnp.log(L[..., 0, 0]),
-            jnp.log(L[..., 1, 1]),
-            jnp.log(L[..., 2, 2]),
-            L[..., 1, 0],
-            L[..., 2, 0],
-            L[..., 2, 1],
-        ],
-        axis=-1,
-    )
+    I = jnp.asarray(inertia)
+    if I.shape[-2:] != (3, 3):
+        raise ValueError(f"params_from_inertia: inertia must end in (3, 3), got shape {I.shape}")
+    if not jnp.issubdtype(I.dtype, jnp.floating):
+        I = I.astype(jnp.result_type(float))
+    S = second_moment(0.5 * (I + jnp.swapaxes(I, -1, -2)))
+    floor = rtol * jnp.trace(I, axis1=-2, axis2=-1)
+    if _is_concrete(I):
+        moments = np.linalg.eigvalsh(np.asarray(S, dtype=np.float64))
+        bad = moments[..., 0] < -rtol * np.asarray(np.trace(np.asarray(I), axis1=-2, axis2=-1))
+        if np.any(bad):
+            raise ValueError(
+                "params_from_inertia: the inertia breaks the triangle inequality I1 + I2 >= I3 "
+                f"(second-moment eigenvalues {np.atleast_2d(moments)[np.atleast_1d(bad)][0]}); no mass "
+                "distribution has it. Check it with rbjax.Body first."
+            )
+    # Cholesky of the 3x3 by hand, each pivot floored (jnp.linalg.cholesky gives NaN at a zero pivot)
+    s = lambda i, j: S[..., i, j]  # noqa: E731
+    l00 = jnp.sqrt(jnp.maximum(s(0, 0), floor))
+    l10, l20 = s(1, 0) / l00, s(2, 0) / l00
+    l11 = jnp.sqrt(jnp.maximum(s(1, 1) - l10**2, floor))
+    l21 = (s(2, 1) - l20 * l10) / l11
+    l22 = jnp.sqrt(jnp.maximum(s(2, 2) - l20**2 - l21**2, floor))
+    return jnp.stack([jnp.log(l00), jnp.log(l11), jnp.log(l22), l10, l20, l21], axis=-1)

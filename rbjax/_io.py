@@ -30,7 +30,6 @@ import numpy as np
 
 from ._body import Body
 from ._pytree import is_rbjax_dataclass, new_unchecked
-from ._simulate_support import constant_fields
 from ._state import Forces, MatrixState, ParticleState, State
 
 __all__ = ["save", "load", "ChunkWriter", "read_metadata"]
@@ -158,8 +157,7 @@ def save(
         path: file to write (written as given; no ``.npz`` is appended). Written
             atomically: a temporary file renamed into place.
         obj: a :class:`State`, :class:`MatrixState`, :class:`ParticleState` (one
-            body, a batch ``(*B, ...)`` or a trajectory ``(T, *B, ...)`` whose
-            ``body`` is not stacked over time), a :class:`Body` or
+            body, a batch ``(*B, ...)`` or a trajectory ``(T, *B, ...)``), a :class:`Body` or
             :class:`Forces`. Leaves are stored exactly, in their dtype.
         method, dt, save_every, t0: optional metadata describing how a
             trajectory was made (``dt``, ``t0`` in s); see :func:`read_metadata`.

@@ -38,9 +38,9 @@ from ._batching import _in_axes, batch_shape
 from ._math import quat_conjugate, quat_log, quat_multiply
 from ._pytree import replace
 from ._simulate import as_force_fn, simulate, start_time
-from ._trajectory import stack_frames
 from ._simulate_support import constant_fields
 from ._state import AnyState, ForceLike, Forces, State
+from ._trajectory import stack_frames
 
 __all__ = ["shoot", "defects", "simulate_truncated"]
 

@@ -64,10 +64,14 @@ def _cast_fn(fn: Callable[[Any, Array], Forces], dtype: Any) -> Callable[[Any, A
 
 
 def start_time(state: AnyState) -> Array:
-    """The one time ``t`` (s) of a state or batch, from ``state.time``."""
+    """The one time ``t`` (s) of a state or batch, from ``state.time``.
+
+    A batch is stepped on one clock: concrete times must all be equal; traced
+    ones (inside ``jit``) are taken from the first body.
+    """
     t = state.time
-    if t.size != 1:
-        if isinstance(t, jax.core.Tracer) or np.ptp(np.asarray(t)) != 0:
+    if t.size > 1 and not isinstance(t, jax.core.Tracer):
+        if np.ptp(np.asarray(t)) != 0:
             raise ValueError(
                 f"the states of a batch must share one time to be stepped together; state.time has shape "
                 f"{t.shape}. Set one with dataclasses.replace(state, time=t) or pass t0="
@@ -81,9 +85,6 @@ def _canonical(state: Any) -> Any:
     Drops the leading size-1 batch axes of the shared fields (``body``: ``(1,)``
     → ``()``) and makes a one-element ``time`` a scalar.
     """
-    t = state.time
-    if t.ndim and t.size == 1:
-        state = replace(state, time=jnp.reshape(t, ()))
     if isinstance(state, ParticleState) or 1 not in state.body.mass.shape:
         return state
 
@@ -206,8 +207,8 @@ def simulate(
     Returns:
         The trajectory: the same pytree type as ``state`` with a leading time axis
         of length ``T = steps // save_every + 1`` on every leaf, starting with the
-        initial state. ``time`` holds each frame's time ``t0 + k save_every dt``
-        as ``(T, 1, ..., 1)``. Fields no integrator changes (``body``; ``mass`` of
+        initial state. ``time`` ``(T, *B)`` holds each frame's time
+        ``t0 + k save_every dt``. Fields no integrator changes (``body``; ``mass`` of
         particles) are repeated per frame but not per body where the batch
         shares them (a shared body is ``(T, 1, ...)``: one body per frame), so
         ``jax.tree.map(lambda x: x[-1], traj)``, ``jax.vmap`` over frames and
@@ -309,7 +310,8 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
     def soa_forces(state, t):
         # force callables and models are batch-level code written batch-first
         with batch_last(False):
-            out = user_fn(replace(to_aos(strip(state)), **{**consts, "time": t}), t)
+            s = to_aos(strip(state))
+            out = user_fn(replace(s, **{**consts, "time": jnp.broadcast_to(t, s.position.shape[:-1])}), t)
         return to_soa(out)
 
     const_forces = to_soa(forces) if isinstance(forces, Forces) and not series else None
@@ -327,7 +329,7 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
         elif soa:
             fn = soa_forces
         else:
-            fn = lambda state, t: user_fn(replace(state, time=t), t)  # noqa: E731
+            fn = lambda state, t: user_fn(replace(state, time=jnp.broadcast_to(t, state.position.shape[:-1])), t)  # noqa: E731
         with batch_last(soa):
             new = strip(step_fn(s, fn, t0 + (k0 + k).astype(dtype) * dt, dt))
         if checks is not None:

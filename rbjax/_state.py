@@ -96,11 +96,19 @@ def _convert(obj: Any, *names: str) -> None:
         a = getattr(obj, n)
         if a.dtype != dtype and not isinstance(a, jax.core.Tracer):
             object.__setattr__(obj, n, a.astype(dtype))
-    t = getattr(obj, "time")
-    if isinstance(t, (int, float)) or not jnp.issubdtype(jnp.asarray(t).dtype, jnp.floating):
-        object.__setattr__(obj, "time", jnp.asarray(t, dtype))
-    elif _is_concrete(t) and not np.all(np.isfinite(np.asarray(t))):
+    t = obj.time
+    batch = getattr(obj, names[0]).shape[:-1]
+    t = jnp.asarray(t).astype(dtype)
+    if _is_concrete(t) and not np.all(np.isfinite(np.asarray(t))):
         raise ValueError(f"{type(obj).__name__}: time must be finite")
+    try:
+        # one clock per body, so that slicing every leaf of a batch (jax.tree.map) keeps it
+        t = jnp.broadcast_to(t, batch)
+    except ValueError:
+        raise ValueError(
+            f"{type(obj).__name__}: time of shape {jnp.shape(t)} does not broadcast to the batch shape {batch}"
+        ) from None
+    object.__setattr__(obj, "time", t)
 
 
 def _dtype_of(body: Body | None, *xs: Any) -> Any:
@@ -125,8 +133,8 @@ class State(BatchIndexing):
         velocity: ``(*B, 3)`` centre-of-mass velocity ``v`` (world, m/s).
         orientation: ``(*B, 4)`` unit quaternion ``q = [w, x, y, z]``, body to world.
         angular_momentum: ``(*B, 3)`` ``L`` about the centre of mass (world, kg m²/s).
-        time: time ``t`` (s) of the state, ``()`` or broadcastable to ``B`` (a
-            trajectory's is ``(T, 1, ...)``). ``step`` advances it by ``dt``;
+        time: ``(*B,)`` time ``t`` (s) of each state; the bodies of a batch that
+            is stepped together share one clock. ``step`` advances it by ``dt``;
             ``simulate`` starts from it, so continuing a run needs no ``t0``.
 
     The angular velocity is derived: ``ω = I_w⁻¹ L`` with ``I_w = R I_L Rᵀ``.
@@ -192,7 +200,7 @@ class State(BatchIndexing):
         _check_unit_quaternion("State.create", q)
         L = quat_rotate(q, _apply(inertia_of(body), quat_rotate(_conj(q), w)))
         bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])  # noqa: E731
-        return cls(body, bc(x), bc(v), bc(q), bc(L), jnp.asarray(time, dtype))
+        return cls(body, bc(x), bc(v), bc(q), bc(L), jnp.broadcast_to(jnp.asarray(time, dtype), shape))
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
@@ -278,7 +286,8 @@ class MatrixState(BatchIndexing):
         _check_vectors("MatrixState.create", position=x, velocity=v, rotation=R, angular_velocity=w)
         shape = jnp.broadcast_shapes(body.batch_shape, x.shape[:-1], v.shape[:-1], R.shape[:-2], w.shape[:-1])
         bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])  # noqa: E731
-        return cls(body, bc(x), bc(v), jnp.broadcast_to(R, shape + (3, 3)), bc(w), jnp.asarray(time, dtype))
+        R = jnp.broadcast_to(R, shape + (3, 3))
+        return cls(body, bc(x), bc(v), R, bc(w), jnp.broadcast_to(jnp.asarray(time, dtype), shape))
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
@@ -344,7 +353,7 @@ class ParticleState(BatchIndexing):
             jnp.broadcast_to(x, shape + (3,)),
             jnp.broadcast_to(v, shape + (3,)),
             jnp.broadcast_to(m.astype(dtype), shape),
-            jnp.asarray(time, dtype),
+            jnp.broadcast_to(jnp.asarray(time, dtype), shape),
         )
 
     @property

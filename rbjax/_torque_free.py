@@ -72,9 +72,9 @@ from . import _elliptic as ell
 from ._batching import lift
 from ._math import matrix_to_quat, quat_conjugate, quat_exp, quat_multiply, quat_rotate
 from ._pytree import new_unchecked
-from ._trajectory import stack_frames
 from ._quantities import _omega_world, to_matrix_state, to_state
 from ._state import MatrixState, RigidStateT, State
+from ._trajectory import stack_frames
 from ._typing import ArrayLike
 
 __all__ = ["torque_free"]

@@ -3,9 +3,9 @@
 A trajectory from :func:`rbjax.simulate` (or :func:`rbjax.torque_free` with an
 array of times) is a state of the same type whose every leaf has a leading time
 axis ``T``: the changing fields ``(T, *B, ...)``, and the fields no integrator
-changes (``body``, a particle's ``mass``) and ``time`` too. Fields shared by a
-whole batch keep size-1 batch axes, ``(T, 1, ..., 1, ...)``, and broadcast like
-NumPy, so a shared body costs one body per frame, not one per body and frame.
+changes (``body``, a particle's ``mass``) and ``time`` (``(T, *B)``) too. A body
+shared by the whole batch keeps size-1 batch axes, ``(T, 1, ..., 1, ...)``, and
+broadcasts like NumPy: one body per frame, not one per body and frame.
 
 Because every leaf has the time axis, the JAX idioms work on trajectories as
 they are: ``jax.tree.map(lambda x: x[-1], traj)`` is the last frame,
@@ -70,8 +70,8 @@ def stack_frames(frames: T, initial: Any, times: Any) -> T:
 
     Every other field of ``initial`` (``body``, particle ``mass``) gets a leading
     time axis of length ``T``: shared batch axes stay size 1, so nothing is copied
-    per body. ``times`` ``(T,)`` becomes ``time`` ``(T, 1, ..., 1)``; a ``times``
-    of higher rank is taken as the full ``time`` field.
+    per body. ``times`` ``(T,)`` (or ``(T, S, 1, ...)``, one per segment) is
+    broadcast to ``time`` ``(T, *B)``.
     """
     n = times.shape[0]
     nb = len(initial.batch_shape)
@@ -87,7 +87,8 @@ def stack_frames(frames: T, initial: Any, times: Any) -> T:
 
         v = getattr(initial, name)
         changes[name] = _map(v, per_frame) if is_rbjax_dataclass(v) else per_frame(v, 0)
-    changes["time"] = jnp.reshape(times, (n,) + (1,) * nb) if times.ndim == 1 else times
+    lead = jnp.reshape(times, (n,) + (1,) * nb) if times.ndim == 1 else times
+    changes["time"] = jnp.broadcast_to(lead, (n,) + tuple(initial.batch_shape))
     return replace(frames, **changes)
 
 
@@ -100,8 +101,8 @@ def _normalise(idx: Any, shape: tuple[int, ...], what: str) -> tuple[Any, ...]:
         idx = (idx,)
     if sum(i is Ellipsis for i in idx) > 1:
         raise IndexError(f"{what}: an index can have only one Ellipsis (...)")
-    if Ellipsis in idx:
-        k = idx.index(Ellipsis)
+    if any(i is Ellipsis for i in idx):
+        k = next(j for j, i in enumerate(idx) if i is Ellipsis)
         idx = idx[:k] + (slice(None),) * (len(shape) - len(idx) + 1) + idx[k + 1 :]
     if not shape:
         raise TypeError(
@@ -233,7 +234,9 @@ def concatenate(items: Sequence[T], axis: int = 0) -> T:
         raise ValueError("concatenate: needs at least one state")
     kind = type(items[0])
     if not is_rbjax_dataclass(items[0]) or any(type(s) is not kind for s in items):
-        raise TypeError(f"concatenate: items must all be rbjax states or bodies of one type, got {[type(s) for s in items]}")
+        raise TypeError(
+            f"concatenate: items must all be rbjax states or bodies of one type, got {[type(s) for s in items]}"
+        )
     shapes = [full_batch_shape(s) for s in items]
     nd = len(shapes[0])
     if not -nd <= axis < nd:
@@ -247,7 +250,9 @@ def concatenate(items: Sequence[T], axis: int = 0) -> T:
         raise ValueError(f"concatenate: the {kind.__name__}s have different structures (a field None in some)")
     dtypes = {str(s.dtype) for s in items if hasattr(s, "dtype")}
     if len(dtypes) > 1:
-        raise ValueError(f"concatenate: dtypes differ ({sorted(dtypes)}); cast first, e.g. jax.tree.map(lambda a: a.astype(...))")
+        raise ValueError(
+            f"concatenate: dtypes differ ({sorted(dtypes)}); cast first, e.g. jax.tree.map(lambda a: a.astype(...))"
+        )
     per_item = [list(_leaves(s)) for s in items]
     new_leaves = []
     for j, (_, _, path, leaf, core) in enumerate(per_item[0]):
@@ -268,14 +273,21 @@ def concatenate(items: Sequence[T], axis: int = 0) -> T:
         new_leaves.append(jnp.concatenate(full, axis=axis))
     times = [getattr(s, "time", None) for s in items]
     if axis == 0 and all(t is not None and t.ndim == nd for t in times):
-        _check_times(times)
+        _check_times(times)  # only where the items look like trajectories (see there)
     # _leaves walks the fields in pytree order, as jax.tree.leaves does
     return jax.tree.unflatten(jax.tree.structure(items[0]), new_leaves)
 
 
 def _check_times(times: list[Any]) -> None:
-    """Concrete times along the first axis must not go backwards from one item to the next."""
+    """Trajectories must not go back in time from one item to the next.
+
+    Items count as trajectories when their concrete times increase along the
+    first axis (a batch of bodies at one time does not, and is not checked).
+    """
     if any(isinstance(t, jax.core.Tracer) for t in times):
+        return
+    arrs = [np.asarray(t).reshape(t.shape[0], -1)[:, 0] for t in times]
+    if not any(len(a) > 1 for a in arrs) or not all(np.all(np.diff(a) > 0) for a in arrs):
         return
     ends = [(float(np.min(np.asarray(t)[:1])), float(np.max(np.asarray(t)[-1:]))) for t in times]
     for k in range(1, len(ends)):

@@ -234,10 +234,8 @@ SHARDING_CHECK = textwrap.dedent(
         traj, ref = run(jax.device_put(s, rb.batch_sharding(s, mesh))), run(s)
         for leaf in jax.tree.leaves(traj):
             assert len(leaf.sharding.device_set) == 8, leaf.sharding
-            if leaf.shape[1] == n:  # 5 saved frames lead, then the bodies
-                assert leaf.sharding.spec[1] == "bodies", (leaf.shape, leaf.sharding)
-            else:  # time: shared by the batch, (5, 1)
-                assert leaf.shape == (5, 1), leaf.shape
+            assert leaf.shape[:2] == (5, n)  # 5 saved frames lead, then the bodies
+            assert leaf.sharding.spec[1] == "bodies", (leaf.shape, leaf.sharding)
         err = jax.tree.map(lambda a, b: float(jnp.max(jnp.abs(a - b)) / jnp.max(jnp.abs(b))), traj, ref)
         worst = max(worst, max(jax.tree.leaves(err)))
     print("WORST", worst)
