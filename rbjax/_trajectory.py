@@ -248,14 +248,14 @@ def concatenate(items: Sequence[T], axis: int = 0) -> T:
     treedefs = {jax.tree.structure(s) for s in items}
     if len(treedefs) > 1:
         raise ValueError(f"concatenate: the {kind.__name__}s have different structures (a field None in some)")
-    dtypes = {str(s.dtype) for s in items if hasattr(s, "dtype")}
+    dtypes = {str(jax.tree.leaves(s)[0].dtype) for s in items}
     if len(dtypes) > 1:
         raise ValueError(
             f"concatenate: dtypes differ ({sorted(dtypes)}); cast first, e.g. jax.tree.map(lambda a: a.astype(...))"
         )
     per_item = [list(_leaves(s)) for s in items]
     new_leaves = []
-    for j, (_, _, path, leaf, core) in enumerate(per_item[0]):
+    for j, (*_, leaf, core) in enumerate(per_item[0]):
         arrays = [p[j][3] for p in per_item]
         lead = nd - (leaf.ndim - core)
         shared = all(a.ndim == leaf.ndim for a in arrays) and (

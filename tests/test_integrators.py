@@ -100,6 +100,11 @@ def test_convergence_order(method, conv_reference):
     # and 8 (splitting6/8): the fewest steps past the pre-asymptotic range (local
     # slopes over n = 4..128 measured flat from there), errors 1e-6..1e-10 at 2n.
     ns = {1: [12800] * 4, 2: [400] * 4, 4: [40, 40, 40, 320], 6: [16, 16, 16, 32], 8: [8, 8, 8, 24]}[order]
+    if method == "rk4_body":
+        # the rod is stiff only in the L-form (ω₁ = L₁/d₁ amplifies L's error 1000x); in the
+        # body frame Euler's equations have no 1/d₁ (ω̇₁ = (d₂ - d₃)/d₁ ω₂ω₃ ≈ -0.9 ω₂ω₃), so at
+        # 320 steps its error (3e-10) meets the reference's floor: 40 steps as elsewhere
+        ns = [40] * 4
     if method == "rk8":
         # rk8 on the generic tumble is pre-asymptotic until its error meets the reference's
         # ~1e-12 floor (local slopes 7.4 -> 7.7 from n = 8 to 48; 8.0 only against the exact

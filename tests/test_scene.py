@@ -238,6 +238,12 @@ SHARDING_CHECK = textwrap.dedent(
             assert leaf.sharding.spec[1] == "bodies", (leaf.shape, leaf.sharding)
         err = jax.tree.map(lambda a, b: float(jnp.max(jnp.abs(a - b)) / jnp.max(jnp.abs(b))), traj, ref)
         worst = max(worst, max(jax.tree.leaves(err)))
+    # the README's normal case: one body shared by the batch (replicated, not split)
+    shared = rb.State.create(rb.box(1.0, [0.1, 0.2, 0.4]), angular_velocity=rng.normal(size=(n, 3)))
+    traj = rb.simulate(jax.device_put(shared, rb.batch_sharding(shared, auto)), None, 0.01, 20, "rk4", save_every=5)
+    assert traj.position.sharding.spec[1] == "bodies" and traj.body.mass.shape == (5, 1)
+    ref = rb.simulate(shared, None, 0.01, 20, "rk4", save_every=5)
+    worst = max(worst, float(jnp.max(jnp.abs(traj.orientation - ref.orientation))))
     print("WORST", worst)
     """
 )

@@ -72,6 +72,7 @@ from . import explicit_rk as explicit_rk  # noqa: E402
 from . import implicit_gyroscopic as implicit_gyroscopic  # noqa: E402
 from . import implicit_midpoint as implicit_midpoint  # noqa: E402
 from . import rk4 as rk4  # noqa: E402
+from . import rk4_body as rk4_body  # noqa: E402
 from . import rk8 as rk8  # noqa: E402
 from . import semi_implicit_euler as semi_implicit_euler  # noqa: E402
 from . import splitting as splitting  # noqa: E402

@@ -1,0 +1,91 @@
+"""Classical RK4 on the body-frame equations: Euler's equations for ``π = Rᵀ L`` and ``q``.
+
+The stages integrate ``(x, v, q, π)`` with
+
+* ``ẋ = v``, ``v̇ = F/m`` (world frame);
+* ``π̇ = π × ω + Rᵀ τ`` with ``ω = I_L⁻¹ π`` (Euler's equations, body frame);
+* ``q̇ = ½ q ⊗ (0, ω)`` (body-frame rate on the right);
+
+by the classical tableau, forces evaluated at each stage on the world-frame
+state ``L = R π``; afterwards ``q`` is normalised and ``L = R(q) π``.
+
+Why a second RK4. ``"rk4"`` integrates the notes' world-frame loop ``(q, L)``,
+where ``ω = R I_L⁻¹ Rᵀ L`` depends on the attitude: its local error couples the
+attitude's error into the rates. Here the rates obey Euler's equations, which do
+not involve ``q`` at all, so their error is that of RK4 on a 3-dimensional ODE.
+On the Dzhanibekov T-handle (``I = diag(1, 2, 2.8)``, ``ω₀ = (1e-3, 2, 1e-3)``,
+``h = 0.01``, 100 s, float64) the energy drifts ~3e-11 here against ~1e-8 for
+``"rk4"``, and the flip times match the exact solution to the step (tests/test_rk4_body.py).
+
+What each conserves. Neither conserves the energy exactly. ``"rk4"`` keeps world
+``L`` exact when there is no torque (``L̇ = τ`` is integrated exactly) and ``|π|``
+only to ``O(h⁴)``; ``"rk4_body"`` has RK4's (small) error in ``|π|`` and so in
+``|L|``, and world ``L``'s direction drifts at ``O(h⁴)`` per unit time through the
+attitude. Both keep ``|q| = 1`` by normalisation. Order 4 for both.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from .._batching import lift
+from .._math import cross, quat_conjugate, quat_multiply, quat_rotate
+from .._pytree import replace
+from .._state import Forces, MatrixState, State, _apply
+from . import Method, register
+from ._common import materialise, project, torque_varies, via_state
+from .explicit_rk import _combine
+
+__all__ = ["rk4_body"]
+
+_A = ((), (0.5,), (0.0, 0.5), (0.0, 0.0, 1.0))
+_B = (1 / 6, 1 / 3, 1 / 3, 1 / 6)
+_C = (0.0, 0.5, 0.5, 1.0)
+
+
+# The stages carry π (body frame) in the ``angular_momentum`` field of a State.
+def _to_body(s: State) -> State:
+    return replace(s, angular_momentum=quat_rotate(quat_conjugate(s.orientation), s.angular_momentum))
+
+
+def _to_world(s: State) -> State:
+    return replace(s, angular_momentum=quat_rotate(s.orientation, s.angular_momentum))
+
+
+def _body_derivative(s: State, f: Forces) -> State:
+    """``(ẋ, v̇, q̇, π̇)`` of one body, stored in a State's fields (π̇ in ``angular_momentum``)."""
+    q, pi = s.orientation, s.angular_momentum
+    w = _apply(s.body.inverse_inertia, pi)
+    dpi = cross(pi, w)
+    if f.torque is not None:
+        dpi = dpi + quat_rotate(quat_conjugate(q), f.torque)
+    a = jnp.zeros_like(s.velocity) if f.force is None else f.force / s.body.mass
+    dq = 0.5 * quat_multiply(q, jnp.concatenate([jnp.zeros_like(w[:1]), w]))
+    return replace(s, position=s.velocity, velocity=a, orientation=dq, angular_momentum=dpi)
+
+
+def rk4_body(state: State, force_fn, t, dt) -> State:
+    """One RK4 step of the body-frame equations (see the module docstring); batch-level."""
+    world = lift(_to_world)
+    stage = (lambda y: materialise(y, dt)) if torque_varies(force_fn, state, t) else (lambda y: y)
+    y0 = lift(_to_body)(state)
+    ks = []
+    for i in range(4):
+        y = _combine(y0, dt, _A[i], ks[:i])
+        y = stage(y) if i > 0 else y
+        ks.append(lift(_body_derivative)(y, force_fn(world(y), t + _C[i] * dt)))
+    return world(project(_combine(y0, dt, _B, ks)))
+
+
+register(
+    Method(
+        name="rk4_body",
+        order=4,
+        steps={State: rk4_body, MatrixState: via_state(rk4_body)},
+        conserves=(
+            "nothing exactly; the rates have the error of RK4 on Euler's equations (energy ~300x below "
+            "'rk4' on the T-handle); world L drifts at O(dt^4) where 'rk4' keeps it exact torque-free"
+        ),
+        cost=1.6,
+    )
+)
