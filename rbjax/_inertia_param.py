@@ -65,13 +65,14 @@ def params_from_inertia(inertia: Float[ArrayLike, "... 3 3"], rtol: float = TRIA
     (Cholesky), ``θ = (log diag L, L10, L20, L21)``; ``I`` in kg m², body frame.
 
     On the boundary of consistent inertias (``Σ`` singular: ``I1 + I2 = I3``,
-    a flat plate or a rod, which :class:`rbjax.Body` accepts) ``log L_ii`` would
-    be ``-∞``. Each Cholesky pivot is therefore floored at ``rtol · tr I``: the
-    parameters and their gradients stay finite, and ``inertia_from_params(θ)``
-    moves such an inertia inside by at most ``rtol · tr I`` (Body's own
-    tolerance, :data:`rbjax.TRIANGLE_RTOL`, by default); interior inertias,
-    whose pivots are above the floor, round-trip exactly. A concrete inertia
-    that breaks the triangle inequality by more than that raises ``ValueError``.
+    a flat plate, which :class:`rbjax.Body` accepts) ``log L_ii`` would be
+    ``-∞``. Each Cholesky pivot is therefore floored at ``16 eps · tr I``, the
+    level of its rounding error: the parameters and their gradients stay
+    finite, ``inertia_from_params(θ)`` moves a boundary inertia inside by that
+    much, and interior inertias round-trip as before. Pivots down to
+    ``-rtol · tr I`` (the triangle tolerance :class:`rbjax.Body` accepts,
+    :data:`rbjax.TRIANGLE_RTOL`) are floored too. A concrete inertia that breaks
+    the triangle inequality by more raises ``ValueError``; a traced one gives NaN.
     """
     I = jnp.asarray(inertia)
     if I.shape[-2:] != (3, 3):
@@ -79,7 +80,8 @@ def params_from_inertia(inertia: Float[ArrayLike, "... 3 3"], rtol: float = TRIA
     if not jnp.issubdtype(I.dtype, jnp.floating):
         I = I.astype(jnp.result_type(float))
     S = second_moment(0.5 * (I + jnp.swapaxes(I, -1, -2)))
-    floor = rtol * jnp.trace(I, axis1=-2, axis2=-1)
+    tr = jnp.trace(I, axis1=-2, axis2=-1)
+    floor, worst = 16 * jnp.finfo(I.dtype).eps * tr, -rtol * tr
     if _is_concrete(I):
         moments = np.linalg.eigvalsh(np.asarray(S, dtype=np.float64))
         bad = moments[..., 0] < -rtol * np.asarray(np.trace(np.asarray(I), axis1=-2, axis2=-1))
@@ -89,11 +91,13 @@ def params_from_inertia(inertia: Float[ArrayLike, "... 3 3"], rtol: float = TRIA
                 f"(second-moment eigenvalues {np.atleast_2d(moments)[np.atleast_1d(bad)][0]}); no mass "
                 "distribution has it. Check it with rbjax.Body first."
             )
-    # Cholesky of the 3x3 by hand, each pivot floored (jnp.linalg.cholesky gives NaN at a zero pivot)
+    # Cholesky of the 3x3 by hand, each pivot floored (jnp.linalg.cholesky gives NaN at a zero
+    # pivot); a pivot below -rtol tr I is an impossible inertia: NaN, never a silent other one
     s = lambda i, j: S[..., i, j]  # noqa: E731
-    l00 = jnp.sqrt(jnp.maximum(s(0, 0), floor))
+    root = lambda d: jnp.sqrt(jnp.where(d < worst, jnp.nan, jnp.maximum(d, floor)))  # noqa: E731
+    l00 = root(s(0, 0))
     l10, l20 = s(1, 0) / l00, s(2, 0) / l00
-    l11 = jnp.sqrt(jnp.maximum(s(1, 1) - l10**2, floor))
+    l11 = root(s(1, 1) - l10**2)
     l21 = (s(2, 1) - l20 * l10) / l11
-    l22 = jnp.sqrt(jnp.maximum(s(2, 2) - l20**2 - l21**2, floor))
+    l22 = root(s(2, 2) - l20**2 - l21**2)
     return jnp.stack([jnp.log(l00), jnp.log(l11), jnp.log(l22), l10, l20, l21], axis=-1)

@@ -70,13 +70,15 @@ def start_time(state: AnyState) -> Array:
     ones (inside ``jit``) are taken from the first body.
     """
     t = state.time
-    if t.size > 1 and not isinstance(t, jax.core.Tracer):
-        if np.ptp(np.asarray(t)) != 0:
+    if not isinstance(t, jax.core.Tracer):
+        host = np.asarray(t)
+        if host.size > 1 and np.ptp(host) != 0:
             raise ValueError(
                 f"the states of a batch must share one time to be stepped together; state.time has shape "
                 f"{t.shape}. Set one with dataclasses.replace(state, time=t) or pass t0="
             )
-    return jnp.reshape(t, (-1,))[0]
+        return jnp.asarray(host.reshape(-1)[0])  # from the host: a sharded time needs no gather
+    return jnp.max(t)  # all equal; a reduction, which sharded batches allow
 
 
 def _canonical(state: Any) -> Any:
@@ -310,8 +312,9 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
     def soa_forces(state, t):
         # force callables and models are batch-level code written batch-first
         with batch_last(False):
-            s = to_aos(strip(state))
-            out = user_fn(replace(s, **{**consts, "time": jnp.broadcast_to(t, s.position.shape[:-1])}), t)
+            # the batch's one clock as a scalar time: it broadcasts, and a sharded batch needs
+            # no unsharded (N,) array beside its sharded fields
+            out = user_fn(replace(to_aos(strip(state)), **{**consts, "time": t}), t)
         return to_soa(out)
 
     const_forces = to_soa(forces) if isinstance(forces, Forces) and not series else None
@@ -329,7 +332,7 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
         elif soa:
             fn = soa_forces
         else:
-            fn = lambda state, t: user_fn(replace(state, time=jnp.broadcast_to(t, state.position.shape[:-1])), t)  # noqa: E731
+            fn = lambda state, t: user_fn(replace(state, time=t), t)  # noqa: E731
         with batch_last(soa):
             new = strip(step_fn(s, fn, t0 + (k0 + k).astype(dtype) * dt, dt))
         if checks is not None:

@@ -65,7 +65,7 @@ def full_batch_shape(obj: Any) -> tuple[int, ...]:
         raise ValueError(f"{type(obj).__name__}: the batch shapes of its fields {shapes} do not broadcast") from None
 
 
-def stack_frames(frames: T, initial: Any, times: Any) -> T:
+def stack_frames(frames: Any, initial: Any, times: Any) -> Any:
     """A trajectory from ``frames`` (changing fields ``(T, *B, ...)``) and the ``initial`` state.
 
     Every other field of ``initial`` (``body``, particle ``mass``) gets a leading
@@ -88,7 +88,9 @@ def stack_frames(frames: T, initial: Any, times: Any) -> T:
         v = getattr(initial, name)
         changes[name] = _map(v, per_frame) if is_rbjax_dataclass(v) else per_frame(v, 0)
     lead = jnp.reshape(times, (n,) + (1,) * nb) if times.ndim == 1 else times
-    changes["time"] = jnp.broadcast_to(lead, (n,) + tuple(initial.batch_shape))
+    # built on the frames' positions so that it takes their sharding (a batch split over
+    # devices gets its times split the same way, not replicated)
+    changes["time"] = lead + jnp.zeros_like(frames.position[..., 0])
     return replace(frames, **changes)
 
 

@@ -39,9 +39,12 @@ def test_random_round_trip_and_every_draw_is_valid():
     assert np.max(err / (sigma_cond[ok, None] * 1e-16)) < 100
 
 
-def test_inconsistent_inertia_gives_nan():
+def test_inconsistent_inertia_raises_or_gives_nan_under_jit():
     # moments (1, 1, 3) break the triangle inequality: Σ has a negative eigenvalue, no valid θ
-    assert np.all(np.isnan(rb.params_from_inertia(jnp.diag(jnp.array([1.0, 1.0, 3.0])))))
+    bad = jnp.diag(jnp.array([1.0, 1.0, 3.0]))
+    with pytest.raises(ValueError, match="triangle inequality"):
+        rb.params_from_inertia(bad)
+    assert np.any(np.isnan(jax.jit(rb.params_from_inertia)(bad)))  # traced: NaN, never another inertia
 
 
 @pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])

@@ -93,7 +93,9 @@ def test_fourth_order_with_a_body_fixed_torque_against_dop853(cls):
 
 
 def test_float32_and_jit_grad():
-    s = rb.State.create(rb.Body(jnp.float32(1.0), jnp.asarray(I_T, jnp.float32)), angular_velocity=W0.astype(np.float32))
+    s = rb.State.create(
+        rb.Body(jnp.float32(1.0), jnp.asarray(I_T, jnp.float32)), angular_velocity=W0.astype(np.float32)
+    )
     tr = rb.simulate(s, None, 0.01, 500, "rk4_body")
     assert tr.orientation.dtype == jnp.float32
     # |q| = 1 by normalisation, to float32 rounding
