@@ -195,8 +195,8 @@ from ._scene import body_kind as body_kind
 from ._scene import register_kernel as register_kernel
 
 # --- end scenes ---
-
-__version__ = "0.1.0"
+# isort: split
+from ._version import __version__ as __version__
 
 
 def methods(state_type: type | None = None) -> dict[str, _methods.Method]:
