@@ -196,6 +196,11 @@ from ._scene import register_kernel as register_kernel
 
 # --- end scenes ---
 # isort: split
+# --- seeing the motion: animation export (needs matplotlib, the demo extra) ---
+from ._animate import animate as animate
+
+# --- end animation ---
+# isort: split
 from ._version import __version__ as __version__
 
 
