@@ -147,7 +147,8 @@ def animate(
         fps: frames per second of the file.
         trail: length, in drawn frames, of the fading trail of the tip of the body's longest
             principal axis (0: none).
-        dpi, panel_size: resolution and panel side (inches): each panel is ``panel_size·dpi`` pixels.
+        dpi: resolution (dots per inch): each panel is ``panel_size·dpi`` pixels square.
+        panel_size: side of each panel (inches).
         title: figure title (default: none; the clock is always shown).
 
     Each panel is a cube in world coordinates (equal scales, no tick labels) holding the body's

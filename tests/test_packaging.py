@@ -91,7 +91,9 @@ def test_wheel_installs_in_a_fresh_venv_and_runs(tmp_path):
     pytest.importorskip("build")
     dist = tmp_path / "dist"
     r = subprocess.run(
-        [sys.executable, "-m", "build", "--sdist", "--wheel", "--outdir", str(dist), str(ROOT)],
+        # sdist first, then the wheel from the unpacked sdist (build's default): the wheel holds only what
+        # the sdist ships, and no build/ folder is left in the checkout
+        [sys.executable, "-m", "build", "--outdir", str(dist), str(ROOT)],
         capture_output=True,
         text=True,
         timeout=600,
