@@ -198,6 +198,8 @@ from ._scene import register_kernel as register_kernel
 # isort: split
 # --- seeing the motion: animation export (needs matplotlib, the demo extra) ---
 from ._animate import animate as animate
+from ._viewer import Viewer as Viewer
+from ._viewer import view as view
 
 # --- end animation ---
 # isort: split
