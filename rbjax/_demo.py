@@ -1,4 +1,4 @@
-"""The README's main job: 10,000 tumbling boxes and a Dzhanibekov T-handle.
+"""The demo of the README's first command: 10,000 tumbling boxes and a Dzhanibekov T-handle.
 
 ``python -m rbjax demo`` simulates an embedded default scene (seeded, no input
 files): 10,000 boxes of random sizes, masses, orientations and spins, plus a

@@ -72,3 +72,14 @@ def test_ellipsoid_and_bad_arguments(traj, tmp_path):
         rb.animate(traj, tmp_path / "x.png")
     with pytest.raises(ValueError, match="out of range"):
         rb.animate(traj, tmp_path / "x.gif", bodies=[5])
+
+
+@pytest.mark.slow
+def test_demo_writes_the_gif_next_to_the_png(tmp_path, capsys):
+    from rbjax._cli import main
+
+    png = tmp_path / "demo.png"
+    assert main(["demo", "--bodies", "20", "--seconds", "3", "--out", str(png)]) == 0
+    out = capsys.readouterr().out
+    gif = PIL.open(tmp_path / "demo.gif")
+    assert png.exists() and "animation" in out and gif.n_frames >= 50 and gif.size == (320, 320), out

@@ -78,6 +78,20 @@ def test_page_examples_run(page, tmp_path, monkeypatch):
     print(f"{page.name}: {len(todo)} blocks in {time.perf_counter() - t0:.1f} s")
 
 
+def test_readme_is_a_short_front_door_whose_links_resolve():
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= 250
+    # the two set-up commands, byte for byte (.ci/run runs the second)
+    assert "python3 -m venv .venv && .venv/bin/pip install -q -e '.[demo]' && .venv/bin/python -m rbjax demo" in text
+    ci = (
+        "python3 -m venv .venv && .venv/bin/pip install -q -e '.[test]' && .venv/bin/python -m pytest -n auto --runslow"
+    )
+    assert ci in text and ci in (ROOT / ".ci" / "run").read_text()
+    targets = re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", text)
+    local = [t for t in targets if not t.startswith(("http://", "https://"))]
+    assert len(local) >= 10 and not [t for t in local if not (ROOT / t).exists()]
+
+
 def test_api_reference_lists_every_public_name():
     text = "\n".join(p.read_text() for p in sorted((ROOT / "docs" / "api").glob("*.md")))
     listed = re.findall(r"^::: rbjax\.(\w+)", text, re.M)
