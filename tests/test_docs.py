@@ -48,6 +48,9 @@ def test_every_page_is_collected_and_skips_are_explained():
     print(f"{n_run} executed blocks, {len(skipped)} skipped: {skipped}")
     assert n_run >= 25, n_run  # 29 when written: a broken extractor would find none
     assert all(len(why) > 10 for *_, why in skipped)  # a skip says why
+    # an unclosed fence turns the rest of a page into one code block (and hides its examples)
+    odd = [p.name for p in PAGES if sum(ln.startswith("```") for ln in p.read_text().splitlines()) % 2]
+    assert not odd, odd
 
 
 # the README's example runs in the quick suite (~6 s); the docs pages' (~60 s together, most of it
