@@ -1,6 +1,6 @@
 """How the segment-join weight of ``rb.fit_inertia`` trades error, calibration and solver steps.
 
-The README's ``continuity_weight`` table. Body ``I = [[1, .1, -.05], [.1, 2, .08], [-.05, .08, 2.6]]``,
+The ``continuity_weight`` table of docs/fitting.md. Body ``I = [[1, .1, -.05], [.1, 2, .08], [-.05, .08, 2.6]]``,
 ``ω₀ = (0.3, 3, 0.4)`` rad/s, 4 s at 1 kHz, 8 segments, recordings made by scipy DOP853
 (tests/reference.py), never by rbjax. For each weight:
 

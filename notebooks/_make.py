@@ -1,8 +1,10 @@
-"""Generate the example notebooks from the cell sources below (run: ``python notebooks/_make.py``).
+"""Generate the example notebooks from the cell sources below: ``python notebooks/_make.py --execute``.
 
-The notebooks are written without outputs, so diffs stay reviewable; run them in
-Jupyter (or ``pytest tests/test_notebooks.py``) to see the plots. Edit the cells
-here, not in the ``.ipynb`` files.
+Edit the cells here, not in the ``.ipynb`` files. With ``--execute`` each notebook is run (in a
+kernel of this interpreter, from notebooks/) and written with its outputs, small PNG plots and the
+first notebook's GIF: that is what is committed, so the plots show on GitHub and in the
+documentation site without running anything. Without ``--execute`` the notebooks are written
+without outputs. tests/test_docs.py checks that the committed code cells are the ones made here.
 """
 
 from __future__ import annotations
@@ -146,6 +148,25 @@ flips = {m: flip_times(tr) for m, tr in trajs.items()}
 for m, f in flips.items():
     print(f"{m:>10}: {np.round(f, 2)}")
 """),
+    md("""
+## Seeing it move
+
+`rb.animate` writes a GIF (or an MP4, with ffmpeg) of a trajectory: each body drawn as the box with
+its principal moments, the red arrow its world angular momentum `L` (fixed: no torque), the grey
+trail the tip of its longest axis. Here the first 20 s of the splitting run: the body turns about
+its middle axis, then flips over.
+"""),
+    code("""
+import base64
+
+from IPython.display import HTML
+
+info = rb.animate(trajs["splitting"], "t_handle.gif", dt=dt, frames=slice(0, 2000), max_frames=80,
+                  dpi=56, panel_size=3.2, trail=20, title="T-handle, splitting, dt = 0.01 s")
+print(f"{info['frames']:.0f} frames, {info['bytes'] / 1e3:.0f} kB, rendered in {info['seconds']:.1f} s")
+gif = base64.b64encode(open("t_handle.gif", "rb").read()).decode()  # inline, so the page needs no file
+HTML(f'<img src="data:image/gif;base64,{gif}" alt="the T-handle flipping">')
+"""),
     code("""
 # Physical checks (these can fail):
 # 1. splitting's energy error stays bounded (second order, dt = 0.01: ~1e-5 here; 1e-4 allows
@@ -159,6 +180,8 @@ assert all(np.abs(L[m] / L[m][0] - 1).max() < 1e-12 for m in trajs)
 assert len(flips["exact"]) >= 2
 assert len(flips["splitting"]) == len(flips["exact"])
 assert np.abs(flips["splitting"] - flips["exact"]).max() <= 5 * dt
+# 4. the animation holds the frames asked for.
+assert info["frames"] == 80 and info["bytes"] > 10_000
 print("all checks passed")
 """),
 ]
@@ -389,8 +412,11 @@ for tol in [1e-3, 1e-6]:
     code("""
 png = Path("../benchmarks/results/work_precision.png")
 if png.exists():  # the full study, from `python benchmarks/work_precision.py`
-    from IPython.display import Image, display
-    display(Image(filename=str(png), width=900))
+    from IPython.display import display
+    from PIL import Image
+    im = Image.open(png).convert("RGB")
+    im.thumbnail((1000, 1000))
+    display(im.quantize(128))  # a 128-colour copy: stored in the notebook at a fifth of the file's bytes
 else:
     print("run `python benchmarks/work_precision.py` for the full study")
 """),
@@ -554,18 +580,57 @@ NOTEBOOKS = {
 }
 
 
-def main() -> None:
+def execute(nb, name: str) -> None:
+    """Run ``nb`` in a kernel of this interpreter, in notebooks/, keeping its outputs in ``nb``."""
+    import nbclient
+
+    nbclient.NotebookClient(
+        nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(HERE)}}
+    ).execute()
+    for cell in nb.cells:  # execution counts and timing metadata would make every re-run a diff
+        cell.pop("id", None)
+        cell.metadata = {}
+        if cell.cell_type == "code":
+            cell.execution_count = None
+            for out in cell.get("outputs", []):
+                if "execution_count" in out:
+                    out["execution_count"] = None
+    print("executed", name)
+
+
+def main(run: bool = False, only: list[str] | None = None) -> None:
     for name, cells in NOTEBOOKS.items():
+        if only and not any(name.startswith(o) for o in only):
+            continue
         nb = new_notebook(cells=cells)
         nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
         nb.metadata["language_info"] = {"name": "python"}
         for cell in nb.cells:  # stable ids keep regenerated files diff-free
             cell.pop("id", None)
         nb.nbformat, nb.nbformat_minor = 4, 4
+        if run:
+            execute(nb, name)
         nbformat.validate(nb)
         nbformat.write(nb, HERE / name)
         print("wrote", HERE / name)
+        _ruff_format(HERE / name)
+
+
+def _ruff_format(path: Path) -> None:
+    """Format the notebook's code cells as tests/test_lint.py expects (the cells above are not)."""
+    import shutil
+    import subprocess
+    import sys
+
+    ruff = shutil.which("ruff") or str(Path(sys.executable).parent / "ruff")
+    if Path(ruff).exists():
+        subprocess.run([ruff, "format", "-q", str(path)], check=True)
+    else:
+        print("ruff not found: run `ruff format notebooks` before committing")
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    # python notebooks/_make.py [--execute] [01 03 ...]: all notebooks, or those whose names start so
+    main(run="--execute" in sys.argv[1:], only=[a for a in sys.argv[1:] if not a.startswith("--")])

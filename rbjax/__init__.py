@@ -201,8 +201,15 @@ from ._scene import body_kind as body_kind
 from ._scene import register_kernel as register_kernel
 
 # --- end scenes ---
+# isort: split
+# --- seeing the motion: animation export (needs matplotlib, the demo extra) ---
+from ._animate import animate as animate
+from ._viewer import Viewer as Viewer
+from ._viewer import view as view
 
-__version__ = "0.1.0"
+# --- end animation ---
+# isort: split
+from ._version import __version__ as __version__
 
 
 def methods(state_type: type | None = None) -> dict[str, _methods.Method]:

@@ -7,6 +7,7 @@ Errors print one line, ``rbjax: error: ...``, on stderr and exit with status 2;
 from __future__ import annotations
 
 import argparse
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -25,15 +26,23 @@ class _Parser(argparse.ArgumentParser):
 
 
 def benchmarks_dir() -> Path:
-    """The repository's ``benchmarks/`` folder, next to the ``rbjax`` package."""
-    return Path(__file__).resolve().parent.parent / "benchmarks"
+    """The ``benchmarks/`` folder: ``$RBJAX_BENCHMARKS`` if set, else the one next to the ``rbjax`` package.
+
+    In a source checkout (or an editable install) that is the repository's folder; an installed
+    wheel has none, since the benchmarks are scripts with their own heavy dependencies (the
+    ``bench`` extra), shipped in the source repository and the sdist, not in the wheel.
+    """
+    env = os.environ.get("RBJAX_BENCHMARKS")
+    return Path(env).expanduser().resolve() if env else Path(__file__).resolve().parent.parent / "benchmarks"
 
 
 def _scripts() -> list[Path]:
     d = benchmarks_dir()
     if not d.is_dir():
         raise CLIError(
-            f"no benchmarks folder at {d}: the benchmarks ship with the source repository, not with an installed wheel"
+            f"no benchmarks folder at {d}. The benchmarks live in benchmarks/ of the rbjax source repository "
+            "(and of its sdist, rbjax-VERSION.tar.gz), not in the installed wheel: run 'python -m rbjax bench' "
+            "from a checkout, or point RBJAX_BENCHMARKS at that folder (their dependencies: pip install 'rbjax[bench]')"
         )
     return sorted(p for p in d.glob("*.py") if not p.name.startswith("_"))
 

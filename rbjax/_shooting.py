@@ -1,7 +1,7 @@
 """Multiple shooting and truncated gradients: tools for fitting sensitive trajectories.
 
 Near a separatrix the derivative of a long trajectory with respect to its
-initial state or parameters grows by orders of magnitude (see the README's
+initial state or parameters grows by orders of magnitude (see docs/gradients.md,
 "Sensitivity of long trajectories"), and a loss on the whole trajectory becomes
 rugged. Two standard remedies, both built on :func:`rbjax.step` /
 :func:`rbjax.simulate`:

@@ -63,15 +63,3 @@ def _public_methods():
 def test_public_method_is_documented(qualname):
     cls, name = qualname.split(".")
     assert (inspect.getdoc(getattr(getattr(rb, cls), name)) or "").strip(), f"rbjax.{qualname} has no docstring"
-
-
-def test_readme_api_section_matches_docstrings():
-    from rbjax import _apidoc
-
-    block = _apidoc.readme_block(_apidoc.README.read_text())
-    assert block is not None, f"README.md lacks the {_apidoc.START} / {_apidoc.END} markers of the API section"
-    # every public function and class has its line (the generator reads rbjax.__all__)
-    assert all(f"- `{n}" in block for n in _public()), "a public name is missing from the README's API section"
-    assert block == _apidoc.section(), (
-        "README.md's API section is out of date with the docstrings: run `python -m rbjax._apidoc --write`"
-    )

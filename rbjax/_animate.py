@@ -1,0 +1,260 @@
+"""Animation export: a trajectory drawn frame by frame and written as a GIF or an MP4.
+
+Each body is drawn in its own 3D panel, in world coordinates (m), as the solid of uniform density
+with its mass and inertia: the box or the ellipsoid with the same principal moments, aligned with
+its principal axes. An arrow from the centre of mass shows the world angular momentum ``L``, and a
+fading trail follows the tip of the body's longest axis. Rendering is matplotlib's (``Agg``);
+the file is written by its Pillow writer (GIF, always available with matplotlib) or by ffmpeg
+(MP4, when an ``ffmpeg`` executable is on the path).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time as _time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["animate"]
+
+# faces of the unit cube [-1, 1]^3 by corner index (corner k has coordinates from the bits of k)
+_CORNERS = np.array(list(itertools.product((-1.0, 1.0), repeat=3)))
+_FACES = np.array([[0, 1, 3, 2], [4, 5, 7, 6], [0, 1, 5, 4], [2, 3, 7, 6], [0, 2, 6, 4], [1, 3, 7, 5]])
+
+
+def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """``R`` (body to world) of unit quaternions ``[w, x, y, z]`` ``(..., 4)`` -> ``(..., 3, 3)``."""
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    rows = [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ]
+    return np.stack([np.stack(r, -1) for r in rows], -2)
+
+
+def _ellipsoid_mesh(n_lon: int = 14, n_lat: int = 8) -> np.ndarray:
+    """Quads ``(F, 4, 3)`` on the unit sphere (scaled per body into its inertia ellipsoid)."""
+    lon = np.linspace(0, 2 * np.pi, n_lon + 1)
+    lat = np.linspace(-np.pi / 2, np.pi / 2, n_lat + 1)
+    p = lambda a, b: np.stack([np.cos(b) * np.cos(a), np.cos(b) * np.sin(a), np.sin(b)], -1)  # noqa: E731
+    quads = [
+        [p(lon[i], lat[j]), p(lon[i + 1], lat[j]), p(lon[i + 1], lat[j + 1]), p(lon[i], lat[j + 1])]
+        for i in range(n_lon)
+        for j in range(n_lat)
+    ]
+    return np.array(quads)
+
+
+def _half_extents(moments: np.ndarray, mass: np.ndarray, shape: str) -> np.ndarray:
+    """Half side lengths (box) or semi-axes (ellipsoid) ``(N, 3)`` (m) with the given principal moments.
+
+    A box of half sides ``h`` has ``I₁ = m/3 (h₂² + h₃²)``, an ellipsoid of semi-axes ``h`` has
+    ``I₁ = m/5 (h₂² + h₃²)``, so ``h₁² = k/(2m) (I₂ + I₃ − I₁)`` with ``k = 3`` or ``5``.
+    """
+    k = 3.0 if shape == "box" else 5.0
+    total = moments.sum(-1, keepdims=True)
+    sq = k / (2 * mass[:, None]) * (total - 2 * moments)
+    # a triangle-equality body (a rod, a plate) has a zero extent: keep it visible as a thin slab
+    return np.sqrt(np.maximum(sq, 1e-4 * sq.max(-1, keepdims=True)))
+
+
+def _frames_of(traj: Any) -> dict[str, Any]:
+    """Positions ``(T, N, 3)``, rotations ``(T, N, 3, 3)``, world ``L`` ``(T, N, 3)``, mass ``(N,)``, inertia."""
+    if not hasattr(traj, "body"):
+        raise TypeError(f"rbjax.animate needs a State or MatrixState trajectory (with a body), got {type(traj)}")
+    pos = np.asarray(traj.position, np.float64)
+    if pos.ndim < 2:
+        raise ValueError(f"rbjax.animate: expected a trajectory with a leading time axis, got position {pos.shape}")
+    lead = pos.shape[:-1]  # (T, *B)
+    T, B = lead[0], lead[1:]
+    body = traj.body
+    mass, inertia = np.asarray(body.mass, np.float64), np.asarray(body.inertia, np.float64)
+    # the body may or may not carry the time axis: it never changes along it, so frame 0 is the body
+    if mass.ndim > len(lead) - 1:
+        mass, inertia = mass[0], inertia[0]
+    mass = np.broadcast_to(mass, B).reshape(-1)
+    inertia = np.broadcast_to(inertia, (*B, 3, 3)).reshape(-1, 3, 3)
+    n = mass.shape[0]
+    pos = pos.reshape(T, n, 3)
+    if hasattr(traj, "orientation"):
+        R = _quat_to_matrix(np.asarray(traj.orientation, np.float64).reshape(T, n, 4))
+        L = np.asarray(traj.angular_momentum, np.float64).reshape(T, n, 3)
+    else:  # MatrixState: L = R I_L Rᵀ ω
+        R = np.asarray(traj.rotation, np.float64).reshape(T, n, 3, 3)
+        w = np.asarray(traj.angular_velocity, np.float64).reshape(T, n, 3)
+        I_w = R @ inertia[None] @ np.swapaxes(R, -1, -2)
+        L = np.einsum("tnij,tnj->tni", I_w, w)
+    times = getattr(traj, "time", None)
+    times = np.asarray(times, np.float64).reshape(-1) if times is not None else None
+    return {"pos": pos, "R": R, "L": L, "mass": mass, "inertia": inertia, "time": times}
+
+
+def _pick(n: int, bodies: int | Sequence[int] | None) -> np.ndarray:
+    if bodies is None:
+        bodies = min(n, 9)
+    if isinstance(bodies, (int, np.integer)):
+        if not 1 <= bodies <= n:
+            raise ValueError(f"rbjax.animate: bodies={bodies} must be between 1 and the batch size {n}")
+        # evenly spread over the (flattened) batch, deterministic, first and last included
+        return np.unique(np.round(np.linspace(0, n - 1, int(bodies))).astype(int))
+    idx = np.asarray(bodies, int).reshape(-1)
+    if idx.size == 0 or idx.min() < -n or idx.max() >= n:
+        raise ValueError(f"rbjax.animate: body indices {idx.tolist()} out of range for a batch of {n}")
+    return idx % n
+
+
+def animate(
+    traj: Any,
+    path: str | Path,
+    *,
+    bodies: int | Sequence[int] | None = None,
+    shape: str = "box",
+    dt: float | None = None,
+    frames: slice | None = None,
+    max_frames: int = 100,
+    fps: int = 15,
+    trail: int = 30,
+    dpi: int = 80,
+    panel_size: float = 3.0,
+    title: str | None = None,
+) -> dict[str, float]:
+    """Write an animation of a trajectory: each body as its box or inertia ellipsoid, ``L`` and a trail.
+
+    Args:
+        traj: a :class:`State` or :class:`MatrixState` trajectory as :func:`rbjax.simulate` returns
+            it: fields ``(T, *B, ...)`` with the leading time axis (positions in m, world frame;
+            quaternions body to world). Its ``body`` may be ``(*B)``-shaped, shared, or carry the
+            time axis too (frame 0 is used: mass properties do not change).
+        path: output file: ``.gif`` (matplotlib's Pillow writer) or ``.mp4`` (needs ``ffmpeg``).
+        bodies: which bodies of the flattened batch ``*B`` to draw, one panel each: a list of flat
+            indices, or a count ``k`` for ``k`` bodies spread evenly over the batch (default: all,
+            up to 9).
+        shape: ``"box"``: the uniform cuboid with the body's principal moments, half sides
+            ``hᵢ² = 3/(2m) (Iⱼ + Iₖ − Iᵢ)``; ``"ellipsoid"``: the uniform ellipsoid with them,
+            ``hᵢ² = 5/(2m) (Iⱼ + Iₖ − Iᵢ)``. Either is drawn along the principal axes, rotated by
+            ``R`` and placed at the centre of mass.
+        dt: time between saved frames (s), for the clock in the title; default: the trajectory's
+            ``time`` field when it has one, else frame numbers.
+        frames: which saved frames to draw, e.g. ``slice(0, 200)`` for the first 200 (default: all).
+        max_frames: at most this many frames are drawn (every ``ceil(T' / max_frames)``-th of the
+            ``T'`` selected frames).
+        fps: frames per second of the file.
+        trail: length, in drawn frames, of the fading trail of the tip of the body's longest
+            principal axis (0: none).
+        dpi: resolution (dots per inch): each panel is ``panel_size·dpi`` pixels square.
+        panel_size: side of each panel (inches).
+        title: figure title (default: none; the clock is always shown).
+
+    Each panel is a cube in world coordinates (equal scales, no tick labels) holding the body's
+    path plus 1.4 times its largest half extent. The angular-momentum arrow starts at the centre of
+    mass; its length is ``1.3 · max h`` at the largest ``|L|`` the body reaches, so it shows
+    direction and relative size (its scale, kg m²/s per drawn metre, differs between panels).
+
+    Returns:
+        ``{"frames": F, "seconds": render time (s), "bytes": file size}``.
+    """
+    if shape not in ("box", "ellipsoid"):
+        raise ValueError(f"rbjax.animate: shape must be 'box' or 'ellipsoid', got {shape!r}")
+    path = Path(path)
+    if path.suffix.lower() not in (".gif", ".mp4"):
+        raise ValueError(f"rbjax.animate: path must end in .gif or .mp4, got {path.name!r}")
+    # a bare Figure, not pyplot: no backend is chosen or switched (a notebook keeps its own), and
+    # nothing is left open in pyplot's registry
+    import matplotlib
+    from matplotlib import animation
+    from matplotlib.figure import Figure
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    if path.suffix.lower() == ".mp4" and not animation.writers.is_available("ffmpeg"):
+        raise RuntimeError("rbjax.animate: writing .mp4 needs ffmpeg on the path; write a .gif instead")
+
+    t0 = _time.perf_counter()
+    data = _frames_of(traj)
+    idx = _pick(data["pos"].shape[1], bodies)
+    T = data["pos"].shape[0]
+    chosen = np.arange(T)[frames if frames is not None else slice(None)]
+    if chosen.size == 0:
+        raise ValueError(f"rbjax.animate: frames={frames} selects none of the {T} saved frames")
+    frames_idx = chosen[:: max(1, math.ceil(chosen.size / max_frames))]
+    pos, R, L = (data[k][frames_idx][:, idx] for k in ("pos", "R", "L"))
+    mass, inertia = data["mass"][idx], data["inertia"][idx]
+    moments, axes = np.linalg.eigh(inertia)
+    axes = axes * np.sign(np.linalg.det(axes))[:, None, None]
+    half = _half_extents(moments, mass, shape)  # (N, 3) along the principal axes
+    # body-frame vertices: unit solid scaled by half extents, then principal axes to body frame
+    unit = _CORNERS[_FACES] if shape == "box" else _ellipsoid_mesh()  # (F, 4, 3)
+    verts_body = np.einsum("nij,nfkj->nfki", axes, unit[None] * half[:, None, None, :])  # (N, F, 4, 3)
+    longest = np.argmax(half, -1)
+    tip_body = axes[np.arange(len(idx)), :, longest] * half[np.arange(len(idx)), longest][:, None]  # (N, 3)
+    tips = pos + np.einsum("tnij,nj->tni", R, tip_body)  # (F, N, 3)
+    Lmax = np.maximum(np.linalg.norm(L, axis=-1).max(0), 1e-300)
+    L_draw = L * (1.3 * half.max(-1) / Lmax)[None, :, None]
+
+    n = len(idx)
+    cols = math.ceil(math.sqrt(n))
+    rows = math.ceil(n / cols)
+    fig = Figure(figsize=(panel_size * cols, panel_size * rows), dpi=dpi)
+    color = matplotlib.colormaps["tab10"]
+    artists = []
+    for j in range(n):
+        ax = fig.add_subplot(rows, cols, j + 1, projection="3d")
+        reach = 1.4 * half[j].max()
+        lo, hi = pos[:, j].min(0) - reach, pos[:, j].max(0) + reach
+        centre, span = (lo + hi) / 2, (hi - lo).max() / 2
+        for set_lim, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre):
+            set_lim(c - span, c + span)
+        ax.set_box_aspect((1, 1, 1))
+        # equal scales on the three axes, so no tick labels: the panel's span is in the docstring
+        for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
+            axis.set_ticklabels([])
+        if n > 1:
+            ax.set_title(f"body {int(idx[j])}", fontsize=7, pad=0)
+        solid = Poly3DCollection(
+            [], facecolor=color(j % 10), edgecolor="k", linewidth=0.3 if shape == "box" else 0.1, alpha=0.75
+        )
+        ax.add_collection3d(solid)
+        (arrow,) = ax.plot([], [], [], color="crimson", lw=2.0)
+        (head,) = ax.plot([], [], [], "o", color="crimson", ms=3)
+        trail_lines = [ax.plot([], [], [], color="0.25", lw=1.0, alpha=a)[0] for a in np.linspace(0.08, 0.9, 6)]
+        artists.append((solid, arrow, head, trail_lines))
+    clock = fig.text(0.01, 0.01, "", fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=9)
+    fig.subplots_adjust(left=0, right=1, bottom=0.04, top=0.92 if title else 0.97, wspace=0, hspace=0.05)
+    times = data["time"]
+
+    def draw(f: int):
+        for j, (solid, arrow, head, trail_lines) in enumerate(artists):
+            v = np.einsum("ij,fkj->fki", R[f, j], verts_body[j]) + pos[f, j]
+            solid.set_verts(list(v))
+            a, b = pos[f, j], pos[f, j] + L_draw[f, j]
+            arrow.set_data_3d(*np.stack([a, b], 1))
+            head.set_data_3d(*b[:, None])
+            if trail:
+                seg = tips[max(0, f - trail) : f + 1, j]
+                # older parts of the trail fainter: consecutive pieces of rising alpha, each
+                # overlapping the next by one point so the trail has no gaps
+                pieces = np.array_split(np.arange(len(seg)), len(trail_lines))
+                for line, p in zip(trail_lines, pieces):
+                    piece = seg[p[0] : p[-1] + 2] if len(p) else seg[:0]
+                    line.set_data_3d(piece[:, 0], piece[:, 1], piece[:, 2])
+        k = int(frames_idx[f])
+        if dt is not None:
+            clock.set_text(f"t = {k * dt:.3f} s")
+        elif times is not None and times.shape[0] == T:
+            clock.set_text(f"t = {times[k]:.3f} s")
+        else:
+            clock.set_text(f"frame {k}")
+        return []
+
+    anim = animation.FuncAnimation(fig, draw, frames=len(frames_idx), blit=False)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    writer = animation.PillowWriter(fps=fps) if path.suffix.lower() == ".gif" else animation.FFMpegWriter(fps=fps)
+    anim.save(str(path), writer=writer, dpi=dpi)
+    return {"frames": float(len(frames_idx)), "seconds": _time.perf_counter() - t0, "bytes": float(path.stat().st_size)}
