@@ -224,7 +224,7 @@ class MatrixState(BatchIndexing):
         rotation: ``(*B, 3, 3)`` rotation matrix ``R``, body to world (columns are
             the body axes in world coordinates).
         angular_velocity: ``(*B, 3)`` ``ω`` (world, rad/s).
-        time: time ``t`` (s), as :attr:`State.time`.
+        time: ``(*B,)`` time ``t`` (s), as in :class:`State`.
     """
 
     body: Body
@@ -308,7 +308,7 @@ class ParticleState(BatchIndexing):
         position: ``(*B, 3)`` (world, m).
         velocity: ``(*B, 3)`` (world, m/s).
         mass: ``(*B,)`` kg, > 0.
-        time: time ``t`` (s), as :attr:`State.time`.
+        time: ``(*B,)`` time ``t`` (s), as in :class:`State`.
     """
 
     position: Float[Array, "*B 3"] = field(core_ndim=1)
