@@ -1,0 +1,102 @@
+"""Throughput of two checkouts of rbjax side by side: did a change slow the step?
+
+Runs ``rbjax.simulate`` (torque-free boxes, each with its own mass properties,
+only the final state saved: ``save_every = steps``) for each method, dtype and N
+in a fresh subprocess per measurement, alternating the two checkouts (A B A B
+...) so that slow drift of the machine affects both alike, and reports the
+best body-steps per second of each and their ratio ``new / base``.
+
+    python benchmarks/ab_throughput.py --base 1f075bb            # base = a git revision
+    python benchmarks/ab_throughput.py --base 1f075bb --quick    # N = 1e4 only, euler
+
+The base revision is checked out into a temporary git worktree (removed at the
+end); the new side is this checkout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+
+CHILD = r"""
+import json, sys, time
+import jax, jax.numpy as jnp, numpy as np
+jax.config.update("jax_enable_x64", True)
+import rbjax as rb
+method, dtype, n, steps = sys.argv[1], getattr(jnp, sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
+rng = np.random.default_rng(0)
+q = rng.normal(size=(n, 4)); q /= np.linalg.norm(q, axis=1, keepdims=True)
+body = rb.box(jnp.asarray(rng.uniform(0.5, 2, n), dtype), jnp.asarray(rng.uniform(0.1, 1, (n, 3)), dtype))
+w = jnp.asarray(rng.normal(size=(n, 3)), dtype)
+s = rb.State.create(body, orientation=jnp.asarray(q, dtype), angular_velocity=w)
+run = jax.jit(lambda s: rb.simulate(s, None, 1e-3, steps, method, save_every=steps))
+jax.block_until_ready(run(s))
+best = float("inf")
+for _ in range(5):
+    t = time.perf_counter(); jax.block_until_ready(run(s)); best = min(best, time.perf_counter() - t)
+print(json.dumps({"rate": n * steps / best}))
+"""
+
+
+def measure(src: str, method: str, dtype: str, n: int, steps: int) -> float:
+    env = dict(os.environ, PYTHONPATH=src, JAX_PLATFORMS="cpu")
+    out = subprocess.run(
+        [sys.executable, "-c", CHILD, method, dtype, str(n), str(steps)],
+        env=env,
+        cwd=src,
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    return json.loads(out.stdout.strip().splitlines()[-1])["rate"]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--base", required=True, help="git revision to compare against")
+    ap.add_argument("--methods", default="euler,splitting,rk4")
+    ap.add_argument("--dtypes", default="float32,float64")
+    ap.add_argument("--sizes", default="10000,100000,1000000")
+    ap.add_argument("--repeats", type=int, default=3, help="A/B pairs per configuration")
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--out", default=os.path.join(HERE, "results", "ab_throughput.json"))
+    args = ap.parse_args(argv)
+    if args.quick:
+        args.methods, args.dtypes, args.sizes, args.repeats = "euler", "float32", "10000", 1
+    work = tempfile.mkdtemp(prefix="rbjax_base_")
+    subprocess.run(["git", "-C", ROOT, "worktree", "add", "--detach", work, args.base], check=True, capture_output=True)
+    rows = []
+    try:
+        for method in args.methods.split(","):
+            for dtype in args.dtypes.split(","):
+                for n in (int(x) for x in args.sizes.split(",")):
+                    steps = max(20, int(2e8 // n // 10)) if not args.quick else 50
+                    base, new = [], []
+                    for _ in range(args.repeats):  # A B A B ...
+                        base.append(measure(work, method, dtype, n, steps))
+                        new.append(measure(ROOT, method, dtype, n, steps))
+                    row = dict(method=method, dtype=dtype, n=n, steps=steps, base=max(base), new=max(new))
+                    row["ratio"] = row["new"] / row["base"]
+                    rows.append(row)
+                    print(
+                        f"{method:>10} {dtype} N={n:>8}: base {row['base']:.3e}  new {row['new']:.3e}  "
+                        f"new/base {row['ratio']:.3f}",
+                        flush=True,
+                    )
+    finally:
+        subprocess.run(["git", "-C", ROOT, "worktree", "remove", "--force", work], capture_output=True)
+    os.makedirs(os.path.dirname(args.out), exist_ok=True)
+    with open(args.out, "w") as f:
+        json.dump({"base": args.base, "rows": rows}, f, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
