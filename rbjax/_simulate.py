@@ -20,18 +20,9 @@ from ._pytree import replace
 from ._simulate_support import constant_fields
 from ._state import AnyState, ForceLike, Forces, StateT
 from ._typing import ArrayLike
+from ._validate import check_count, check_dt, check_state, checked_force_fn, traced_step_size
 
 __all__ = ["step", "simulate", "as_force_fn"]
-
-
-def _check_dt(dt: Any) -> None:
-    if isinstance(dt, jax.core.Tracer):
-        return  # checked mode covers traced values
-    d = np.asarray(dt)
-    if d.ndim != 0:
-        raise ValueError(f"dt must be a scalar, got shape {d.shape}")
-    if not np.isfinite(d) or d <= 0:
-        raise ValueError(f"dt must be finite and > 0, got {d}")
 
 
 def as_force_fn(forces: ForceLike) -> Callable[[Any, Array], Forces]:
@@ -68,12 +59,14 @@ def step(
     Returns the new state, of the same type and shape. Pure; ``jit`` it with
     ``static_argnames="method"``.
     """
+    check_state(state, "step")
     fn = method if callable(method) else _methods.get(method, type(state))
-    _check_dt(dt)
+    check_dt(dt)
+    check_dt(t, "t", positive=False)
     if isinstance(forces, Forces):
         batch_shape(state, forces)
     dt = jnp.asarray(dt, state.dtype)
-    return fn(state, as_force_fn(forces), jnp.asarray(t, state.dtype), dt)
+    return fn(state, checked_force_fn(as_force_fn(forces)), jnp.asarray(t, state.dtype), dt)
 
 
 def _is_time_series(forces: Forces, state: AnyState, steps: int) -> bool:
@@ -118,7 +111,9 @@ def simulate(
             * a force model (:class:`rbjax.ForceModel`, e.g. ``Gravity() + LinearDrag(0.1)``),
               whose arrays are traced data (changing them does not recompile);
             * ``None``.
-        dt: step (s), > 0; differentiable.
+        dt: step (s), > 0; differentiable. A concrete ``dt`` is checked here
+            (``TypeError``/``ValueError``); a traced one (under a caller's ``jit``,
+            ``grad`` or ``vmap``) only with ``checked``, at run time.
         steps: number of steps (static).
         method: integrator name (static), or a hashable batch step function
             ``(state, force_fn, t, dt) -> state`` such as a :class:`rbjax.Scene`'s kernel.
@@ -145,21 +140,27 @@ def simulate(
         are not repeated over time: they keep the initial state's shape and
         broadcast against the time axis in every rbjax function.
 
-    A new callable ``forces`` object compiles anew (it is a static argument).
+    A new callable ``forces`` object compiles anew (it is a static argument). Its
+    output is checked once, while tracing: anything but :class:`Forces` raises
+    ``TypeError``, a force or torque not broadcastable to ``(*B, 3)`` ``ValueError``.
+    With ``checked``, a failure raises ``ValueError`` when ``simulate`` is called
+    eagerly; inside a caller's ``jax.jit`` it arrives wrapped in JAX's
+    ``JaxRuntimeError`` (use ``equinox.filter_jit`` to unwrap it).
     """
     return _run(state, forces, dt, steps, method, save_every=save_every, t0=t0, checked=checked, checkpoint=checkpoint)
 
 
 def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoint=None, step_offset=0):
     """``simulate`` after its signature; ``step_offset`` numbers steps in checked-mode errors."""
+    check_state(state, "simulate")
     if not callable(method):  # a callable is a step fn, e.g. a Scene's specialised kernel
         _methods.get(method, type(state))
-    if not isinstance(steps, (int, np.integer)) or steps < 0:
-        raise ValueError(f"steps must be a non-negative int, got {steps!r}")
-    if not isinstance(save_every, (int, np.integer)) or save_every < 1 or steps % save_every:
+    steps = check_count("steps", steps, 0)
+    save_every = check_count("save_every", save_every, 1)
+    if steps % save_every:
         raise ValueError(f"save_every must be a positive int dividing steps={steps}, got {save_every!r}")
-    steps, save_every = int(steps), int(save_every)
-    _check_dt(dt)
+    check_dt(dt)
+    check_dt(t0, "t0", positive=False)
     _check_checkpoint(checkpoint, steps, save_every)
     force_fn = None
     if isinstance(forces, Forces):
@@ -173,6 +174,8 @@ def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoin
     else:
         raise TypeError(f"forces must be Forces, a callable (state, t) -> Forces, or None; got {type(forces)}")
     checks = _checked.resolve(checked, state)
+    if checks is not None:
+        dt, t0 = traced_step_size(dt, t0, "simulate")
     out = _simulate(
         state,
         forces,
@@ -222,7 +225,8 @@ def _simulate(state, forces, dt, t0, *, steps, method, save_every, series, force
     consts = {k: getattr(state, k) for k in constant_fields(state)}
     consts_soa = {k: to_soa(v) for k, v in consts.items()}
     strip = lambda s: replace(s, **{k: None for k in consts})  # noqa: E731
-    user_fn = force_fn if force_fn is not None else as_force_fn(forces)
+    # wrapped here, not by the caller: force_fn is static, and a new wrapper per call would recompile
+    user_fn = checked_force_fn(force_fn if force_fn is not None else as_force_fn(forces))
 
     def soa_forces(state, t):
         # force callables and models are batch-level code written batch-first
@@ -286,7 +290,8 @@ def _simulate(state, forces, dt, t0, *, steps, method, save_every, series, force
 def _check_checkpoint(checkpoint: Any, steps: int, save_every: int) -> None:
     if checkpoint is None:
         return
-    if not isinstance(checkpoint, (int, np.integer)) or checkpoint < 1 or steps % checkpoint:
+    bad = isinstance(checkpoint, bool) or not isinstance(checkpoint, (int, np.integer))
+    if bad or checkpoint < 1 or steps % checkpoint:
         raise ValueError(f"checkpoint must be None or a positive int dividing steps={steps}, got {checkpoint!r}")
     if save_every % checkpoint and checkpoint % save_every:
         raise ValueError(f"checkpoint={checkpoint} must divide save_every={save_every} or be a multiple of it")
