@@ -153,3 +153,15 @@ def test_traced_non_finite_t0_is_caught_in_checked_mode():
     run = jax.jit(lambda t0: rb.simulate(s, None, DT, 3, "euler", t0=t0, checked=True).position)
     with pytest.raises(Exception, match=r"t0 must be finite"):
         jax.block_until_ready(run(jnp.nan))
+
+
+def test_divergence_message_quotes_the_measured_stability_limit():
+    # issue 17: rk4 goes NaN on the first step at dt·|ω| = 100; checked mode names the step and body
+    # and quotes the measured limit (benchmarks/stability_limits.py) stored on the Method
+    assert rb.methods()["rk4"].stable_dt_omega == {"State": 7.5, "MatrixState": 1.0, "ParticleState": np.inf}
+    s = rb.State.create(rb.box(1.0, [0.1, 0.2, 0.4]), angular_velocity=jnp.array([0.3, 100.0, 0.3]))
+    with pytest.raises(ValueError, match=r"at step 1 .*the body: .*beyond dt·\|ω\| ≈ 7.5 \(State\) / 1 \(Matrix"):
+        rb.simulate(s, None, 1.0, 10, "rk4", checked=True)
+    traj = rb.simulate(s, None, 1.0, 10, "rk4")  # unchecked: the documented silent failure
+    q1 = np.asarray(traj.orientation[1])
+    assert not (np.isfinite(q1).all() and abs(np.linalg.norm(q1) - 1) < 1e-6)
