@@ -177,9 +177,10 @@ def _advice(method: str | Callable[..., Any]) -> str:
     from . import _methods
 
     m = _methods.available().get(method) if isinstance(method, str) else None
+    note = f" ({m.failure_note})" if m is not None and m.failure_note else ""
     limits = {k: v for k, v in ((m.stable_dt_omega or {}) if m else {}).items() if np.isfinite(v)}
     if not limits:
-        return f"Method {method!r}: try a smaller dt or a more stable method"
+        return f"Method {method!r}{note}: try a smaller dt or a more stable method"
     where = " / ".join(f"{v:g} ({k})" for k, v in limits.items())
     return (
         f"Method {method!r} diverges beyond dt·|ω| ≈ {where} (measured, 1000 torque-free steps; see "

@@ -43,6 +43,8 @@ class Method:
             ``None`` for methods that are stable at any step (``"splitting"`` and
             its compositions, the implicit ones). Accuracy needs far smaller steps:
             see the integrator table in the README.
+        failure_note: what a checked-mode failure means for this method, added
+            to the error message.
     """
 
     name: str
@@ -51,6 +53,7 @@ class Method:
     conserves: str = ""
     cost: float = 1.0
     stable_dt_omega: dict[str, float] | None = None
+    failure_note: str = ""
 
 
 _REGISTRY: dict[str, Method] = {}
