@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._body import Body
+from ._io_check import check_arrays
 from ._pytree import is_rbjax_dataclass, new_unchecked
 from ._simulate_support import constant_fields
 from ._state import Forces, MatrixState, ParticleState, State
@@ -175,15 +176,26 @@ def save(
 def _read_npz(path: Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     try:
         z = np.load(path, allow_pickle=False)
-    except (OSError, EOFError, ValueError) as e:
-        raise ValueError(f"load: cannot read {path} as an .npz archive: {e}") from None
+    except FileNotFoundError:
+        raise ValueError(f"load: {path} does not exist") from None
+    except Exception as e:  # noqa: BLE001  (zipfile, zlib, numpy and OS errors alike: the file is unreadable)
+        raise ValueError(f"load: cannot read {path} as an .npz archive (truncated or corrupted?): {e}") from None
     if not isinstance(z, np.lib.npyio.NpzFile):
         raise ValueError(f"load: {path} is a single .npy array, not an rbjax .npz file")
     with z:
         if _META_KEY not in z.files:
             raise ValueError(f"load: {path} is not an rbjax file (no {_META_KEY!r} record)")
-        meta = json.loads(str(z[_META_KEY]))
-        arrays = {k: z[k] for k in z.files if k != _META_KEY}
+        try:
+            meta = json.loads(str(z[_META_KEY]))
+            # every member is read (and CRC-checked) here, so a damaged one is named now
+            arrays = {}
+            for k in z.files:
+                if k != _META_KEY:
+                    arrays[k] = z[k]
+        except Exception as e:  # noqa: BLE001  (BadZipFile, bad CRC-32, zlib, truncated member, bad JSON)
+            raise ValueError(f"load: {path} is damaged (truncated or corrupted?): {type(e).__name__}: {e}") from None
+    if not isinstance(meta, dict) or not isinstance(meta.get("tree"), dict):
+        raise ValueError(f"load: {path} has a malformed {_META_KEY!r} record")
     if meta.get("format") != _FORMAT:
         raise ValueError(f"load: {path} is not an rbjax file (format {meta.get('format')!r})")
     if meta.get("format_version", 0) > _FORMAT_VERSION:
@@ -245,15 +257,22 @@ def load(path: str | os.PathLike, expect: type | tuple[type, ...] | None = None)
             ``ValueError`` if the file holds another.
 
     Returns the saved object with JAX arrays, bitwise equal to what was saved.
-    Raises ``ValueError`` for a file of another rbjax major version, a newer
-    file format, a type other than ``expect``, or 64-bit data while JAX runs
-    in 32-bit mode (which would round it).
+    Raises ``ValueError``, naming the file (and the field), for a missing,
+    truncated or corrupted file; an array missing, unexpected, of another dtype
+    than recorded, or of the wrong per-body shape (checked against each field's
+    declaration, see :mod:`rbjax._io_check`); batch shapes that do not
+    broadcast or time axes of different lengths; finite orientations that are
+    not unit quaternions / rotations (non-finite frames of a diverged run load
+    as saved); a file of another rbjax major version, a newer file format, a
+    type other than ``expect``, or 64-bit data while JAX runs in 32-bit mode
+    (which would round it).
     """
     p = Path(path)
     if p.is_dir():
         return _load_chunks(p, expect)
     meta, arrays = _read_npz(p)
     _check_expect(meta, expect, p)
+    check_arrays(meta, arrays, p)
     return _rebuild(meta["tree"], "", _to_jax(arrays, p))
 
 
