@@ -145,8 +145,8 @@ from ._state import (
 # isort: split
 # --- tools: saving/loading, chunked long runs, checked mode ---
 from ._checked import Checks as Checks
+from ._chunk_dir import ChunkWriter as ChunkWriter
 from ._chunked import simulate_chunked as simulate_chunked
-from ._io import ChunkWriter as ChunkWriter
 from ._io import load as load
 from ._io import read_metadata as read_metadata
 from ._io import save as save
