@@ -41,9 +41,12 @@ TRIANGLE_RTOL = 1e-6
 
 
 def _as_float(x: ArrayLike) -> Array:
-    if x is None or isinstance(x, (str, bytes)):
-        raise TypeError(f"expected a real number or array, got {x!r}")
-    x = jnp.asarray(x)
+    if x is None or isinstance(x, (str, bytes, dict)):
+        raise TypeError(f"rbjax expected a real number or array, got {type(x).__name__} {x!r}")
+    try:
+        x = jnp.asarray(x)
+    except TypeError:
+        raise TypeError(f"rbjax expected a real number or array, got {type(x).__name__}: {x!r:.80}") from None
     if jnp.issubdtype(x.dtype, jnp.complexfloating):
         raise TypeError(f"expected real values, got dtype {x.dtype}")
     if not jnp.issubdtype(x.dtype, jnp.floating):
@@ -55,11 +58,21 @@ def _as_float(x: ArrayLike) -> Array:
 
 
 def _floats(obj: Any, *names: str) -> None:
-    """In ``__post_init__`` of a frozen pytree dataclass: the named fields as float arrays (``None`` stays)."""
+    """In ``__post_init__`` of a frozen pytree dataclass: the named fields as float arrays (``None`` stays).
+
+    ``TypeError`` for values that are not real numbers, ``ValueError`` for
+    concrete non-finite ones (a NaN parameter would make every step NaN).
+    """
     for name in names:
         v = getattr(obj, name)
         if v is not None:
-            object.__setattr__(obj, name, _as_float(v))
+            try:
+                a = _as_float(v)
+            except TypeError as e:
+                raise TypeError(f"{type(obj).__name__}: {name}: {e}") from None
+            if _is_concrete(a) and not np.all(np.isfinite(np.asarray(a))):
+                raise ValueError(f"{type(obj).__name__}: {name} must be finite, got non-finite entries")
+            object.__setattr__(obj, name, a)
 
 
 def _is_concrete(*xs: Any) -> bool:

@@ -40,6 +40,7 @@ from ._pytree import replace
 from ._simulate import as_force_fn, simulate
 from ._simulate_support import constant_fields
 from ._state import AnyState, ForceLike, Forces, State
+from ._validate import check_dt, check_state
 
 __all__ = ["shoot", "defects", "simulate_truncated"]
 
@@ -222,6 +223,9 @@ def simulate_truncated(
         Trajectory as :func:`rbjax.simulate`: leading time axis
         ``steps // save_every + 1``; constant fields not stacked.
     """
+    check_state(state, "simulate_truncated")
+    check_dt(dt)
+    check_dt(t0, "t0", positive=False)
     k = truncate_every
     if not isinstance(k, (int, np.integer)) or k < 1 or steps % k or k % save_every:
         raise ValueError(

@@ -44,6 +44,8 @@ def check_dt(dt: Any, name: str = "dt", *, positive: bool = True) -> None:
         raise TypeError(f"{name} must be a real number (seconds), got {type(dt).__name__}") from None
     if d.dtype == bool or not (np.issubdtype(d.dtype, np.integer) or np.issubdtype(d.dtype, np.floating)):
         raise TypeError(f"{name} must be a real number (seconds), got {dt!r} of dtype {d.dtype}")
+    if np.issubdtype(d.dtype, np.floating) and np.finfo(d.dtype).bits < 32:
+        raise TypeError(f"{name} must be float32 or float64 (or a Python number), got dtype {d.dtype}")
     if d.ndim != 0:
         raise ValueError(f"{name} must be a scalar, got shape {d.shape}")
     if not np.isfinite(d) or (positive and d <= 0):
