@@ -202,8 +202,10 @@ __version__ = "0.1.0"
 def methods(state_type: type | None = None) -> dict[str, _methods.Method]:
     """Registered integrators by name (optionally those supporting ``state_type``).
 
-    Each :class:`Method` records its order, what it conserves and its cost per
-    step relative to ``"euler"``.
+    Each :class:`Method` records its order, what it conserves, its cost per
+    step relative to ``"euler"`` and, for the explicit methods, its measured
+    stability limit ``stable_dt_omega`` (``{state type: dt·|ω|}`` beyond which
+    it diverges; e.g. ``rb.methods()["rk4"].stable_dt_omega``).
     """
     return _methods.available(state_type)
 

@@ -57,7 +57,9 @@ def step(
         t: time (s) at the start of the step, passed to a callable ``forces``.
 
     Returns the new state, of the same type and shape. Pure; ``jit`` it with
-    ``static_argnames="method"``.
+    ``static_argnames="method"``. Concrete bad arguments raise ``TypeError`` /
+    ``ValueError`` (as in :func:`simulate`); a traced ``dt`` is not tested here
+    (``step`` has no checked mode: use ``simulate(..., checked=True)``).
     """
     check_state(state, "step")
     fn = method if callable(method) else _methods.get(method, type(state))
