@@ -119,24 +119,18 @@ def _residual(y, pi0, I_inv, h):
 
 
 def _fast_guess(s: State, h) -> State:
-    """The fixed Newton iterations from ``Π_½ = Π₀`` (no gradient), stored in ``angular_momentum``."""
+    """The fixed Newton iterations from ``Π_½ = Π₀`` (no gradient), stored in ``angular_momentum``:
+    NaN there where the final Newton step from it would miss the tolerance (the body then
+    needs :func:`_continuation_guess`)."""
     pi0 = jax.lax.stop_gradient(_body_momentum(s))
-    consts = jax.lax.stop_gradient((pi0, s.body.inverse_inertia, h))
+    I_inv = jax.lax.stop_gradient(s.body.inverse_inertia)
     y = pi0
     for _ in range(_newton_iterations(y.dtype)):
         # materialise each iterate: fused across iterations, XLA:CPU re-evaluated
         # earlier iterations once per component of the later ones
-        y = jax.lax.optimization_barrier(_newton(y, *consts))
-    return replace(s, angular_momentum=y)
-
-
-def _converges(s: State, guess: State, h):
-    """Whether the final (differentiated) Newton step from ``guess`` meets the tolerance."""
-    pi0 = jax.lax.stop_gradient(_body_momentum(s))
-    I_inv = jax.lax.stop_gradient(s.body.inverse_inertia)
-    y1 = _newton(guess.angular_momentum, pi0, I_inv, h)
-    res, tol = _residual(y1, pi0, I_inv, h)
-    return res <= tol
+        y = jax.lax.optimization_barrier(_newton(y, pi0, I_inv, h))
+    res, tol = _residual(_newton(y, pi0, I_inv, h), pi0, I_inv, h)
+    return replace(s, angular_momentum=jnp.where(res <= tol, y, jnp.nan))
 
 
 def _continuation_guess(s: State, guess: State, h) -> State:
@@ -150,15 +144,15 @@ def _continuation_guess(s: State, guess: State, h) -> State:
     pi0 = jax.lax.stop_gradient(_body_momentum(s))
     I_inv = jax.lax.stop_gradient(s.body.inverse_inertia)
 
-    def stage(j, y):
-        hj = h * (j + 1) / _STAGES
-        for _ in range(_STAGE_ITERATIONS):
-            y = _newton(y, pi0, I_inv, hj)
-        return y
+    def iteration(k, y):
+        # stage k // _STAGE_ITERATIONS solves at h (stage + 1) / _STAGES; one flat loop,
+        # not unrolled: this branch is rare, and unrolled it doubled the compile time
+        hj = h * (k // _STAGE_ITERATIONS + 1).astype(y.dtype) / _STAGES
+        return _newton(y, pi0, I_inv, hj)
 
-    y = jax.lax.fori_loop(0, _STAGES, stage, pi0)
-    ok = _converges(s, guess, h)
-    return replace(s, angular_momentum=jnp.where(ok, guess.angular_momentum, y))
+    y = jax.lax.fori_loop(0, _STAGES * _STAGE_ITERATIONS, iteration, pi0)
+    kept = guess.angular_momentum
+    return replace(s, angular_momentum=jnp.where(jnp.isfinite(kept), kept, y))
 
 
 def _finish(s: State, guess: State, h) -> State:
@@ -182,10 +176,10 @@ def _finish(s: State, guess: State, h) -> State:
 def _drift(s: State, h) -> State:
     """The free-rotor midpoint drift of a batch (batch level, any layout)."""
     guess = lift(_fast_guess)(s, h)
-    ok = lift(_converges)(s, guess, h)
-    # the continuation runs only when some body needs it (a batch-level cond, so
-    # the usual step costs one extra residual); under a vmap over dt both branches run
-    guess = jax.lax.cond(jnp.all(ok), lambda g: g, lambda g: lift(_continuation_guess)(s, g, h), guess)
+    # the continuation runs only when some body needs it (a batch-level cond, so the
+    # usual step costs one extra residual); under a vmap over dt both branches run
+    done = jnp.all(jnp.isfinite(guess.angular_momentum))
+    guess = jax.lax.cond(done, lambda g: g, lambda g: lift(_continuation_guess)(s, g, h), guess)
     return lift(_finish)(s, guess, h)
 
 
