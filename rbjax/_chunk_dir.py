@@ -243,8 +243,9 @@ class ChunkWriter:
             self.count = len(chunk_files(self.directory))
         elif old or (self.directory / RUN_FILE).exists():
             if not overwrite and not (resume and not old):
+                what = f"{len(old)} chunk(s)" if old else f"the record ({RUN_FILE}) of a run that wrote no chunk yet"
                 raise ValueError(
-                    f"ChunkWriter: {self.directory} already holds {len(old)} chunk(s); pass resume=True to "
+                    f"ChunkWriter: {self.directory} already holds {what}; pass resume=True to "
                     "continue that run (with simulate_chunked(..., resume=True)), overwrite=True to delete "
                     "it, or choose another directory"
                 )

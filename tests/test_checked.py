@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -136,6 +137,9 @@ def test_under_jax_jit_the_message_is_on_its_own_line_with_the_remedy():
     i = next(i for i, line in enumerate(lines) if line.startswith("rbjax.simulate(checked=...): at step 8"))
     assert "body (3,)" in lines[i] and "non-finite" in lines[i]
     assert "equinox.filter_jit" in lines[i + 1]
+    # equinox.filter_jit unwraps it into its own error type, rbjax's message on a line of its own
+    with pytest.raises(eqx.EquinoxRuntimeError, match=r"(?m)^rbjax.simulate\(checked=...\): at step 8 .*body \(3,\)"):
+        jax.block_until_ready(eqx.filter_jit(run)(s))
 
 
 @pytest.mark.parametrize("bad", [-0.01, 0.0, float("nan"), float("inf")])
