@@ -344,7 +344,7 @@ KNOWN_GAPS = {
     "State.create(angular_velocity=float16)": lambda: rb.State.create(
         _body(), angular_velocity=jnp.ones(3, jnp.float16)
     ),
-    "State.create(position (4, 3) for 1 body, velocity (2, 3))": lambda: rb.State.create(
+    "State.create(body batch (3,), position (4, 3))": lambda: rb.State.create(
         rb.box(jnp.ones(3), jnp.ones((3, 3))), position=jnp.zeros((4, 3))
     ),
     "MatrixState.create(velocity=object())": lambda: rb.MatrixState.create(_body(), velocity=object()),
