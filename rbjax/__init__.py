@@ -151,8 +151,8 @@ from ._trajectory import concatenate as concatenate
 # isort: split
 # --- tools: saving/loading, chunked long runs, checked mode ---
 from ._checked import Checks as Checks
+from ._chunk_dir import ChunkWriter as ChunkWriter
 from ._chunked import simulate_chunked as simulate_chunked
-from ._io import ChunkWriter as ChunkWriter
 from ._io import load as load
 from ._io import read_metadata as read_metadata
 from ._io import save as save
@@ -215,8 +215,10 @@ from ._version import __version__ as __version__
 def methods(state_type: type | None = None) -> dict[str, _methods.Method]:
     """Registered integrators by name (optionally those supporting ``state_type``).
 
-    Each :class:`Method` records its order, what it conserves and its cost per
-    step relative to ``"euler"``.
+    Each :class:`Method` records its order, what it conserves, its cost per
+    step relative to ``"euler"`` and, for the explicit methods, its measured
+    stability limit ``stable_dt_omega`` (``{state type: dt·|ω|}`` beyond which
+    it diverges; e.g. ``rb.methods()["rk4"].stable_dt_omega``).
     """
     return _methods.available(state_type)
 

@@ -43,18 +43,38 @@ TRIANGLE_RTOL = 1e-6
 
 
 def _as_float(x: ArrayLike) -> Array:
-    x = jnp.asarray(x)
+    if x is None or isinstance(x, (str, bytes, dict)):
+        raise TypeError(f"rbjax expected a real number or array, got {type(x).__name__} {x!r}")
+    try:
+        x = jnp.asarray(x)
+    except TypeError:
+        raise TypeError(f"rbjax expected a real number or array, got {type(x).__name__}: {x!r:.80}") from None
+    if jnp.issubdtype(x.dtype, jnp.complexfloating):
+        raise TypeError(f"expected real values, got dtype {x.dtype}")
     if not jnp.issubdtype(x.dtype, jnp.floating):
         x = x.astype(jnp.result_type(float))
+    elif jnp.finfo(x.dtype).bits < 32:
+        # eigenvalues, unit quaternions and inertia checks need float32 at least
+        raise TypeError(f"rbjax computes in float32 or float64; got dtype {x.dtype}: convert with .astype")
     return x
 
 
 def _floats(obj: Any, *names: str) -> None:
-    """In ``__post_init__`` of a frozen pytree dataclass: the named fields as float arrays (``None`` stays)."""
+    """In ``__post_init__`` of a frozen pytree dataclass: the named fields as float arrays (``None`` stays).
+
+    ``TypeError`` for values that are not real numbers, ``ValueError`` for
+    concrete non-finite ones (a NaN parameter would make every step NaN).
+    """
     for name in names:
         v = getattr(obj, name)
         if v is not None:
-            object.__setattr__(obj, name, _as_float(v))
+            try:
+                a = _as_float(v)
+            except TypeError as e:
+                raise TypeError(f"{type(obj).__name__}: {name}: {e}") from None
+            if _is_concrete(a) and not np.all(np.isfinite(np.asarray(a))):
+                raise ValueError(f"{type(obj).__name__}: {name} must be finite, got non-finite entries")
+            object.__setattr__(obj, name, a)
 
 
 def _is_concrete(*xs: Any) -> bool:
@@ -218,6 +238,20 @@ def inertia_of(body: Body) -> Array:
     return body.inertia if body._inverse is not None else symmetric_part(body.inertia)
 
 
+def _size(fn: str, name: str, x: ArrayLike, *, vector: bool = False) -> Array:
+    """A length argument of a shape constructor as a float array: ``ValueError``
+    unless (when concrete) finite and > 0, and for ``vector`` ending in (3,)."""
+    a = _as_float(x)
+    if vector and a.shape[-1:] != (3,):
+        raise ValueError(f"{fn}: {name} must end in (3,) (one length per body axis x, y, z), got shape {a.shape}")
+    if _is_concrete(a):
+        v = np.asarray(a)
+        if not np.all(np.isfinite(v)) or np.any(v <= 0):
+            bad = v[~(np.isfinite(v) & (v > 0))].ravel()[:3]
+            raise ValueError(f"{fn}: {name} must be finite and > 0 (m), got {bad}")
+    return a
+
+
 def _diag(d0: Array, d1: Array, d2: Array) -> Array:
     d = jnp.stack(jnp.broadcast_arrays(d0, d1, d2), axis=-1)
     return d[..., :, None] * jnp.eye(3, dtype=d.dtype)
@@ -228,7 +262,7 @@ def box(mass: Float[ArrayLike, "*B"], size: Float[ArrayLike, "*B 3"]) -> Body:
 
     ``I = m/12 · diag(b² + c², a² + c², a² + b²)``.
     """
-    m, s = _as_float(mass), _as_float(size)
+    m, s = _as_float(mass), _size("box", "size", size, vector=True)
     a2, b2, c2 = s[..., 0] ** 2, s[..., 1] ** 2, s[..., 2] ** 2
     return Body(m, (m / 12)[..., None, None] * _diag(b2 + c2, a2 + c2, a2 + b2))
 
@@ -238,7 +272,7 @@ def sphere(mass: Float[ArrayLike, "*B"], radius: Float[ArrayLike, "*B"]) -> Body
 
     ``mass`` (kg) and ``radius`` broadcast to the batch shape ``B`` of the body.
     """
-    m, r = _as_float(mass), _as_float(radius)
+    m, r = _as_float(mass), _size("sphere", "radius", radius)
     i = 0.4 * m * r**2
     return Body(m, _diag(i, i, i))
 
@@ -248,7 +282,7 @@ def cylinder(mass: Float[ArrayLike, "*B"], radius: Float[ArrayLike, "*B"], lengt
 
     ``Izz = m r²/2``, ``Ixx = Iyy = m (3 r² + l²)/12``.
     """
-    m, r, l = _as_float(mass), _as_float(radius), _as_float(length)
+    m, r, l = _as_float(mass), _size("cylinder", "radius", radius), _size("cylinder", "length", length)
     t = m * (3 * r**2 + l**2) / 12
     return Body(m, _diag(t, t, 0.5 * m * r**2))
 
@@ -258,7 +292,7 @@ def ellipsoid(mass: Float[ArrayLike, "*B"], semi_axes: Float[ArrayLike, "*B 3"])
 
     ``I = m/5 · diag(b² + c², a² + c², a² + b²)``.
     """
-    m, s = _as_float(mass), _as_float(semi_axes)
+    m, s = _as_float(mass), _size("ellipsoid", "semi_axes", semi_axes, vector=True)
     a2, b2, c2 = s[..., 0] ** 2, s[..., 1] ** 2, s[..., 2] ** 2
     return Body(m, (m / 5)[..., None, None] * _diag(b2 + c2, a2 + c2, a2 + b2))
 

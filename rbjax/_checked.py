@@ -4,11 +4,16 @@ With ``checked=True`` (or a :class:`Checks`) the scan carries a small record of
 the first failure: the step, the body's flat batch index and what went wrong.
 Each step tests every body for a non-finite state and for an orientation off
 the unit sphere (``|‖q‖ - 1|``, or ``max |RᵀR - 1|`` for a rotation matrix);
-each saved frame tests for an energy jump. After the scan a single
-:func:`equinox.error_if` raises if anything failed. The step and body reach the
-message through equinox's message index: the messages are a lazy sequence
-that formats the one it is asked for, so the run costs one integer, not one
-string per step.
+each saved frame tests for an energy jump. After the scan, called eagerly (the
+usual case: ``simulate`` is compiled inside), the record is read on the host and
+a plain ``ValueError`` carries rbjax's message. Traced by a caller's ``jax.jit``
+the record is a tracer, so a single :func:`equinox.error_if` raises at run time
+instead; JAX then wraps the message in a ``JaxRuntimeError`` (``CpuCallback
+error``), so the message repeats itself on one line at its end and names the
+remedy (call ``simulate`` outside ``jax.jit``, or use ``equinox.filter_jit``,
+which unwraps it). The step and body reach the message through equinox's
+message index: the messages are a lazy sequence that formats the one it is
+asked for, so the run costs one integer, not one string per step.
 
 Off (the default) none of this is traced: the compiled program is the one
 without checks.
@@ -22,6 +27,7 @@ from typing import Any
 
 import equinox as eqx
 import jax
+import jax.core
 import jax.numpy as jnp
 import numpy as np
 
@@ -166,6 +172,22 @@ def after_save(rec: dict, state: Any, step: Any, checks: Checks, steps: int) -> 
     return {**rec, "emax": jnp.maximum(emax, energy)}
 
 
+def _advice(method: str | Callable[..., Any]) -> str:
+    """What to try, with the method's measured stability limit where it has one."""
+    from . import _methods
+
+    m = _methods.available().get(method) if isinstance(method, str) else None
+    note = f" ({m.failure_note})" if m is not None and m.failure_note else ""
+    limits = {k: v for k, v in ((m.stable_dt_omega or {}) if m else {}).items() if np.isfinite(v)}
+    if not limits:
+        return f"Method {method!r}{note}: try a smaller dt or a more stable method"
+    where = " / ".join(f"{v:g} ({k})" for k, v in limits.items())
+    return (
+        f"Method {method!r} diverges beyond dt·|ω| ≈ {where} (measured, 1000 torque-free steps; see "
+        'rbjax.methods()): keep dt·|ω| well below that, or use "splitting" (stable at any dt)'
+    )
+
+
 @dataclasses.dataclass(frozen=True)
 class _Messages:
     """The error messages, one per possible index, formatted when asked for.
@@ -193,18 +215,20 @@ class _Messages:
         else:
             step, body = where, "a body (index not recorded: steps x bodies overflows int32; enable x64)"
         step += self.step_offset
-        what = {
-            0: "the state became non-finite (NaN or inf)",
-            1: (f"the orientation left the unit sphere / SO(3) by more than quat_tol={self.checks.quat_tol:.3g}"),
-            2: (
+        # built per kind: a field that is None (energy_factor=None) is never formatted
+        if kind == 0:
+            what = "the state became non-finite (NaN or inf)"
+        elif kind == 1:
+            what = f"the orientation left the unit sphere / SO(3) by more than quat_tol={self.checks.quat_tol:.3g}"
+        else:
+            what = (
                 f"the kinetic energy jumped by more than energy_factor={self.checks.energy_factor:g} "
                 "times its largest earlier saved value"
-            ),
-        }[kind]
+            )
         return (
             f"rbjax.simulate(checked=...): at step {step} (time t0 + {step}·dt), {body}"
             f"{' of batch shape ' + str(self.batch_shape) if self.batch_shape else ''}: {what}. "
-            f"Method {self.method!r}: try a smaller dt or a more stable method; see rbjax.Checks."
+            f"{_advice(self.method)}; see rbjax.Checks."
         )
 
 
@@ -218,7 +242,35 @@ def raise_on_failure(
     steps: int,
     step_offset: int = 0,
 ) -> Any:
-    """``traj`` unchanged, or an equinox runtime error naming the step and body."""
+    """``traj`` unchanged, or an error naming the step and body.
+
+    Concrete record (``simulate`` called eagerly): ``ValueError`` raised here.
+    Traced (inside a caller's ``jit``): an equinox runtime error at run time,
+    whose message ends with a one-line copy of rbjax's (see the module docstring).
+    """
     msgs = _Messages(method, tuple(batch_shape), int(steps), int(step_offset), checks)
+    failed, code = rec["failed"], rec["code"]
+    if not isinstance(failed, jax.core.Tracer):
+        if bool(failed):
+            raise ValueError(msgs[int(code)])
+        return traj
     # msgs is a lazy, hashable stand-in for Sequence[str]: equinox only indexes it
-    return eqx.branched_error_if(traj, rec["failed"], rec["code"], msgs)  # pyright: ignore[reportArgumentType]
+    return eqx.branched_error_if(traj, failed, code, _Traced(msgs))  # pyright: ignore[reportArgumentType]
+
+
+@dataclasses.dataclass(frozen=True)
+class _Traced:
+    """The messages for a run inside a caller's ``jit``: JAX prints a traceback
+    before the message, so each also says how to get it as a plain error."""
+
+    msgs: _Messages
+
+    def __len__(self) -> int:
+        return len(self.msgs)
+
+    def __getitem__(self, index: int) -> str:
+        return (
+            f"\n\n{self.msgs[index]}\n(Under jax.jit this arrives wrapped in a JaxRuntimeError "
+            "'CpuCallback error'; call rbjax.simulate outside jax.jit (it is compiled already) or use "
+            "equinox.filter_jit to get it unwrapped.)\n"
+        )

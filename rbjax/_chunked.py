@@ -18,10 +18,12 @@ import numpy as np
 from jaxtyping import Float
 
 from ._checked import Checks
-from ._io import ChunkWriter
+from ._chunk_dir import ChunkWriter, chunk_files, fingerprint
+from ._io import load
 from ._simulate import _is_time_series, _run, start_time
 from ._state import ForceLike, Forces, StateT
 from ._typing import ArrayLike
+from ._validate import check_count, check_dt, check_state
 
 __all__ = ["simulate_chunked"]
 
@@ -56,6 +58,7 @@ def simulate_chunked(
     writer: ChunkWriter | None = None,
     keep: bool = True,
     checked: bool | Checks = False,
+    resume: bool = False,
 ) -> StateT:
     """:func:`rbjax.simulate` in chunks of ``chunk_steps`` steps, with a progress bar.
 
@@ -75,34 +78,70 @@ def simulate_chunked(
         keep: return the whole trajectory (``True``) or only the final state
             (``False``; for runs written to disk that do not fit in memory).
         checked: as in :func:`rbjax.simulate`; errors name the absolute step.
+        resume: continue an interrupted run in ``writer``'s directory (open it
+            with ``ChunkWriter(directory, resume=True)``) from its last complete
+            chunk, with the same arguments as the first call: they are compared
+            with the run record (steps, ``dt``, method, ``save_every``,
+            ``chunk_steps``, ``t0``, dtype, the initial state's fingerprint and
+            the forces' where they have one: ``Forces`` and force models without
+            function fields; a plain callable is not checked), ``ValueError``
+            on any difference. The finished directory, and the returned
+            trajectory, are bitwise equal to an uninterrupted run's: each chunk
+            starts from the stored last frame of the one before, which is the
+            state the uninterrupted run carried.
 
     Returns the trajectory with a leading time axis of ``steps // save_every +
-    1`` frames (as :func:`rbjax.simulate`), equal to ``simulate``'s to round-off in
-    the time ``t`` passed to callable forces (each chunk starts at
-    ``t0 + k dt``). Time-series forces ``(steps, *B, 3)`` are sliced per
+    1`` frames on every leaf (as :func:`rbjax.simulate`), bitwise equal to ``simulate``'s (step ``k`` of
+    every chunk runs at ``t0 + (steps done + k) dt``, as in one run). Time-series forces ``(steps, *B, 3)`` are sliced per
     chunk. Not differentiable as a whole (it is a host loop); use ``simulate``
     for gradients.
+
+    With a ``writer`` the directory gets a run record (``run.json``: the plan
+    above, marked complete after the last chunk), so ``rbjax.load`` refuses an
+    interrupted run unless asked (``allow_incomplete=True``).
     """
-    if not isinstance(steps, (int, np.integer)) or steps < 0:
-        raise ValueError(f"steps must be a non-negative int, got {steps!r}")
-    if not isinstance(save_every, (int, np.integer)) or save_every < 1 or steps % save_every:
+    check_state(state, "simulate_chunked")
+    steps = check_count("steps", steps, 0)
+    save_every = check_count("save_every", save_every, 1)
+    if steps % save_every:
         raise ValueError(f"save_every must be a positive int dividing steps={steps}, got {save_every!r}")
+    check_dt(dt)
+    t0 = start_time(state) if t0 is None else t0
+    check_dt(t0, "t0", positive=False)
     if chunk_steps is None:
         chunk_steps = -(-10_000 // save_every) * save_every
-    if not isinstance(chunk_steps, (int, np.integer)) or chunk_steps < 1 or chunk_steps % save_every:
+    if isinstance(chunk_steps, bool) or not isinstance(chunk_steps, (int, np.integer)) or chunk_steps < 1:
+        raise ValueError(f"chunk_steps must be a positive multiple of save_every={save_every}, got {chunk_steps!r}")
+    if chunk_steps % save_every:
         raise ValueError(f"chunk_steps must be a positive multiple of save_every={save_every}, got {chunk_steps!r}")
     chunk_steps = int(min(chunk_steps, max(steps, save_every)))
     series = isinstance(forces, Forces) and _is_time_series(forces, state, steps)
-    t0 = start_time(state) if t0 is None else t0
-    if writer is not None:
-        writer.set_defaults(method=method, dt=dt, save_every=save_every, t0=t0)
-    bar = _progress_bar(progress, steps)
-    dt_arr, t0_arr = jnp.asarray(dt), jnp.asarray(t0)
     kept: list[Any] = []
     current = state
-    done = 0
+    done, started = 0, False
+    if writer is not None:
+        writer.set_defaults(method=method, dt=dt, save_every=save_every, t0=t0)
+        plan = _plan(state, forces, dt, steps, method, save_every, chunk_steps, t0)
+        if resume:
+            done, current, kept = _resume(writer, plan, keep)
+            started = current is not None
+            current = state if current is None else current
+        else:
+            if writer.count:
+                raise ValueError(
+                    f"simulate_chunked: {writer.directory} already holds {writer.count} chunk(s); pass "
+                    "resume=True to continue that run"
+                )
+            writer.start_run(plan)
+    elif resume:
+        raise ValueError("simulate_chunked: resume=True needs writer=rbjax.ChunkWriter(directory, resume=True)")
+    bar = _progress_bar(progress, steps)
+    if bar is not None and done:
+        bar.update(done)
+    dt_arr, t0_arr = jnp.asarray(dt), jnp.asarray(t0)
     try:
-        while True:
+        while done < steps or not started:  # steps=0 still makes (and writes) the one-frame trajectory
+            started = True
             n = min(chunk_steps, steps - done)
             f = jax.tree.map(lambda a, sl=slice(done, done + n): a[sl], forces) if series else forces
             traj = _run(
@@ -118,7 +157,7 @@ def simulate_chunked(
             )
             part = traj if done == 0 else _frames(traj, slice(1, None))
             if writer is not None:
-                writer.write(part)
+                writer.write(part, first_step=0 if done == 0 else done + save_every)
             if keep:
                 kept.append(part)
             current = _frames(traj, -1)
@@ -126,13 +165,49 @@ def simulate_chunked(
             if bar is not None:
                 jax.block_until_ready(current)
                 bar.update(n)
-            if done >= steps:
-                break
     finally:
         if bar is not None:
             bar.close()
+    if writer is not None:
+        writer.finish()
     if not keep:
         return current
     if len(kept) == 1:
         return kept[0]
     return jax.tree.map(lambda *a: jnp.concatenate(a), *kept)
+
+
+def _plan(state, forces, dt, steps, method, save_every, chunk_steps, t0) -> dict[str, Any]:
+    """The run record: what a resumed call must repeat exactly."""
+    return {
+        "steps": int(steps),
+        "dt": float(np.asarray(dt)),
+        "method": method if isinstance(method, str) else None,
+        "save_every": int(save_every),
+        "chunk_steps": int(chunk_steps),
+        "chunks_planned": max(1, -(-int(steps) // int(chunk_steps))),
+        "t0": float(np.asarray(t0)),
+        "dtype": str(state.dtype),
+        "state_fingerprint": fingerprint(state),
+        "forces_fingerprint": fingerprint(forces),
+        "forces_kind": "None" if forces is None else type(forces).__name__,
+    }
+
+
+def _resume(writer: ChunkWriter, plan: dict[str, Any], keep: bool) -> tuple[int, Any, list[Any]]:
+    """``(steps done, state to continue from, kept chunks)`` of the interrupted run in ``writer``'s directory."""
+    run = writer.run
+    if run is None:
+        raise ValueError(f"simulate_chunked(resume=True): {writer.directory} has no run record to resume")
+    for key, want in plan.items():
+        if run.get(key) != want:
+            raise ValueError(
+                f"simulate_chunked(resume=True): {key} is {want!r} but the interrupted run in {writer.directory} "
+                f"had {run.get(key)!r}; resume with the same arguments (or start afresh with overwrite=True)"
+            )
+    if writer.count == 0:
+        return 0, None, []
+    files = chunk_files(writer.directory)[: writer.count]
+    parts = [load(f) for f in (files if keep else files[-1:])]  # each file checked as it loads
+    done = min(writer.count * plan["chunk_steps"], plan["steps"])
+    return done, _frames(parts[-1], -1), parts if keep else []

@@ -26,7 +26,7 @@ from jax import Array
 from jax.sharding import NamedSharding, PartitionSpec
 from jaxtyping import Float, Int
 
-from ._body import _as_float, _floats
+from ._body import _floats
 from ._math import cross, quat_rotate, safe_norm
 from ._pytree import field, pytree_dataclass, static_field
 from ._quantities import angular_velocity
@@ -117,7 +117,7 @@ class Gravity(ForceModel):
         def __init__(self, g: Float[ArrayLike, "*B 3"] | tuple[float, float, float] = (0.0, 0.0, -9.81)) -> None: ...
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "g", _as_float(self.g))
+        _floats(self, "g")
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         return Forces(force=_full(_mass(state)[..., None] * _cast(self.g, state), state))
@@ -490,12 +490,13 @@ class TimeSeriesForce(ForceModel):
     def __post_init__(self) -> None:
         if self.interpolation not in ("linear", "hold"):
             raise ValueError(f"TimeSeriesForce: interpolation must be 'linear' or 'hold', got {self.interpolation!r}")
-        object.__setattr__(self, "times", _as_float(self.times))
+        _floats(self, "times")
         k = self.times.shape[0] if self.times.ndim == 1 else -1
         for name in ("force", "torque"):
             v = getattr(self, name)
             if v is not None:
-                v = _as_float(v)
+                _floats(self, name)
+                v = getattr(self, name)
                 if v.ndim < 2 or v.shape[0] != k or v.shape[-1] != 3:
                     raise ValueError(
                         f"TimeSeriesForce: {name} must have shape (K={k}, ..., 3) matching times (K,); got {v.shape}"

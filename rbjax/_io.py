@@ -19,7 +19,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import re
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -29,16 +28,16 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._body import Body
+from ._io_check import check_arrays
 from ._pytree import is_rbjax_dataclass, new_unchecked
 from ._state import Forces, MatrixState, ParticleState, State
 
-__all__ = ["save", "load", "ChunkWriter", "read_metadata"]
+__all__ = ["save", "load", "read_metadata"]
 
 _FORMAT = "rbjax-npz"
 _FORMAT_VERSION = 1
 _META_KEY = "__rbjax__"
 _TYPES: dict[str, type] = {t.__name__: t for t in (State, MatrixState, ParticleState, Body, Forces)}
-_CHUNK = re.compile(r"^chunk_(\d{6,})\.npz$")
 
 
 def _version() -> str:
@@ -176,15 +175,26 @@ def save(
 def _read_npz(path: Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     try:
         z = np.load(path, allow_pickle=False)
-    except (OSError, EOFError, ValueError) as e:
-        raise ValueError(f"load: cannot read {path} as an .npz archive: {e}") from None
+    except FileNotFoundError:
+        raise ValueError(f"load: {path} does not exist") from None
+    except Exception as e:  # noqa: BLE001  (zipfile, zlib, numpy and OS errors alike: the file is unreadable)
+        raise ValueError(f"load: cannot read {path} as an .npz archive (truncated or corrupted?): {e}") from None
     if not isinstance(z, np.lib.npyio.NpzFile):
         raise ValueError(f"load: {path} is a single .npy array, not an rbjax .npz file")
     with z:
         if _META_KEY not in z.files:
             raise ValueError(f"load: {path} is not an rbjax file (no {_META_KEY!r} record)")
-        meta = json.loads(str(z[_META_KEY]))
-        arrays = {k: z[k] for k in z.files if k != _META_KEY}
+        try:
+            meta = json.loads(str(z[_META_KEY]))
+            # every member is read (and CRC-checked) here, so a damaged one is named now
+            arrays = {}
+            for k in z.files:
+                if k != _META_KEY:
+                    arrays[k] = z[k]
+        except Exception as e:  # noqa: BLE001  (BadZipFile, bad CRC-32, zlib, truncated member, bad JSON)
+            raise ValueError(f"load: {path} is damaged (truncated or corrupted?): {type(e).__name__}: {e}") from None
+    if not isinstance(meta, dict) or not isinstance(meta.get("tree"), dict):
+        raise ValueError(f"load: {path} has a malformed {_META_KEY!r} record")
     if meta.get("format") != _FORMAT:
         raise ValueError(f"load: {path} is not an rbjax file (format {meta.get('format')!r})")
     if meta.get("format_version", 0) > _FORMAT_VERSION:
@@ -226,17 +236,24 @@ def read_metadata(path: str | os.PathLike) -> dict[str, Any]:
     Keys: ``rbjax_version``, ``dtype``, ``method``, ``dt`` (s), ``save_every``,
     ``t0`` (s), ``time_stacked`` (field names), ``tree`` (the pytree structure:
     type names and fields, nested), ``format``, ``format_version``; for chunk
-    directories also ``chunks``.
+    directories also ``chunks`` (the number present), ``run`` (the planned run
+    recorded by :func:`rbjax.simulate_chunked`, or ``None``) and ``complete``
+    (whether that run finished; ``None`` without a record).
     """
+    from ._chunk_dir import chunk_files, read_run  # builds on this module
+
     p = Path(path)
     if p.is_dir():
-        files = _chunk_files(p)
+        files = chunk_files(p)
         meta, _ = _read_npz(files[0])
-        return {**meta, "chunks": len(files)}
+        run = read_run(p)
+        return {**meta, "chunks": len(files), "complete": None if run is None else bool(run["complete"]), "run": run}
     return _read_npz(p)[0]
 
 
-def load(path: str | os.PathLike, expect: type | tuple[type, ...] | None = None) -> Any:
+def load(
+    path: str | os.PathLike, expect: type | tuple[type, ...] | None = None, *, allow_incomplete: bool = False
+) -> Any:
     """Load what :func:`save` or a :class:`ChunkWriter` wrote.
 
     Args:
@@ -244,108 +261,29 @@ def load(path: str | os.PathLike, expect: type | tuple[type, ...] | None = None)
             (concatenated along the time axis into one trajectory ``(T, *B, ...)``).
         expect: a pytree type (or tuple of types), e.g. ``rbjax.State``: raise
             ``ValueError`` if the file holds another.
+        allow_incomplete: load the chunks of an interrupted run (whose record
+            says it did not finish) instead of raising ``ValueError``.
 
     Returns the saved object with JAX arrays, bitwise equal to what was saved.
-    Raises ``ValueError`` for a file of another rbjax major version, a newer
-    file format, a type other than ``expect``, or 64-bit data while JAX runs
-    in 32-bit mode (which would round it).
+    Raises ``ValueError``, naming the file (and the field), for a missing,
+    truncated or corrupted file; an array missing, unexpected, of another dtype
+    than recorded, or of the wrong per-body shape (checked against each field's
+    declaration, see :mod:`rbjax._io_check`); batch shapes that do not
+    broadcast or time axes of different lengths; finite orientations that are
+    not unit quaternions / rotations (non-finite frames of a diverged run load
+    as saved); a file of another rbjax major version, a newer file format, a
+    type other than ``expect``, or 64-bit data while JAX runs in 32-bit mode
+    (which would round it); for a directory, an interrupted run (see
+    ``allow_incomplete``) or chunks that disagree (``dt``, method,
+    ``save_every``, dtype, repeated or missing frames). Orphaned ``*.tmp``
+    files in a directory are ignored with a warning.
     """
+    from ._chunk_dir import load_chunks  # builds on this module
+
     p = Path(path)
     if p.is_dir():
-        return _load_chunks(p, expect)
+        return load_chunks(p, expect, allow_incomplete)
     meta, arrays = _read_npz(p)
     _check_expect(meta, expect, p)
+    check_arrays(meta, arrays, p)
     return _rebuild(meta["tree"], "", _to_jax(arrays, p))
-
-
-def _chunk_files(directory: Path) -> list[Path]:
-    found = sorted((int(m.group(1)), directory / name) for name in os.listdir(directory) if (m := _CHUNK.match(name)))
-    if not found:
-        raise ValueError(f"load: {directory} holds no chunk_NNNNNN.npz files")
-    numbers = [n for n, _ in found]
-    if numbers != list(range(len(numbers))):
-        missing = sorted(set(range(numbers[-1] + 1)) - set(numbers))
-        raise ValueError(f"load: {directory} is missing chunk(s) {missing[:5]}")
-    return [f for _, f in found]
-
-
-def _load_chunks(directory: Path, expect: Any) -> Any:
-    files = _chunk_files(directory)
-    metas, parts = zip(*(_read_npz(f) for f in files), strict=True)
-    tree = metas[0]["tree"]
-    _check_expect(metas[0], expect, directory)
-    stacked = metas[0]["time_stacked"]
-    if not stacked and len(files) > 1:
-        raise ValueError(f"load: the chunks in {directory} are not trajectories; nothing to concatenate")
-    merged: dict[str, np.ndarray] = {}
-    for key in parts[0]:
-        top = key.split(".", 1)[0]
-        if top in stacked:
-            merged[key] = np.concatenate([p[key] for p in parts], axis=0)
-        else:
-            for p, f in zip(parts[1:], files[1:], strict=True):
-                if not np.array_equal(p[key], parts[0][key], equal_nan=True):
-                    raise ValueError(f"load: {key!r} in {f.name} differs from the first chunk's")
-            merged[key] = parts[0][key]
-    for m, f in zip(metas[1:], files[1:], strict=True):
-        if m["tree"] != tree:
-            raise ValueError(f"load: {f.name} holds a different pytree structure from the first chunk")
-    return _rebuild(tree, "", _to_jax(merged, directory))
-
-
-class ChunkWriter:
-    """Write a long trajectory as numbered chunk files in a directory.
-
-    ``writer.write(traj)`` stores one chunk, ``chunk_000000.npz``,
-    ``chunk_000001.npz``, ..., each a complete :func:`save` file (written to a
-    temporary name and renamed, so a crash loses at most the chunk being
-    written). ``rbjax.load(directory)`` concatenates them along the time axis
-    (leading axis of the changing fields; ``body`` must be the same in all).
-    Chunks must not repeat frames: :func:`rbjax.simulate_chunked` passes the
-    first chunk whole and later chunks without their initial frame.
-
-    Args:
-        directory: created if missing; must not already hold chunks unless
-            ``overwrite=True`` (which deletes them).
-        method, dt, save_every, t0: metadata written into every chunk
-            (``dt``, ``t0`` in s); :func:`rbjax.simulate_chunked` fills them
-            from its own arguments when left ``None``.
-    """
-
-    def __init__(
-        self,
-        directory: str | os.PathLike,
-        *,
-        method: str | None = None,
-        dt: Any = None,
-        save_every: int | None = None,
-        t0: Any = None,
-        overwrite: bool = False,
-    ) -> None:
-        self.directory = Path(directory)
-        self.directory.mkdir(parents=True, exist_ok=True)
-        old = [n for n in os.listdir(self.directory) if _CHUNK.match(n)]
-        if old:
-            if not overwrite:
-                raise ValueError(
-                    f"ChunkWriter: {self.directory} already holds {len(old)} chunk(s); "
-                    "choose another directory or pass overwrite=True"
-                )
-            for n in old:
-                os.unlink(self.directory / n)
-        self.meta = {"method": method, "dt": dt, "save_every": save_every, "t0": t0}
-        self.count = 0
-
-    def set_defaults(self, **meta: Any) -> None:
-        """Fill metadata fields that are still ``None`` (used by ``simulate_chunked``)."""
-        for k, v in meta.items():
-            if self.meta.get(k) is None:
-                self.meta[k] = v
-
-    def write(self, trajectory: Any) -> Path:
-        """Store one chunk ``(T_chunk, *B, ...)``; returns its path."""
-        meta = _metadata(trajectory, trajectory=True, **self.meta, extra={"chunk": self.count})
-        path = self.directory / f"chunk_{self.count:06d}.npz"
-        _write_npz(path, trajectory, meta)
-        self.count += 1
-        return path

@@ -31,6 +31,16 @@ __all__ = [
 ]
 
 
+def _expect(state: object, fn: str, types: tuple[type, ...] = (State, MatrixState)) -> None:
+    """``TypeError`` unless ``state`` is one of ``types`` (before ``lift`` fails on it obscurely)."""
+    if not isinstance(state, types):
+        names = " or ".join(t.__name__ for t in types)
+        raise TypeError(f"{fn}: state must be a {names}, got {type(state).__name__}")
+
+
+_ANY = (State, MatrixState, ParticleState)
+
+
 def _omega_world(s: State) -> Array:
     # ω = I_w⁻¹ L = R I_L⁻¹ Rᵀ L, evaluated with quaternion rotations (no matrix)
     return quat_rotate(
@@ -50,6 +60,7 @@ def angular_velocity(state: RigidState) -> Float[Array, "*B 3"]:
     For :class:`State` ``ω = I_w⁻¹ L = R I_L⁻¹ Rᵀ L``; for :class:`MatrixState`
     the stored ``ω``.
     """
+    _expect(state, "angular_velocity")
     return lift(_one_angular_velocity)(state)
 
 
@@ -61,6 +72,7 @@ def _one_body_angular_velocity(s: RigidState) -> Array:
 
 def body_angular_velocity(state: RigidState) -> Float[Array, "*B 3"]:
     """Body-frame angular velocity ``ω_L = Rᵀ ω`` (rad/s), ``(*B, 3)``: what a gyroscope reads."""
+    _expect(state, "body_angular_velocity")
     return lift(_one_body_angular_velocity)(state)
 
 
@@ -70,6 +82,7 @@ def _one_rotation(s: RigidState) -> Array:
 
 def rotation_matrix(state: RigidState) -> Float[Array, "*B 3 3"]:
     """Rotation matrix ``R`` (body to world), ``(*B, 3, 3)``."""
+    _expect(state, "rotation_matrix")
     return lift(_one_rotation)(state)
 
 
@@ -79,6 +92,7 @@ def _one_orientation(s: RigidState) -> Array:
 
 def orientation(state: RigidState) -> Float[Array, "*B 4"]:
     """Unit quaternion ``[w, x, y, z]`` (body to world), ``(*B, 4)``."""
+    _expect(state, "orientation")
     return lift(_one_orientation)(state)
 
 
@@ -89,6 +103,7 @@ def _one_world_inertia(s: RigidState) -> Array:
 
 def world_inertia(state: RigidState) -> Float[Array, "*B 3 3"]:
     """World-frame inertia ``I_w = R I_L Rᵀ`` (kg m², about the centre of mass), ``(*B, 3, 3)``."""
+    _expect(state, "world_inertia")
     return lift(_one_world_inertia)(state)
 
 
@@ -111,6 +126,7 @@ def angular_momentum(state: AnyState, about: Float[ArrayLike, "*B 3"] | None = N
     term ``(x - a) × m v`` when a world point ``about = a`` is given. Particles:
     ``L = r × p`` about ``about`` (default the world origin), as in the notes.
     """
+    _expect(state, "angular_momentum", _ANY)
     a = None if about is None else jnp.asarray(about, state.dtype)
     return lift(lambda s: _one_angular_momentum(s, a))(state)
 
@@ -122,6 +138,7 @@ def _one_linear_momentum(s: AnyState) -> Array:
 
 def linear_momentum(state: AnyState) -> Float[Array, "*B 3"]:
     """Linear momentum ``p = m v`` (world, kg m/s), ``(*B, 3)``."""
+    _expect(state, "linear_momentum", _ANY)
     return lift(_one_linear_momentum)(state)
 
 
@@ -137,6 +154,7 @@ def _one_kinetic_energy(s: AnyState) -> Array:
 
 def kinetic_energy(state: AnyState) -> Float[Array, "*B"]:
     """Kinetic energy ``½ m ‖v‖² + ½ ω · L`` (J), ``(*B,)``; translation only for particles."""
+    _expect(state, "kinetic_energy", _ANY)
     return lift(_one_kinetic_energy)(state)
 
 
@@ -145,6 +163,7 @@ def to_matrix_state(state: State) -> MatrixState:
 
     ``R = R(q)`` (body to world, ``(*B, 3, 3)``), ``ω = I_w⁻¹ L`` (world frame).
     """
+    _expect(state, "to_matrix_state", (State,))
     R, w = rotation_matrix(state), angular_velocity(state)
     return new_unchecked(
         MatrixState,
@@ -162,6 +181,7 @@ def to_state(state: MatrixState) -> State:
 
     ``q`` from ``R`` (body to world, ``(*B, 4)``), ``L = I_w ω`` (world frame).
     """
+    _expect(state, "to_state", (MatrixState,))
     q, L = orientation(state), angular_momentum(state)
     return new_unchecked(
         State,

@@ -41,6 +41,7 @@ from ._simulate import as_force_fn, simulate, start_time
 from ._simulate_support import constant_fields
 from ._state import AnyState, ForceLike, Forces, State
 from ._trajectory import stack_frames
+from ._validate import check_dt, check_state
 
 __all__ = ["shoot", "defects", "simulate_truncated"]
 
@@ -225,6 +226,10 @@ def simulate_truncated(
         Trajectory as :func:`rbjax.simulate`: leading time axis
         ``steps // save_every + 1`` on every leaf.
     """
+    check_state(state, "simulate_truncated")
+    check_dt(dt)
+    if t0 is not None:
+        check_dt(t0, "t0", positive=False)
     k = truncate_every
     if not isinstance(k, (int, np.integer)) or k < 1 or steps % k or k % save_every:
         raise ValueError(

@@ -22,18 +22,9 @@ from ._simulate_support import constant_fields
 from ._state import AnyState, ForceLike, Forces, ParticleState, StateT
 from ._trajectory import stack_frames
 from ._typing import ArrayLike
+from ._validate import check_count, check_dt, check_state, checked_force_fn, traced_step_size
 
 __all__ = ["step", "simulate", "as_force_fn"]
-
-
-def _check_dt(dt: Any) -> None:
-    if isinstance(dt, jax.core.Tracer):
-        return  # checked mode covers traced values
-    d = np.asarray(dt)
-    if d.ndim != 0:
-        raise ValueError(f"dt must be a scalar, got shape {d.shape}")
-    if not np.isfinite(d) or d <= 0:
-        raise ValueError(f"dt must be finite and > 0, got {d}")
 
 
 def as_force_fn(forces: ForceLike) -> Callable[[Any, Array], Forces]:
@@ -53,14 +44,6 @@ def cast_forces(forces: Forces, dtype: Any) -> Forces:
     if all(a is None or a.dtype == dtype for a in (forces.force, forces.torque)):
         return forces
     return replace(forces, force=cast(forces.force), torque=cast(forces.torque))
-
-
-def _cast_fn(fn: Callable[[Any, Array], Forces], dtype: Any) -> Callable[[Any, Array], Forces]:
-    def cast_fn(state: Any, t: Array) -> Forces:
-        out = fn(state, t)
-        return cast_forces(out, dtype) if isinstance(out, Forces) else out
-
-    return cast_fn
 
 
 def start_time(state: AnyState) -> Array:
@@ -128,17 +111,22 @@ def step(
 
     Returns the new state, of the same type and shape, with ``time = t + dt``.
     Forces are cast to the state's dtype. Pure; ``jit`` it with
-    ``static_argnames="method"``.
+    ``static_argnames="method"``. Concrete bad arguments raise ``TypeError`` /
+    ``ValueError`` (as in :func:`simulate`); a traced ``dt`` is not tested here
+    (``step`` has no checked mode: use ``simulate(..., checked=True)``).
     """
+    check_state(state, "step")
     fn = method if callable(method) else _methods.get(method, type(state))
-    _check_dt(dt)
+    check_dt(dt)
+    if t is not None:
+        check_dt(t, "t", positive=False)
     dtype = state.dtype
     if isinstance(forces, Forces):
         forces = cast_forces(forces, dtype)
         batch_shape(state, forces)
     dt = jnp.asarray(dt, dtype)
     t = start_time(state) if t is None else jnp.asarray(t, dtype)
-    new = fn(_prepared(_canonical(state)), _cast_fn(as_force_fn(forces), dtype), t, dt)
+    new = fn(_prepared(_canonical(state)), checked_force_fn(as_force_fn(forces)), t, dt)
     keep = {k: getattr(state, k) for k in constant_fields(state) if k != "time"}
     return replace(new, **keep, time=jnp.broadcast_to(t + dt, jnp.shape(state.time)).astype(dtype))
 
@@ -185,7 +173,9 @@ def simulate(
             * a force model (:class:`rbjax.ForceModel`, e.g. ``Gravity() + LinearDrag(0.1)``),
               whose arrays are traced data (changing them does not recompile);
             * ``None``.
-        dt: step (s), > 0; differentiable.
+        dt: step (s), > 0; differentiable. A concrete ``dt`` is checked here
+            (``TypeError``/``ValueError``); a traced one (under a caller's ``jit``,
+            ``grad`` or ``vmap``) only with ``checked``, at run time.
         steps: number of steps (static).
         method: integrator name (static), or a hashable batch step function
             ``(state, force_fn, t, dt) -> state`` such as a :class:`rbjax.Scene`'s kernel.
@@ -218,7 +208,12 @@ def simulate(
         ``traj[:, j]``, iteration and :func:`rbjax.concatenate` do the same with
         checks. Forces are cast to the state's dtype.
 
-    A new callable ``forces`` object compiles anew (it is a static argument).
+    A new callable ``forces`` object compiles anew (it is a static argument). Its
+    output is checked once, while tracing: anything but :class:`Forces` raises
+    ``TypeError``, a force or torque not broadcastable to ``(*B, 3)`` ``ValueError``.
+    With ``checked``, a failure raises ``ValueError`` when ``simulate`` is called
+    eagerly; inside a caller's ``jax.jit`` it arrives wrapped in JAX's
+    ``JaxRuntimeError`` (use ``equinox.filter_jit`` to unwrap it).
     """
     return _run(state, forces, dt, steps, method, save_every=save_every, t0=t0, checked=checked, checkpoint=checkpoint)
 
@@ -230,14 +225,16 @@ def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoin
     run): step ``k`` runs at ``t0 + (step_offset + k) dt``, and checked-mode
     errors count from it.
     """
+    check_state(state, "simulate")
     if not callable(method):  # a callable is a step fn, e.g. a Scene's specialised kernel
         _methods.get(method, type(state))
-    if not isinstance(steps, (int, np.integer)) or steps < 0:
-        raise ValueError(f"steps must be a non-negative int, got {steps!r}")
-    if not isinstance(save_every, (int, np.integer)) or save_every < 1 or steps % save_every:
+    steps = check_count("steps", steps, 0)
+    save_every = check_count("save_every", save_every, 1)
+    if steps % save_every:
         raise ValueError(f"save_every must be a positive int dividing steps={steps}, got {save_every!r}")
-    steps, save_every = int(steps), int(save_every)
-    _check_dt(dt)
+    check_dt(dt)
+    if t0 is not None:
+        check_dt(t0, "t0", positive=False)
     _check_checkpoint(checkpoint, steps, save_every)
     force_fn = None
     state = _canonical(state)
@@ -254,6 +251,8 @@ def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoin
     else:
         raise TypeError(f"forces must be Forces, a callable (state, t) -> Forces, or None; got {type(forces)}")
     checks = _checked.resolve(checked, state)
+    if checks is not None:
+        dt, t0 = traced_step_size(dt, t0, "simulate")
     out = _simulate(
         state,
         forces,
@@ -307,7 +306,9 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
     consts_soa = {k: to_soa(v) for k, v in consts.items()}
     # the time rides outside the carry too: one scalar per step, not one per body
     strip = lambda s: replace(s, **{k: None for k in consts})  # noqa: E731
-    user_fn = _cast_fn(force_fn if force_fn is not None else as_force_fn(forces), dtype)
+    # wrapped here, not by the caller: force_fn is static, and a new wrapper per call would recompile;
+    # it checks the callable's output while tracing and casts it to the state's dtype
+    user_fn = checked_force_fn(force_fn if force_fn is not None else as_force_fn(forces))
 
     def soa_forces(state, t):
         # force callables and models are batch-level code written batch-first
@@ -377,7 +378,8 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
 def _check_checkpoint(checkpoint: Any, steps: int, save_every: int) -> None:
     if checkpoint is None:
         return
-    if not isinstance(checkpoint, (int, np.integer)) or checkpoint < 1 or steps % checkpoint:
+    bad = isinstance(checkpoint, bool) or not isinstance(checkpoint, (int, np.integer))
+    if bad or checkpoint < 1 or steps % checkpoint:
         raise ValueError(f"checkpoint must be None or a positive int dividing steps={steps}, got {checkpoint!r}")
     if save_every % checkpoint and checkpoint % save_every:
         raise ValueError(f"checkpoint={checkpoint} must divide save_every={save_every} or be a multiple of it")

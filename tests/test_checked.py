@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -116,3 +117,55 @@ def test_checks_validation():
             rb.Checks(**bad)
     with pytest.raises(TypeError, match="checked must be a bool or rbjax.Checks"):
         rb.simulate(_state(), None, DT, 2, checked="yes")
+
+
+def test_checks_without_energy_still_report_and_errors_are_plain_value_errors():
+    # energy_factor=None used to fail while formatting the message (None:g) and hide the failure
+    s = _state()
+    want = r"^rbjax.simulate\(checked=...\): at step 8 .*body \(3,\).*non-finite"
+    with pytest.raises(ValueError, match=want):
+        rb.simulate(s, NAN_ON_3_AT_7, DT, 20, "euler", checked=rb.Checks(energy_factor=None))
+
+
+def test_under_jax_jit_the_message_is_on_its_own_line_with_the_remedy():
+    s = _state()
+    run = lambda s: rb.simulate(s, NAN_ON_3_AT_7, DT, 20, "euler", checked=rb.Checks(energy_factor=None))  # noqa: E731
+    with pytest.raises(Exception) as info:
+        jax.block_until_ready(jax.jit(run)(s))
+    lines = str(info.value).splitlines()
+    # rbjax's message is a whole line (not glued to a traceback frame), followed by how to unwrap it
+    i = next(i for i, line in enumerate(lines) if line.startswith("rbjax.simulate(checked=...): at step 8"))
+    assert "body (3,)" in lines[i] and "non-finite" in lines[i]
+    assert "equinox.filter_jit" in lines[i + 1]
+    # equinox.filter_jit unwraps it into its own error type, rbjax's message on a line of its own
+    with pytest.raises(eqx.EquinoxRuntimeError, match=r"(?m)^rbjax.simulate\(checked=...\): at step 8 .*body \(3,\)"):
+        jax.block_until_ready(eqx.filter_jit(run)(s))
+
+
+@pytest.mark.parametrize("bad", [-0.01, 0.0, float("nan"), float("inf")])
+def test_traced_bad_dt_is_caught_in_checked_mode(bad):
+    s = _state()
+    run = jax.jit(lambda dt: rb.simulate(s, None, dt, 3, "euler", checked=True).position)
+    with pytest.raises(Exception, match=r"simulate\(checked=...\): dt must be finite and > 0"):
+        jax.block_until_ready(run(bad))
+    # the same compiled program accepts a sound dt: the check is on the value, not the trace
+    assert np.isfinite(np.asarray(run(DT))).all()
+
+
+def test_traced_non_finite_t0_is_caught_in_checked_mode():
+    s = _state()
+    run = jax.jit(lambda t0: rb.simulate(s, None, DT, 3, "euler", t0=t0, checked=True).position)
+    with pytest.raises(Exception, match=r"t0 must be finite"):
+        jax.block_until_ready(run(jnp.nan))
+
+
+def test_divergence_message_quotes_the_measured_stability_limit():
+    # issue 17: rk4 goes NaN on the first step at dt·|ω| = 100; checked mode names the step and body
+    # and quotes the measured limit (benchmarks/stability_limits.py) stored on the Method
+    assert rb.methods()["rk4"].stable_dt_omega == {"State": 7.5, "MatrixState": 1.0, "ParticleState": np.inf}
+    s = rb.State.create(rb.box(1.0, [0.1, 0.2, 0.4]), angular_velocity=jnp.array([0.3, 100.0, 0.3]))
+    with pytest.raises(ValueError, match=r"at step 1 .*the body: .*beyond dt·\|ω\| ≈ 7.5 \(State\) / 1 \(Matrix"):
+        rb.simulate(s, None, 1.0, 10, "rk4", checked=True)
+    traj = rb.simulate(s, None, 1.0, 10, "rk4")  # unchecked: the documented silent failure
+    q1 = np.asarray(traj.orientation[1])
+    assert not (np.isfinite(q1).all() and abs(np.linalg.norm(q1) - 1) < 1e-6)

@@ -32,6 +32,19 @@ class Method:
         steps: ``{state type: batch-level step function}``.
         conserves: short statement of what it conserves (for docs and tests).
         cost: cost per step relative to ``"euler"`` (measured, approximate).
+        stable_dt_omega: for explicit methods, ``{state type name: limit}``: the
+            largest ``dt·|ω|`` (ω in rad/s, dt in s) at which 1000 torque-free
+            steps stayed finite with a unit quaternion / rotation matrix, measured
+            in float64 on four body shapes and six spin axes each by
+            ``benchmarks/stability_limits.py`` (grid ratio 1.33, so the true limit
+            is up to 33% higher). Beyond it the method diverges (NaN, inf or an
+            orientation off the rotation group); ``inf``: bounded up to 1000 (the
+            state form keeps ``|ω|`` bounded, though the energy still drifts).
+            ``None`` for methods that are stable at any step (``"splitting"`` and
+            its compositions, the implicit ones). Accuracy needs far smaller steps:
+            see the integrator table in the README.
+        failure_note: what a checked-mode failure means for this method, added
+            to the error message.
     """
 
     name: str
@@ -39,6 +52,8 @@ class Method:
     steps: dict[type, StepFn]
     conserves: str = ""
     cost: float = 1.0
+    stable_dt_omega: dict[str, float] | None = None
+    failure_note: str = ""
 
 
 _REGISTRY: dict[str, Method] = {}

@@ -16,6 +16,8 @@ terms): choose it for teaching and for matching the notes, not for long runs.
 
 from __future__ import annotations
 
+import math
+
 from .._batching import lift
 from .._math import _matmul3, _pure_quat_multiply, cross, orthonormalize, quat_normalize, skew
 from .._pytree import replace
@@ -71,5 +73,7 @@ register(
         steps={State: _batch(euler_state), MatrixState: _batch(euler_matrix), ParticleState: _batch(euler_particles)},
         conserves="torque-free: L exactly (L-form); nothing else — energy grows every step",
         cost=1.0,
+        # benchmarks/results/stability_limits.json: the L-form keeps |L| and so |ω| bounded
+        stable_dt_omega={"State": math.inf, "MatrixState": 0.13, "ParticleState": math.inf},
     )
 )

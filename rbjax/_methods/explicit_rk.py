@@ -90,12 +90,14 @@ def register_tableau(
     c: Sequence[float],
     *,
     cost: float,
+    stable_dt_omega: dict[str, float] | None = None,
 ) -> StepFn:
     """Register ``name`` as the explicit Runge–Kutta method of tableau ``(a, b, c)``; returns its step.
 
     It supports ``State``, ``MatrixState`` and ``ParticleState`` and conserves
     nothing exactly (energy and ``|L|`` drift as ``O(dt^order)`` per unit time).
-    ``cost`` is the measured cost per step relative to ``"euler"``.
+    ``cost`` is the measured cost per step relative to ``"euler"``;
+    ``stable_dt_omega`` the measured stability limits (see :class:`Method`).
     """
     fn = explicit_rk(a, b, c)
     register(
@@ -105,6 +107,7 @@ def register_tableau(
             steps={State: fn, MatrixState: fn, ParticleState: fn},
             conserves=f"nothing exactly; energy and |L| drift as O(dt^{order}) per unit time",
             cost=cost,
+            stable_dt_omega=stable_dt_omega,
         )
     )
     return fn

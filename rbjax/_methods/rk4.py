@@ -19,6 +19,8 @@ short, accurate horizons and smooth time-varying forces.
 
 from __future__ import annotations
 
+import math
+
 from .explicit_rk import register_tableau
 
 rk4 = register_tableau(
@@ -28,4 +30,6 @@ rk4 = register_tableau(
     b=[1 / 6, 1 / 3, 1 / 3, 1 / 6],
     c=[0.0, 0.5, 0.5, 1.0],
     cost=1.2,
+    # benchmarks/results/stability_limits.json
+    stable_dt_omega={"State": 7.5, "MatrixState": 1.0, "ParticleState": math.inf},
 )

@@ -16,6 +16,8 @@ few dozen steps, like every method.
 
 from __future__ import annotations
 
+import math
+
 from .explicit_rk import register_tableau
 
 __all__ = ["DOP853_A", "DOP853_B", "DOP853_C"]
@@ -132,4 +134,13 @@ DOP853_B: tuple[float, ...] = (
 )
 
 
-rk8 = register_tableau("rk8", 8, DOP853_A, DOP853_B, DOP853_C, cost=3.5)
+# stability limits: benchmarks/results/stability_limits.json
+rk8 = register_tableau(
+    "rk8",
+    8,
+    DOP853_A,
+    DOP853_B,
+    DOP853_C,
+    cost=3.5,
+    stable_dt_omega={"State": 1.8, "MatrixState": 2.4, "ParticleState": math.inf},
+)

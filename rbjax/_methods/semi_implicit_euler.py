@@ -22,6 +22,8 @@ a game engine would: cheap, robust, one force evaluation per step, first order.
 
 from __future__ import annotations
 
+import math
+
 from .._math import (
     _matmul3,
     orthonormalize,
@@ -78,5 +80,7 @@ register(
         },
         conserves="torque-free: L exactly, |L| in body axes; energy drifts O(dt) (particles: bounded)",
         cost=1.6,
+        # benchmarks/results/stability_limits.json: finite up to dt·|ω| = 1000 in both forms
+        stable_dt_omega={"State": math.inf, "MatrixState": math.inf, "ParticleState": math.inf},
     )
 )

@@ -18,7 +18,16 @@ Dullweber, Leimkuhler & McLachlan 1997)::
 Order 2 (symmetric composition). Torque-free: ``L`` (world) is bitwise exact,
 ``|L|`` exact, ``|q| = 1`` by construction (products of unit quaternions,
 re-normalised against round-off), and the method is symplectic, so the energy
-error stays bounded (``O(h²)``) with no drift over any horizon. Particles get
+error stays bounded (``O(h²)``) with no drift over any horizon -- in float64. In
+float32 the round-off of the orientation update (about ε₃₂ per step, and
+correlated from step to step because the state changes little in one step)
+adds an energy error that grows linearly with the number of steps, about
+1e-9 per step whatever ``dt``: measured (benchmarks/float32_drift.py, 100 boxes,
+|ω| ≈ 3.5 rad/s) 8.4e-5, 1.7e-4 and 4.2e-4 after 0.8, 1.6 and 4 x 10⁵ steps at
+dt = 0.01 (float64: bounded, ≤ 1.1e-4, the method's own ``O(h²)`` error) and
+8.9e-5 after 10⁵ steps at dt = 0.001 (float64: 1e-6). Bounding it needs a
+compensated (two-word) orientation, which ``State`` does not carry; use float64
+for runs of more than ~10⁴ steps that need the energy better than ~1e-5. Particles get
 velocity Verlet. Cost ≈ 4x ``"euler"`` (measured: five sincos, two force
 evaluations, sub-steps materialised; see :func:`free_rotor`).
 Choose it for long or stiff (fast-spinning, anisotropic) runs, Dzhanibekov
@@ -112,7 +121,10 @@ register(
             MatrixState: via_state(splitting_state),
             ParticleState: _strang(_kick_particles, _drift_particles),
         },
-        conserves="torque-free: L exactly, |L|, |q|; symplectic: energy error bounded, no drift",
+        conserves=(
+            "torque-free: L exactly, |L|, |q|; symplectic: energy error bounded, no drift in float64 "
+            "(float32: round-off drift ~1e-9 per step)"
+        ),
         cost=4.0,
     )
 )

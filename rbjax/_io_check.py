@@ -1,0 +1,131 @@
+"""Checks of a loaded file's arrays against its metadata, generic over the pytree dataclasses.
+
+Each array is checked against its field's declaration: present, a real dtype
+equal to the recorded one, and the per-body trailing shape read from the
+field's jaxtyping annotation (``Float[Array, "*B 4"]`` with ``core_ndim=1``:
+ends in ``(4,)``), so a new field is checked without listing it here. Batch
+shapes must broadcast across an object's fields, and the time axis of a
+trajectory must have one length. Two semantic checks know field names, the
+orientation kinds: ``orientation`` must hold unit quaternions and ``rotation``
+rotation matrices (tolerance :func:`rbjax._state.quat_tolerance`), in every
+frame that is finite; non-finite frames load as saved (a run that blew up).
+Errors are ``ValueError`` naming the file and the field.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ._state import quat_tolerance
+
+__all__ = ["check_arrays", "core_shape"]
+
+_DIMS = re.compile(r"\[\s*\w+\s*,\s*[\"']([^\"']*)[\"']")
+
+
+def core_shape(cls: type, name: str) -> tuple[int | None, ...] | None:
+    """Declared per-body trailing shape of field ``name`` (``None`` entries: symbolic sizes).
+
+    ``None`` when the field is not an array or its annotation gives no shape.
+    """
+    core = cls._rbjax_core_ndim.get(name, 0)  # type: ignore[attr-defined]
+    for f in dataclasses.fields(cls):
+        if f.name == name:
+            m = _DIMS.search(str(f.type))
+            if m is None:
+                return None
+            dims = m.group(1).split()
+            tail = dims[len(dims) - core :] if core else []
+            return tuple(int(d) if d.isdigit() else None for d in tail)
+    return None
+
+
+def _types() -> dict[str, type]:
+    from ._io import _TYPES
+
+    return _TYPES
+
+
+def check_arrays(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: Path) -> None:
+    """``ValueError`` unless ``arrays`` are exactly what ``meta["tree"]`` describes."""
+    wanted = meta.get("dtype")
+    dtypes = set(wanted) if isinstance(wanted, list) else {wanted}
+    expected: set[str] = set()
+    stacked = set(meta.get("time_stacked", []))
+    lengths: dict[str, int] = {}
+    _check_object(meta["tree"], "", arrays, path, dtypes, expected, stacked, lengths, top=True)
+    extra = sorted(set(arrays) - expected)
+    if extra:
+        raise ValueError(f"load: {path} holds array(s) {extra} that its metadata does not describe")
+    if len(set(lengths.values())) > 1:
+        raise ValueError(f"load: {path}: the time-stacked fields disagree on the number of frames: {lengths}")
+
+
+def _check_object(spec, prefix, arrays, path, dtypes, expected, stacked, lengths, *, top: bool) -> list:
+    cls = _types().get(spec.get("type", "")) if isinstance(spec, dict) else None
+    if cls is None:
+        raise ValueError(f"load: {path}: unknown pytree type {spec.get('type') if isinstance(spec, dict) else spec!r}")
+    fields = spec.get("fields")
+    declared = [f.name for f in dataclasses.fields(cls)]
+    if not isinstance(fields, dict) or sorted(fields) != sorted(declared):
+        raise ValueError(f"load: {path}: the metadata's fields of {cls.__name__} are not {declared}")
+    cores: dict[str, int] = cls._rbjax_core_ndim  # type: ignore[attr-defined]
+    batches = []
+    for name, sub in fields.items():
+        key = f"{prefix}{name}"
+        if sub is None:
+            continue
+        if sub != "array":
+            batches += _check_object(sub, key + ".", arrays, path, dtypes, expected, stacked, lengths, top=False)
+            continue
+        expected.add(key)
+        if key not in arrays:
+            raise ValueError(f"load: {path} lacks the array {key!r} that its metadata lists (truncated or edited?)")
+        a = arrays[key]
+        if not np.issubdtype(a.dtype, np.floating) or str(a.dtype) not in dtypes:
+            raise ValueError(f"load: {path}: {key!r} has dtype {a.dtype}, but the metadata records {sorted(dtypes)}")
+        core = cores.get(name, 0)
+        want = core_shape(cls, name)
+        lead = 1 if top and name in stacked else 0
+        if a.ndim < core + lead:
+            raise ValueError(f"load: {path}: {key!r} has shape {a.shape}, too few axes for {cls.__name__}.{name}")
+        if want is not None and any(w is not None and w != g for w, g in zip(want, a.shape[a.ndim - core :])):
+            raise ValueError(
+                f"load: {path}: {key!r} has shape {a.shape}, but {cls.__name__}.{name} ends in "
+                f"{tuple('?' if w is None else w for w in want)} per body"
+            )
+        if lead:
+            lengths[key] = a.shape[0]
+        batches.append((key, a.shape[lead : a.ndim - core]))
+        _check_orientation(name, key, a, core, path)
+    try:
+        np.broadcast_shapes(*(b for _, b in batches))
+    except ValueError:
+        raise ValueError(
+            f"load: {path}: the batch shapes of {cls.__name__}'s fields do not broadcast: {batches}"
+        ) from None
+    return batches
+
+
+def _check_orientation(name: str, key: str, a: np.ndarray, core: int, path: Path) -> None:
+    if name not in ("orientation", "rotation") or a.size == 0:
+        return
+    x = a.astype(np.float64)
+    finite = np.isfinite(x).reshape(x.shape[: x.ndim - core] + (-1,)).all(axis=-1)
+    tol = quat_tolerance(a.dtype)
+    if name == "orientation":
+        err = np.abs(np.linalg.norm(x, axis=-1) - 1)
+    else:
+        err = np.max(np.abs(np.swapaxes(x, -1, -2) @ x - np.eye(3)), axis=(-1, -2))
+    err = np.where(finite, err, 0.0)
+    if np.any(err > tol):
+        what = "unit quaternions" if name == "orientation" else "rotation matrices (RᵀR = 1)"
+        raise ValueError(
+            f"load: {path}: {key!r} must hold {what}; the worst finite entry is off by {np.max(err):.3g} "
+            f"(tolerance {tol:.3g}): the file was edited or corrupted"
+        )

@@ -1,0 +1,145 @@
+"""Argument checks shared by ``step``, ``simulate`` and ``simulate_chunked``.
+
+Everything here runs before or while tracing, in rbjax's words: a concrete bad
+value raises ``TypeError``/``ValueError`` naming the argument; a traced one is
+checked at run time by :func:`traced_step_size` in checked mode only (off, the
+compiled program has no checks); a force callable's output is checked once,
+while it is traced, by :func:`checked_force_fn`.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.core
+import jax.numpy as jnp
+import numpy as np
+
+from ._pytree import data_fields, is_rbjax_dataclass, new_unchecked
+from ._state import Forces, MatrixState, ParticleState, State
+
+__all__ = ["check_dt", "check_count", "check_state", "traced_step_size", "checked_force_fn"]
+
+_STATE_TYPES = (State, MatrixState, ParticleState)
+
+
+def check_dt(dt: Any, name: str = "dt", *, positive: bool = True) -> None:
+    """``TypeError`` unless ``dt`` is a real scalar; ``ValueError`` unless it is finite (and > 0).
+
+    ``positive=False`` for a time such as ``t0``, which may be of any sign. A
+    traced value passes here; checked mode tests it at run time
+    (:func:`traced_step_size`).
+    """
+    if isinstance(dt, jax.core.Tracer):
+        return
+    if dt is None or isinstance(dt, (bool, np.bool_, str, bytes)):
+        raise TypeError(f"{name} must be a real number (seconds), got {dt!r}")
+    try:
+        d = np.asarray(dt)
+    except Exception:  # noqa: BLE001  (anything numpy cannot convert is the wrong type)
+        raise TypeError(f"{name} must be a real number (seconds), got {type(dt).__name__}") from None
+    if d.dtype == bool or not (np.issubdtype(d.dtype, np.integer) or np.issubdtype(d.dtype, np.floating)):
+        raise TypeError(f"{name} must be a real number (seconds), got {dt!r} of dtype {d.dtype}")
+    if np.issubdtype(d.dtype, np.floating) and np.finfo(d.dtype).bits < 32:
+        raise TypeError(f"{name} must be float32 or float64 (or a Python number), got dtype {d.dtype}")
+    if d.ndim != 0:
+        raise ValueError(f"{name} must be a scalar, got shape {d.shape}")
+    if not np.isfinite(d) or (positive and d <= 0):
+        raise ValueError(f"{name} must be finite{' and > 0' if positive else ''}, got {d}")
+
+
+def check_count(name: str, value: Any, minimum: int) -> int:
+    """``value`` as an int; ``ValueError`` unless it is an int (not a bool) ``>= minimum``."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < minimum:
+        kind = "non-negative" if minimum == 0 else f">= {minimum}" if minimum > 1 else "positive"
+        raise ValueError(f"{name} must be a {kind} int, got {value!r}")
+    return int(value)
+
+
+def check_state(state: Any, fn: str) -> None:
+    """``TypeError`` unless ``state`` is an rbjax state with float32/float64 arrays."""
+    if not isinstance(state, _STATE_TYPES):
+        raise TypeError(f"{fn}: state must be a State, MatrixState or ParticleState, got {type(state).__name__}")
+    for leaf in jax.tree.leaves(state):
+        dt = jnp.result_type(leaf)
+        if dt not in (jnp.float32, jnp.float64):
+            raise TypeError(
+                f"{fn}: state arrays must be float32 or float64, got {dt}; convert the inputs "
+                "(float16/bfloat16 cannot resolve a unit quaternion or an inertia tensor)"
+            )
+
+
+def traced_step_size(dt: Any, t0: Any, fn: str) -> tuple[Any, Any]:
+    """``dt``, ``t0`` with run-time checks (checked mode): ``dt`` finite and > 0, ``t0`` finite.
+
+    Concrete values were checked already; only tracers gain a check, so an eager
+    call compiles the same program as before.
+    """
+    if not (isinstance(dt, jax.core.Tracer) or isinstance(t0, jax.core.Tracer)):
+        return dt, t0
+    dt = jnp.asarray(dt)  # a Python float would pass through error_if unchecked
+    bad_dt = ~(jnp.isfinite(dt) & (dt > 0))
+    bad_t0 = ~jnp.isfinite(t0)
+    msgs = (
+        f"{fn}(checked=...): dt must be finite and > 0 (a traced dt was not)",
+        f"{fn}(checked=...): t0 must be finite (a traced t0 was not)",
+    )
+    # both on dt, which every step uses: a check on t0 alone is dead code when no force reads t
+    dt = eqx.branched_error_if(dt, bad_dt | bad_t0, jnp.where(bad_dt, 0, 1), msgs)
+    return dt, t0
+
+
+def _describe(x: Any) -> str:
+    if is_rbjax_dataclass(x):
+        return f"{type(x).__name__}({', '.join(f'{n}={_describe(getattr(x, n))}' for n in data_fields(x))})"
+    shape = getattr(x, "shape", None)
+    if shape is not None:
+        return f"array of shape {tuple(shape)} and dtype {x.dtype}"
+    return repr(x) if x is None else type(x).__name__
+
+
+def _name(fn: Any) -> str:
+    return getattr(fn, "__qualname__", None) or type(fn).__name__
+
+
+def check_forces_output(out: Any, state: Any, fn: Any) -> Forces:
+    """``out`` as ``Forces`` of the state's dtype; ``TypeError``/``ValueError`` otherwise."""
+    want = tuple(state.position.shape)
+    expected = f"rbjax.Forces(force=None or {want}, torque=None or {want})"
+    if not isinstance(out, Forces):
+        raise TypeError(f"force callable {_name(fn)!r} must return {expected}; it returned {_describe(out)}")
+    fixed = {}
+    for name in ("force", "torque"):
+        a = getattr(out, name)
+        if a is None:
+            fixed[name] = None
+            continue
+        dt = getattr(a, "dtype", None)
+        if dt is None or not (jnp.issubdtype(dt, jnp.floating) or jnp.issubdtype(dt, jnp.integer)):
+            raise TypeError(f"force callable {_name(fn)!r}: {name} must be a real array; it returned {_describe(out)}")
+        try:
+            ok = jnp.broadcast_shapes(tuple(a.shape), want) == want
+        except ValueError:
+            ok = False
+        if not ok:
+            raise ValueError(
+                f"force callable {_name(fn)!r}: {name} has shape {tuple(a.shape)}, which does not broadcast "
+                f"to the state's {want} (batch shape {tuple(state.batch_shape)} + (3,)); expected {expected}"
+            )
+        # broadcast here: the batch-last transposes that follow assume full shapes
+        fixed[name] = jnp.broadcast_to(jnp.asarray(a).astype(state.dtype), want)
+    return new_unchecked(Forces, **fixed)
+
+
+def checked_force_fn(fn: Callable[[Any, Any], Any]) -> Callable[[Any, Any], Forces]:
+    """``fn`` with its output checked each time it is traced (free at run time)."""
+
+    @functools.wraps(fn)
+    def wrapped(state: Any, t: Any) -> Forces:
+        return check_forces_output(fn(state, t), state, fn)
+
+    return wrapped
