@@ -142,6 +142,8 @@ def symmetric_part(A: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 3 3"]:
     respect to it, so one gradient step keeps the inertia symmetric.
     """
     A = jnp.asarray(A)
+    if A.shape[-2:] != (3, 3):
+        raise ValueError(f"symmetric_part: A must end in (3, 3), got shape {A.shape}")
     return 0.5 * (A + jnp.swapaxes(A, -1, -2))
 
 

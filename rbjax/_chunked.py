@@ -91,8 +91,9 @@ def simulate_chunked(
             state the uninterrupted run carried.
 
     Returns the trajectory with a leading time axis of ``steps // save_every +
-    1`` frames on every leaf (as :func:`rbjax.simulate`), bitwise equal to ``simulate``'s (step ``k`` of
-    every chunk runs at ``t0 + (steps done + k) dt``, as in one run). Time-series forces ``(steps, *B, 3)`` are sliced per
+    1`` frames on every leaf (as :func:`rbjax.simulate`), bitwise equal to
+    ``simulate``'s (step ``k`` of every chunk runs at ``t0 + (steps done + k)
+    dt``, as in one run). Time-series forces ``(steps, *B, 3)`` are sliced per
     chunk. Not differentiable as a whole (it is a host loop); use ``simulate``
     for gradients.
 

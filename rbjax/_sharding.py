@@ -7,6 +7,7 @@ from typing import Any
 import jax
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from ._pytree import is_rbjax_dataclass
 from ._trajectory import _map, full_batch_shape
 
 __all__ = ["batch_sharding"]
@@ -29,6 +30,12 @@ def batch_sharding(obj: Any, mesh: Mesh, axis_name: str = "bodies", batch_axis: 
     axis) is replicated. Use it with ``jax.device_put(obj, batch_sharding(obj,
     mesh))``, ``jax.make_array_from_process_local_data`` or ``out_shardings``.
     """
+    if not is_rbjax_dataclass(obj):
+        raise TypeError(
+            f"batch_sharding: obj must be an rbjax state, trajectory, Body or Forces, got {type(obj).__name__}"
+        )
+    if not isinstance(mesh, Mesh):
+        raise TypeError(f"batch_sharding: mesh must be a jax.sharding.Mesh, got {type(mesh).__name__}")
     shape = full_batch_shape(obj)
     if not -len(shape) <= batch_axis < len(shape):
         raise ValueError(f"batch_sharding: batch_axis {batch_axis} is out of range for batch shape {shape}")

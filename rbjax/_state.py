@@ -112,7 +112,7 @@ def _convert(obj: Any, *names: str) -> None:
 
 
 def _dtype_of(body: Body | None, *xs: Any) -> Any:
-    arrays = [jnp.asarray(x) for x in xs if x is not None]
+    arrays = [_as_float(x) for x in xs if x is not None]
     if body is not None:
         arrays.append(body.mass)
     floats = [a for a in arrays if jnp.issubdtype(a.dtype, jnp.floating)]
@@ -120,7 +120,20 @@ def _dtype_of(body: Body | None, *xs: Any) -> Any:
 
 
 def _vec(x: ArrayLike | None, default: tuple[float, ...], dtype: Any) -> Array:
-    return jnp.asarray(default if x is None else x, dtype=dtype)
+    return jnp.asarray(default if x is None else _as_float(x), dtype=dtype)
+
+
+def _batch(cls: str, body_shape: tuple[int, ...] | None, **shapes: tuple[int, ...]) -> tuple[int, ...]:
+    """The broadcast batch shape of ``create``'s arguments; ``ValueError`` naming each one's otherwise."""
+    named = ({"body": body_shape} if body_shape is not None else {}) | shapes
+    try:
+        return tuple(jnp.broadcast_shapes(*named.values()))
+    except ValueError:
+        listed = ", ".join(f"{k} {v}" for k, v in named.items())
+        raise ValueError(
+            f"{cls}: the batch shapes do not broadcast ({listed}); give each argument the batch shape "
+            "B or a trailing part of it"
+        ) from None
 
 
 @pytree_dataclass
@@ -196,7 +209,14 @@ class State(BatchIndexing):
         x = _vec(position, (0.0, 0.0, 0.0), dtype)
         v = _vec(velocity, (0.0, 0.0, 0.0), dtype)
         _check_vectors("State.create", position=x, velocity=v, orientation=q, angular_velocity=w)
-        shape = jnp.broadcast_shapes(body.batch_shape, x.shape[:-1], v.shape[:-1], q.shape[:-1], w.shape[:-1])
+        shape = _batch(
+            "State.create",
+            body.batch_shape,
+            position=x.shape[:-1],
+            velocity=v.shape[:-1],
+            orientation=q.shape[:-1],
+            angular_velocity=w.shape[:-1],
+        )
         _check_unit_quaternion("State.create", q)
         L = quat_rotate(q, _apply(inertia_of(body), quat_rotate(_conj(q), w)))
         bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])  # noqa: E731
@@ -284,7 +304,14 @@ class MatrixState(BatchIndexing):
         x = _vec(position, (0.0, 0.0, 0.0), dtype)
         v = _vec(velocity, (0.0, 0.0, 0.0), dtype)
         _check_vectors("MatrixState.create", position=x, velocity=v, rotation=R, angular_velocity=w)
-        shape = jnp.broadcast_shapes(body.batch_shape, x.shape[:-1], v.shape[:-1], R.shape[:-2], w.shape[:-1])
+        shape = _batch(
+            "MatrixState.create",
+            body.batch_shape,
+            position=x.shape[:-1],
+            velocity=v.shape[:-1],
+            orientation=R.shape[:-2],
+            angular_velocity=w.shape[:-1],
+        )
         bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])  # noqa: E731
         R = jnp.broadcast_to(R, shape + (3, 3))
         return cls(body, bc(x), bc(v), R, bc(w), jnp.broadcast_to(jnp.asarray(time, dtype), shape))
@@ -348,7 +375,8 @@ class ParticleState(BatchIndexing):
         dtype = _dtype_of(None, m, position, velocity)
         x = _vec(position, (0.0, 0.0, 0.0), dtype)
         v = _vec(velocity, (0.0, 0.0, 0.0), dtype)
-        shape = jnp.broadcast_shapes(m.shape, x.shape[:-1], v.shape[:-1])
+        _check_vectors("ParticleState.create", position=x, velocity=v)
+        shape = _batch("ParticleState.create", None, mass=m.shape, position=x.shape[:-1], velocity=v.shape[:-1])
         return cls(
             jnp.broadcast_to(x, shape + (3,)),
             jnp.broadcast_to(v, shape + (3,)),

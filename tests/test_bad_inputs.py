@@ -230,6 +230,11 @@ SLOTS: list[Slot] = [
     Slot("load", "path", lambda v: rb.load(_tmp() / "absent.npz" if v is None else _tmp()), ("wrong_type",)),
     Slot("read_metadata", "path", lambda v: rb.read_metadata(_tmp() / "absent.npz"), ("wrong_type",)),
     Slot("ChunkWriter", "resume", lambda v: rb.ChunkWriter(_tmp() / "w", overwrite=True, resume=True), ("bool",)),
+    # ---- trajectories and batches
+    Slot("concatenate", "items", lambda v: rb.concatenate(v), ("wrong_type",)),
+    Slot("concatenate", "items[1]", lambda v: rb.concatenate([_state(), v]), ("wrong_type",)),
+    Slot("batch_sharding", "obj", lambda v: rb.batch_sharding(v, jax.make_mesh((1,), ("bodies",))), ("wrong_type",)),
+    Slot("symmetric_part", "A", lambda v: rb.symmetric_part(v), ("wrong_shape",), (3, 3)),
 ]
 
 # Names not called above, with the reason.
@@ -273,6 +278,9 @@ EXCUSED: dict[str, str] = {
     "Scene": "validated by tests/test_scene.py (kind/method checks); each example would compile a kernel",
     "body_kind": "takes a Body, which is validated at construction",
     "register_kernel": "extension hook for kernel authors, checked by tests/test_scene.py",
+    "animate": "renders files through matplotlib; its argument checks are in tests/test_animate.py",
+    "view": "starts a web server (viser); tested in a browser by tests/test_viewer.py",
+    "Viewer": "the server object behind view; tests/test_viewer.py",
 }
 
 _TMP: list[Path] = []
@@ -336,10 +344,9 @@ def test_every_public_name_is_covered_or_excused():
     assert not covered & set(EXCUSED), "a name is both covered and excused"
 
 
-# Bad inputs that still get JAX's message: the fix belongs in rbjax/_state.py (State.create and
-# friends convert with jnp.asarray before any check), which issue 15 is rewriting. Strict xfails:
-# once fixed they pass, and this list must shrink.
-KNOWN_GAPS = {
+# Bad inputs that used to get JAX's message from State.create and friends (they converted with
+# jnp.asarray before any check); fixed with issue 15, kept as regression cases.
+FIXED_GAPS = {
     "State.create(position='x')": lambda: rb.State.create(_body(), position="x"),
     "State.create(angular_velocity=float16)": lambda: rb.State.create(
         _body(), angular_velocity=jnp.ones(3, jnp.float16)
@@ -352,7 +359,8 @@ KNOWN_GAPS = {
 }
 
 
-@pytest.mark.parametrize("name", list(KNOWN_GAPS))
-@pytest.mark.xfail(strict=True, reason="needs a check in rbjax/_state.py (owned by issue 15); see KNOWN_GAPS")
-def test_known_gaps_in_state_create(name):
-    _judge(Slot("State", name, lambda v: KNOWN_GAPS[name](), ("wrong_type",)), None)
+@pytest.mark.parametrize("name", list(FIXED_GAPS))
+def test_state_create_refuses_in_rbjax_words(name):
+    with pytest.raises((ValueError, TypeError)) as info:
+        FIXED_GAPS[name]()
+    assert _from_rbjax(info.value), info.value

@@ -281,6 +281,10 @@ def test_repr_summarises_shapes():
     assert len(text) < 400 and "f64[1000,3]" in text and "position" in text
     traj = rb.simulate(s, None, 0.1, 2)
     assert "f64[3,1000,3]" in repr(traj) and len(repr(traj)) < 400
+    # a fit result with a 4000-sample residual vector: shapes, not 4000 numbers
+    fields = {f.name: jnp.zeros(4000 if f.name == "residuals" else 3) for f in dataclasses.fields(rb.FitResult)}
+    text = repr(rb._pytree.new_unchecked(rb.FitResult, **fields))
+    assert "residuals=f64[4000]" in text and len(text) < 600
 
 
 def test_batch_sharding_replicates_shared_leaves():
