@@ -72,8 +72,8 @@ def test_a_three_component_orientation_is_refused(tmp_path):
 
 def test_wrong_inertia_shape_and_dtype_and_frame_counts(tmp_path):
     _, arrays = _saved(tmp_path)
-    bad = dict(arrays, **{"body.inertia": arrays["body.inertia"][..., :2]})
-    with pytest.raises(ValueError, match=r"'body.inertia' has shape \(2, 3, 2\), but Body.inertia ends in \(3, 3\)"):
+    bad = dict(arrays, **{"body.inertia": arrays["body.inertia"][..., :2]})  # (frames, bodies, 3, 2)
+    with pytest.raises(ValueError, match=r"'body.inertia' has shape \(5, 2, 3, 2\), but Body.inertia ends in \(3, 3\)"):
         rb.load(_rewrite(tmp_path, bad))
     bad = dict(arrays, position=arrays["position"].astype(np.float32))
     with pytest.raises(ValueError, match=r"'position' has dtype float32, but the metadata records \['float64'\]"):
