@@ -65,6 +65,7 @@ def main(argv=None) -> int:
     ap.add_argument("--dtypes", default="float32,float64")
     ap.add_argument("--sizes", default="10000,100000,1000000")
     ap.add_argument("--repeats", type=int, default=3, help="A/B pairs per configuration")
+    ap.add_argument("--steps", type=int, default=None, help="steps per run (default: 2e7 body-steps / N)")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=os.path.join(HERE, "results", "ab_throughput.json"))
     args = ap.parse_args(argv)
@@ -77,7 +78,7 @@ def main(argv=None) -> int:
         for method in args.methods.split(","):
             for dtype in args.dtypes.split(","):
                 for n in (int(x) for x in args.sizes.split(",")):
-                    steps = max(20, int(2e8 // n // 10)) if not args.quick else 50
+                    steps = args.steps or (max(20, int(2e8 // n // 10)) if not args.quick else 50)
                     base, new = [], []
                     for _ in range(args.repeats):  # A B A B ...
                         base.append(measure(work, method, dtype, n, steps))

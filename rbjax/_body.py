@@ -199,7 +199,7 @@ class Body(BatchIndexing):
         """``I_L⁻¹`` ``(*B, 3, 3)`` (kg⁻¹ m⁻², body frame), from the symmetric inertia."""
         if self._inverse is not None:
             return self._inverse
-        return inverse_3x3(symmetric_part(self.inertia))
+        return _inverse_symmetric(symmetric_part(self.inertia))
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
@@ -232,7 +232,23 @@ def prepare(body: Body) -> Body:
     if body._inverse is not None:
         return body
     I = symmetric_part(body.inertia)
-    return new_unchecked(Body, mass=body.mass, inertia=I, _inverse=inverse_3x3(I))
+    return new_unchecked(Body, mass=body.mass, inertia=I, _inverse=_inverse_symmetric(I))
+
+
+def _inverse_symmetric(S: Array) -> Array:
+    """``S⁻¹`` of symmetric ``(..., 3, 3)`` matrices from their six entries, by components.
+
+    The adjugate written out: one fused pass under ``vmap`` (``inverse_3x3``'s
+    row slices and crosses cost ~30 ms per call for 10⁶ bodies on CPU, four
+    Euler steps' worth). Reads the upper triangle only; callers symmetrise.
+    """
+    a00, a01, a02 = S[..., 0, 0], S[..., 0, 1], S[..., 0, 2]
+    a11, a12, a22 = S[..., 1, 1], S[..., 1, 2], S[..., 2, 2]
+    c00, c01, c02 = a11 * a22 - a12 * a12, a02 * a12 - a01 * a22, a01 * a12 - a02 * a11
+    c11, c12, c22 = a00 * a22 - a02 * a02, a01 * a02 - a00 * a12, a00 * a11 - a01 * a01
+    r = 1 / (a00 * c00 + a01 * c01 + a02 * c02)
+    rows = [[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]]
+    return jnp.stack([jnp.stack([c * r for c in row], axis=-1) for row in rows], axis=-2)
 
 
 def inertia_of(body: Body) -> Array:

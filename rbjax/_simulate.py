@@ -14,7 +14,7 @@ from jax import Array
 from jaxtyping import Float
 
 from . import _checked, _methods
-from ._batching import _map_leaves, batch_last, batch_shape, to_batch_first, to_batch_last
+from ._batching import _map_leaves, batch_last, batch_shape, lift, to_batch_first, to_batch_last
 from ._body import prepare
 from ._forces import ForceModel
 from ._pytree import replace
@@ -84,8 +84,10 @@ def _canonical(state: Any) -> Any:
 
 
 def _prepared(state: Any) -> Any:
-    """``state`` with its body prepared for a time loop (see :func:`rbjax._body.prepare`)."""
-    return state if isinstance(state, ParticleState) else replace(state, body=prepare(state.body))
+    """``state`` with its body prepared for a time loop (see :func:`rbjax._body.prepare`); lifted."""
+    if isinstance(state, ParticleState):
+        return state
+    return replace(state, body=lift(prepare)(state.body))
 
 
 def step(
@@ -301,9 +303,12 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
     to_aos = to_batch_first if soa else (lambda x: x)  # noqa: E731
 
     initial = state
-    state = _prepared(state)
     consts = {k: getattr(state, k) for k in constant_fields(state)}
     consts_soa = {k: to_soa(v) for k, v in consts.items()}
+    if "body" in consts_soa:
+        # the inverse inertia, once per call, in the scan's layout (contiguous rows per component)
+        with batch_last(soa):
+            consts_soa["body"] = lift(prepare)(consts_soa["body"])
     # the time rides outside the carry too: one scalar per step, not one per body
     strip = lambda s: replace(s, **{k: None for k in consts})  # noqa: E731
     # wrapped here, not by the caller: force_fn is static, and a new wrapper per call would recompile;
