@@ -321,10 +321,26 @@ def fit_inertia(
         :class:`FitResult` (with a leading ``N`` axis for batched input).
 
     Raises:
-        ValueError: before any tracing, for non-monotonic times, non-unit
+        TypeError: before any tracing, for options of the wrong type (e.g. a
+            float or bool ``max_steps``/``segments``/``substeps``).
+        ValueError: before any tracing, for noise levels, ``continuity_weight``,
+            tolerances that are not finite and > 0; ``max_steps``, ``segments``
+            or ``substeps`` < 1; all-zero ``torques`` (they cannot fix the scale:
+            omit ``torques=``); non-monotonic or non-finite times, non-unit
             quaternions, shape mismatches, too few samples for the parameters,
             or too little excitation (naming the unidentifiable directions).
     """
+    _fit_data.check_options(
+        orientation_std=orientation_std,
+        rate_std=rate_std,
+        continuity_weight=continuity_weight,
+        excitation_tol=excitation_tol,
+        rtol=rtol,
+        atol=atol,
+        max_steps=max_steps,
+        segments=segments,
+        substeps=substeps,
+    )
     prob = _fit_data.prepare(
         times,
         orientations,

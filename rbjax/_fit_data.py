@@ -171,6 +171,45 @@ def _rref_columns(basis: np.ndarray) -> list[np.ndarray]:
     return list(A[:r])
 
 
+def _positive_finite(name: str, value, remedy: str) -> float:
+    """``value`` as a float, or ``TypeError``/``ValueError`` naming ``name`` and the remedy."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        if not (isinstance(value, (np.ndarray, jax.Array)) and np.ndim(value) == 0):
+            raise TypeError(f"fit_inertia: {name} must be a real number, got {type(value).__name__}; {remedy}")
+    v = float(value)
+    if not (np.isfinite(v) and v > 0):
+        raise ValueError(f"fit_inertia: {name} must be finite and > 0, got {v!r}; {remedy}")
+    return v
+
+
+def _positive_int(name: str, value, remedy: str) -> int:
+    """``value`` as an int ≥ 1 (not a bool), or ``TypeError``/``ValueError`` naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"fit_inertia: {name} must be an int >= 1, got {type(value).__name__} {value!r}; {remedy}")
+    if value < 1:
+        raise ValueError(f"fit_inertia: {name} must be an int >= 1, got {value}; {remedy}")
+    return int(value)
+
+
+def check_options(
+    *, orientation_std, rate_std, continuity_weight, excitation_tol, rtol, atol, max_steps, segments, substeps
+) -> None:
+    """Validate :func:`rbjax.fit_inertia`'s scalar options before anything is traced."""
+    if orientation_std is not None:
+        _positive_finite("orientation_std", orientation_std, "give the orientation noise std in rad, or omit it")
+    if rate_std is not None:
+        _positive_finite("rate_std", rate_std, "give the gyro noise std in rad/s, or omit it")
+    _positive_finite("continuity_weight", continuity_weight, "the default 1000 suits most recordings")
+    _positive_finite("excitation_tol", excitation_tol, "the default is 1e-3")
+    _positive_finite("rtol", rtol, "the default is 1e-8")
+    _positive_finite("atol", atol, "the default is 1e-8")
+    _positive_int("max_steps", max_steps, "the default is 100")
+    if segments is not None:
+        _positive_int("segments", segments, "or omit it for the default")
+    if substeps is not None:
+        _positive_int("substeps", substeps, "or omit it for the default")
+
+
 def _check_inputs(times, orientations, body_rates, torques):
     t = np.asarray(times, dtype=np.float64)
     q = np.asarray(orientations)
@@ -181,11 +220,18 @@ def _check_inputs(times, orientations, body_rates, torques):
             f"fit_inertia: orientations must have shape (T, 4) or (N, T, 4) with T = len(times) = "
             f"{t.shape[0]}, got {q.shape}"
         )
-    if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+    if not np.all(np.isfinite(t)):
+        i = int(np.flatnonzero(~np.isfinite(t))[0])
+        raise ValueError(
+            f"fit_inertia: times must be finite and strictly increasing (seconds, one per sample); "
+            f"times[{i}] = {t[i]}; drop the samples without a valid time"
+        )
+    if np.any(np.diff(t) <= 0):
         bad = np.flatnonzero(~(np.diff(t) > 0))
         raise ValueError(
-            f"fit_inertia: times must be finite and strictly increasing; first bad interval at index "
-            f"{bad[0] if bad.size else '?'}"
+            f"fit_inertia: times must be finite and strictly increasing (seconds, one per sample); "
+            f"first bad interval at index {bad[0] if bad.size else '?'}; sort the samples and drop "
+            "duplicates and NaNs"
         )
     if not np.all(np.isfinite(q)):
         raise ValueError("fit_inertia: orientations contain non-finite values")
@@ -207,6 +253,11 @@ def _check_inputs(times, orientations, body_rates, torques):
         if not np.all(np.isfinite(a)):
             raise ValueError(f"fit_inertia: {name} contain non-finite values")
         out.append(np.broadcast_to(a, q.shape[:-1] + (3,)))
+    if torques is not None and not np.any(out[1]):
+        raise ValueError(
+            "fit_inertia: torques are all zero, which cannot fix the inertia's scale (it acts like "
+            "torque-free data); omit torques= for a shape-only fit (normalised to tr I = 1)"
+        )
     return t, q, out[0], out[1]
 
 

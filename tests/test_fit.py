@@ -216,3 +216,41 @@ def test_full_rate_recordings_4s_1khz():
     assert err < 0.01 and err < _rel(rb.fit_inertia_linear(times, wn), I_BAR) / 10
     z = np.abs(res.principal_moments - np.linalg.eigvalsh(I_BAR)) / res.moment_std
     assert np.all(z < 3), z
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "exc", "match"),
+    [
+        (dict(orientation_std=0.0), ValueError, "orientation_std must be finite and > 0"),
+        (dict(orientation_std=-1e-3), ValueError, "orientation_std must be finite and > 0"),
+        (dict(orientation_std=np.nan), ValueError, "orientation_std must be finite and > 0"),
+        (dict(rate_std=np.inf), ValueError, "rate_std must be finite and > 0"),
+        (dict(rate_std="0.01"), TypeError, "rate_std must be a real number"),
+        (dict(continuity_weight=0.0), ValueError, "continuity_weight must be finite and > 0"),
+        (dict(continuity_weight=np.inf), ValueError, "continuity_weight must be finite and > 0"),
+        (dict(max_steps=0), ValueError, "max_steps must be an int >= 1"),
+        (dict(max_steps=True), TypeError, "max_steps must be an int >= 1"),
+        (dict(max_steps=10.0), TypeError, "max_steps must be an int >= 1"),
+        (dict(segments=0), ValueError, "segments must be an int >= 1"),
+        (dict(segments=2.5), TypeError, "segments must be an int >= 1"),
+        (dict(substeps=False), TypeError, "substeps must be an int >= 1"),
+        (dict(rtol=-1.0), ValueError, "rtol must be finite and > 0"),
+    ],
+)
+def test_bad_options_raise_naming_the_argument(kwargs, exc, match):
+    t = T_FAST[:50]
+    q, wb = _record(t)
+    with pytest.raises(exc, match=match):
+        rb.fit_inertia(t, q, body_rates=wb, **kwargs)
+
+
+def test_bad_times_and_zero_torques_raise_with_remedy():
+    t = T_FAST[:50]
+    q, wb = _record(t)
+    with pytest.raises(ValueError, match="times must be finite and strictly increasing.*index 9.*duplicates"):
+        rb.fit_inertia(np.r_[t[:10], t[9], t[11:]], q)  # a repeated time
+    for v in (np.nan, np.inf):
+        with pytest.raises(ValueError, match=r"times must be finite and strictly increasing.*times\[10\] = (nan|inf)"):
+            rb.fit_inertia(np.r_[t[:10], v, t[11:]], q)
+    with pytest.raises(ValueError, match="torques are all zero.*omit torques="):
+        rb.fit_inertia(t, q, body_rates=wb, torques=np.zeros((50, 3)))
