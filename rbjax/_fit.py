@@ -272,6 +272,7 @@ def fit_inertia(
     rtol: float = 1e-8,
     atol: float = 1e-8,
     max_steps: int = 100,
+    check_gyro_frame: bool = True,
 ) -> FitResult:
     """Fit a body-frame inertia tensor to a recording of free (or known-torque) rotation.
 
@@ -316,6 +317,13 @@ def fit_inertia(
             and changes the residuals by less than ``atol + rtol·|r|``, or when
             a trial step's actual and predicted reductions of the sum of
             squares are both below ``rtol`` of it (MINPACK's ``ftol`` test).
+        check_gyro_frame: with ``body_rates``, compare them over windows of
+            ~0.1 rad of rotation with the mean rates the orientations imply in
+            the body frame, ``log(q_i⁻¹ ⊗ q_j) / (t_j - t_i)``, and in the world
+            frame, ``log(q_j ⊗ q_i⁻¹) / (t_j - t_i)``; raise ``ValueError`` if
+            the world-frame one fits more than 3x better (median misfit), the
+            signature of a world-frame gyro (convert with
+            ``rb.quat_rotate(rb.quat_conjugate(q), w)``). ``False`` skips it.
 
     Returns:
         :class:`FitResult` (with a leading ``N`` axis for batched input).
@@ -328,7 +336,8 @@ def fit_inertia(
             or ``substeps`` < 1; all-zero ``torques`` (they cannot fix the scale:
             omit ``torques=``); non-monotonic or non-finite times, non-unit
             quaternions, shape mismatches, too few samples for the parameters,
-            or too little excitation (naming the unidentifiable directions).
+            or too little excitation (naming the unidentifiable directions), or
+            ``body_rates`` that look world-frame (``check_gyro_frame``).
     """
     _fit_data.check_options(
         orientation_std=orientation_std,
@@ -354,6 +363,7 @@ def fit_inertia(
         rate_std=rate_std,
         continuity_weight=continuity_weight,
         excitation_tol=excitation_tol,
+        check_gyro_frame=bool(check_gyro_frame),
     )
     out = _fit_batch_jit(jax.default_backend())(
         prob.y0,

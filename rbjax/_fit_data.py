@@ -210,6 +210,36 @@ def check_options(
         _positive_int("substeps", substeps, "or omit it for the default")
 
 
+def _gyro_frame_check(times: np.ndarray, q: np.ndarray, w: np.ndarray, k: int, ratio: float = 3.0) -> None:
+    """Raise ``ValueError`` when gyro rates ``w (T, 3)`` look world-frame rather than body-frame.
+
+    Over windows of ``k`` samples the orientations ``q (T, 4)`` give the mean
+    body-frame rate ``log(q_i⁻¹ ⊗ q_{i+k}) / Δt`` and the world-frame one
+    ``log(q_{i+k} ⊗ q_i⁻¹) / Δt`` (rad/s); each is compared with the gyro's
+    trapezoid mean over the window. Only if the world-frame rate fits more than
+    ``ratio`` times better (median residual norms) is the gyro taken for
+    world-frame; where the two frames barely differ (little rotation) neither
+    fits better and nothing is raised.
+    """
+    T = q.shape[0]
+    if T <= k:
+        return
+    dt = (times[k:] - times[:-k])[:, None]
+    w_body = _np_qlog(_np_qmul(q[:-k] * _CONJ, q[k:])) / dt
+    w_world = _np_qlog(_np_qmul(q[k:], q[:-k] * _CONJ)) / dt
+    cum = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * np.diff(times)[:, None] * (w[1:] + w[:-1]), 0)])
+    w_mean = (cum[k:] - cum[:-k]) / dt
+    r_body = np.median(np.linalg.norm(w_mean - w_body, axis=-1))
+    r_world = np.median(np.linalg.norm(w_mean - w_world, axis=-1))
+    if r_body > ratio * r_world:
+        raise ValueError(
+            "fit_inertia: body_rates look like world-frame angular velocities: they match the rate "
+            f"implied by the orientations in the world frame (median misfit {r_world:.3g} rad/s) far "
+            f"better than in the body frame ({r_body:.3g} rad/s). Pass body-frame rates R(q)ᵀ ω, e.g. "
+            "rb.quat_rotate(rb.quat_conjugate(q), w), or check_gyro_frame=False to skip this check"
+        )
+
+
 def _check_inputs(times, orientations, body_rates, torques):
     t = np.asarray(times, dtype=np.float64)
     q = np.asarray(orientations)
@@ -332,6 +362,7 @@ def prepare(
     rate_std,
     continuity_weight,
     excitation_tol,
+    check_gyro_frame=True,
 ) -> Problem:
     """Validate recordings and pack them for :func:`rbjax.fit_inertia` (arguments as there).
 
@@ -387,10 +418,13 @@ def prepare(
         sw = np.full(N, np.nan)
 
     # rates for the linear start: the gyro, or orientation differences over ~0.1 rad
+    k = int(np.clip(np.ceil(0.1 / max(np.median(angles), 1e-12)), 1, max(1, (T - 1) // 4)))
     if use_rates:
         rates = np.asarray(wr, np.float64)
+        if check_gyro_frame:
+            for n in range(N):
+                _gyro_frame_check(t, q[n], rates[n], k)
     else:
-        k = int(np.clip(np.ceil(0.1 / max(np.median(angles), 1e-12)), 1, max(1, (T - 1) // 4)))
         rates = _rate_estimate(t, q, k)
 
     K = _bucket(-(-(T - 1) // S))  # intervals per segment, padded: shapes from a coarse grid
