@@ -62,8 +62,27 @@ class FitResult:
         residuals: ``(n,)`` final weighted residual vector (dimensionless).
         orientation_rms: RMS orientation residual (rad).
         rate_rms: RMS gyro residual (rad/s); NaN without ``body_rates``.
-        converged: whether Levenberg–Marquardt met its tolerances.
+        converged: whether the fit can be trusted: ``solver_converged`` and
+            not ``on_boundary`` and ``residual_ratio ≤ 3``. Check it (and the
+            two flags for the reason) before using ``moment_std``.
         iterations: Levenberg–Marquardt steps taken.
+        solver_converged: whether Levenberg–Marquardt met its tolerances
+            (what ``converged`` meant before the two checks below were added).
+        on_boundary: the fitted moments (ascending ``I1 ≤ I2 ≤ I3``) meet the
+            triangle inequality within ``(I1 + I2 - I3) / tr I < 1e-3``, i.e.
+            the smallest eigenvalue of ``Σ = ½ tr(I) 1 - I`` (the log-Cholesky
+            pivot ``exp(θ)``) is below 5e-4 of ``tr Σ``: the fit ran into the edge of
+            the physically consistent set, where the parametrisation flattens
+            (``d I / d θ → 0``) and the Gauss–Newton covariance is meaningless,
+            so ``moment_std`` is NaN there. Usual causes: gyro in the wrong
+            frame, orientation glitches, wrong torques. A genuinely planar
+            body (a thin plate, ``I1 + I2 = I3``) also lands here.
+        residual_ratio: RMS of the weighted data residuals per degree of
+            freedom, ``sqrt(Σ r² / (n - p))`` (dimensionless): ≈ 1 when the
+            residuals are as large as the noise levels (given or estimated)
+            predict; above 3 the model or noise model does not fit the data
+            (outliers, glitches, bias, wrong noise levels) and ``converged`` is
+            ``False``. ``moment_std`` already scales with it (``s² = ratio²``).
         scale_fixed: ``True`` when known torques fix the absolute scale;
             ``False`` for torque-free data, where only ``I / tr I`` is identifiable.
         segments: number of shooting segments used.
@@ -80,8 +99,15 @@ class FitResult:
     rate_rms: Float[Array, "*N"] = field(core_ndim=0)
     converged: Bool[Array, "*N"] = field(core_ndim=0)
     iterations: Int[Array, "*N"] = field(core_ndim=0)
+    solver_converged: Bool[Array, "*N"] = field(core_ndim=0)
+    on_boundary: Bool[Array, "*N"] = field(core_ndim=0)
+    residual_ratio: Float[Array, "*N"] = field(core_ndim=0)
     scale_fixed: bool = static_field(default=False)
     segments: int = static_field(default=1)
+
+
+_BOUNDARY_RTOL = 1e-3  # (I1 + I2 - I3) / tr I below this: on the edge of the consistent set
+_RESIDUAL_RATIO_MAX = 3.0  # RMS weighted residual above this: the noise model does not fit
 
 
 class _TrustRegionState(eqx.Module):
@@ -232,6 +258,12 @@ def _fit_batch(y0, data, *, scale_fixed, method, substeps, use_rates, rtol, atol
             w_rms = jnp.sqrt(jnp.sum(r_seg[:, 1] ** 2) / nq) / seg["ww"][0]
         else:
             w_rms = jnp.full((), jnp.nan, r.dtype)
+        # honest failure: the triangle margin I1 + I2 - I3 = 2 λ_min(Σ) near zero, or residuals
+        # far above the noise model
+        on_boundary = (moments[0] + moments[1] - moments[2]) < _BOUNDARY_RTOL * jnp.sum(moments)
+        ratio = jnp.sqrt(s2)
+        solver_ok = sol.result == optx.RESULTS.successful
+        std = jnp.where(on_boundary, jnp.nan, std)
         return dict(
             inertia=I,
             principal_moments=moments,
@@ -242,8 +274,11 @@ def _fit_batch(y0, data, *, scale_fixed, method, substeps, use_rates, rtol, atol
             residuals=r,
             orientation_rms=q_rms,
             rate_rms=w_rms,
-            converged=sol.result == optx.RESULTS.successful,
+            converged=solver_ok & ~on_boundary & (ratio <= _RESIDUAL_RATIO_MAX),
             iterations=sol.stats["num_steps"],
+            solver_converged=solver_ok,
+            on_boundary=on_boundary,
+            residual_ratio=ratio,
         )
 
     if unbatch:  # one recording: no vmap, whose batching of the solver's loops doubles tracing
