@@ -363,6 +363,7 @@ def prepare(
     continuity_weight,
     excitation_tol,
     check_gyro_frame=True,
+    gyro_bias=False,
 ) -> Problem:
     """Validate recordings and pack them for :func:`rbjax.fit_inertia` (arguments as there).
 
@@ -381,6 +382,12 @@ def prepare(
     dtype = jax.dtypes.canonicalize_dtype(q.dtype)  # float64 input stays float32 without x64
     torque_free = tau is None
     use_rates = wr is not None
+    if isinstance(gyro_bias, (bool, np.bool_)):
+        gyro_bias = bool(gyro_bias)
+    else:
+        raise TypeError(f"fit_inertia: gyro_bias must be True or False, got {type(gyro_bias).__name__}")
+    if gyro_bias and not use_rates:
+        raise ValueError("fit_inertia: gyro_bias=True needs body_rates (there is no gyro to be biased)")
     q = q.astype(np.float64)
 
     inc = _np_increments(q)  # (N, T-1, 3)
@@ -394,7 +401,7 @@ def prepare(
     if S < 1 or (T - 1) // S < 2:
         raise ValueError(f"fit_inertia: segments={segments} needs at least 2 intervals each; T = {T}")
     n_theta = 5 if torque_free else 6
-    n_params = n_theta + 6 * S
+    n_params = n_theta + (3 if gyro_bias else 0) + 6 * S
     n_data = 3 * T * (2 if use_rates else 1)
     if n_data <= n_params + 1:
         raise ValueError(
@@ -450,6 +457,8 @@ def prepare(
         if torque_free:  # the gauge log L00 = 0: rescale so that Σ_xx = 1, drop θ0
             I0 = I0 / (0.5 * np.trace(I0) - I0[0, 0])
         theta0 = _np_params_from_inertia(I0)[(1 if torque_free else 0) :]
+        if gyro_bias:
+            theta0 = np.concatenate([theta0, np.zeros(3)])  # the bias starts at zero
         w_start = rates[n][starts]
         y0s.append(np.concatenate([theta0, np.column_stack([np.zeros((S, 3)), w_start]).reshape(-1)]))
         first = (np.arange(S) == 0).astype(np.float64)
@@ -476,7 +485,13 @@ def prepare(
     return Problem(
         y0=np.stack(y0s).astype(dtype),
         data=data,
-        static=dict(scale_fixed=not torque_free, method=method, substeps=int(substeps), use_rates=use_rates),
+        static=dict(
+            scale_fixed=not torque_free,
+            method=method,
+            substeps=int(substeps),
+            use_rates=use_rates,
+            gyro_bias=gyro_bias,
+        ),
         batched=batched,
         segments=S,
     )
