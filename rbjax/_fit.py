@@ -62,8 +62,31 @@ class FitResult:
         residuals: ``(n,)`` final weighted residual vector (dimensionless).
         orientation_rms: RMS orientation residual (rad).
         rate_rms: RMS gyro residual (rad/s); NaN without ``body_rates``.
-        converged: whether Levenberg–Marquardt met its tolerances.
+        converged: whether the fit can be trusted: ``solver_converged`` and
+            not ``on_boundary`` and ``residual_ratio ≤ 3``. Check it (and the
+            two flags for the reason) before using ``moment_std``.
         iterations: Levenberg–Marquardt steps taken.
+        solver_converged: whether Levenberg–Marquardt met its tolerances
+            (what ``converged`` meant before the two checks below were added).
+        on_boundary: the fitted moments (ascending ``I1 ≤ I2 ≤ I3``) meet the
+            triangle inequality within ``(I1 + I2 - I3) / tr I < 1e-3``, i.e.
+            the smallest eigenvalue of ``Σ = ½ tr(I) 1 - I`` (the log-Cholesky
+            pivot ``exp(θ)``) is below 5e-4 of ``tr Σ``: the fit ran into the edge of
+            the physically consistent set, where the parametrisation flattens
+            (``d I / d θ → 0``) and the Gauss–Newton covariance is meaningless,
+            so ``moment_std`` is NaN there. Usual causes: gyro in the wrong
+            frame, orientation glitches, wrong torques. A genuinely planar
+            body (a thin plate, ``I1 + I2 = I3``) also lands here.
+        residual_ratio: RMS of the weighted data residuals per degree of
+            freedom, ``sqrt(Σ r² / (n - p))`` (dimensionless): ≈ 1 when the
+            residuals are as large as the noise levels (given or estimated)
+            predict; above 3 the model or noise model does not fit the data
+            (outliers, glitches, bias, wrong noise levels) and ``converged`` is
+            ``False``. ``moment_std`` already scales with it (``s² = ratio²``).
+        gyro_bias: ``(3,)`` fitted constant gyro bias ``b`` (body frame, rad/s;
+            gyro = ω + b) with ``fit_inertia(..., gyro_bias=True)``; zeros otherwise.
+        gyro_bias_std: ``(3,)`` its one-sigma uncertainty (rad/s, same
+            covariance as ``moment_std``); NaN without ``gyro_bias=True``.
         scale_fixed: ``True`` when known torques fix the absolute scale;
             ``False`` for torque-free data, where only ``I / tr I`` is identifiable.
         segments: number of shooting segments used.
@@ -80,8 +103,17 @@ class FitResult:
     rate_rms: Float[Array, "*N"] = field(core_ndim=0)
     converged: Bool[Array, "*N"] = field(core_ndim=0)
     iterations: Int[Array, "*N"] = field(core_ndim=0)
+    solver_converged: Bool[Array, "*N"] = field(core_ndim=0)
+    on_boundary: Bool[Array, "*N"] = field(core_ndim=0)
+    residual_ratio: Float[Array, "*N"] = field(core_ndim=0)
+    gyro_bias: Float[Array, "*N 3"] = field(core_ndim=1)
+    gyro_bias_std: Float[Array, "*N 3"] = field(core_ndim=1)
     scale_fixed: bool = static_field(default=False)
     segments: int = static_field(default=1)
+
+
+_BOUNDARY_RTOL = 1e-3  # (I1 + I2 - I3) / tr I below this: on the edge of the consistent set
+_RESIDUAL_RATIO_MAX = 3.0  # RMS weighted residual above this: the noise model does not fit
 
 
 class _TrustRegionState(eqx.Module):
@@ -190,12 +222,14 @@ def _fit_batch_jit(backend: str):
     CPU-s) and made the solve faster too (3.1 → 2.0 CPU-s), same result.
     """
     options = {"xla_cpu_use_fusion_emitters": False} if backend == "cpu" else None
-    static = ("scale_fixed", "method", "substeps", "use_rates", "rtol", "atol", "max_steps", "unbatch")
+    static = ("scale_fixed", "method", "substeps", "use_rates", "gyro_bias", "rtol", "atol", "max_steps", "unbatch")
     return jax.jit(_fit_batch, static_argnames=static, compiler_options=options)
 
 
-def _fit_batch(y0, data, *, scale_fixed, method, substeps, use_rates, rtol, atol, max_steps, unbatch):
-    model = functools.partial(_model, scale_fixed=scale_fixed, method=method, substeps=substeps, use_rates=use_rates)
+def _fit_batch(y0, data, *, scale_fixed, method, substeps, use_rates, gyro_bias, rtol, atol, max_steps, unbatch):
+    model = functools.partial(
+        _model, scale_fixed=scale_fixed, method=method, substeps=substeps, use_rates=use_rates, gyro_bias=gyro_bias
+    )
     res_fn = _with_dense_jacobian(model)
     solver = _LevenbergMarquardt(rtol, atol)
 
@@ -224,7 +258,12 @@ def _fit_batch(y0, data, *, scale_fixed, method, substeps, use_rates, rtol, atol
         std = jnp.sqrt(jnp.diagonal(G @ cov @ G.T))
         _, axes = jnp.linalg.eigh(I)
         axes = axes * jnp.sign(jnp.linalg.det(axes))
-        _, P = _unpack(y, 6 if scale_fixed else 5, S)
+        n_I = 6 if scale_fixed else 5
+        _, P = _unpack(y, n_I + (3 if gyro_bias else 0), S)
+        if gyro_bias:
+            bias, bias_std = y[n_I : n_I + 3], jnp.sqrt(jnp.diagonal(cov)[n_I : n_I + 3])
+        else:
+            bias, bias_std = jnp.zeros(3, y.dtype), jnp.full(3, jnp.nan, y.dtype)
         r_seg = r[:n_rows].reshape(S, 2 if use_rates else 1, 3 + 3 * K)
         nq = seg["mask"].sum() * 3 + 3
         q_rms = jnp.sqrt(jnp.sum(r_seg[:, 0] ** 2) / nq) / seg["wq"][0]
@@ -232,6 +271,12 @@ def _fit_batch(y0, data, *, scale_fixed, method, substeps, use_rates, rtol, atol
             w_rms = jnp.sqrt(jnp.sum(r_seg[:, 1] ** 2) / nq) / seg["ww"][0]
         else:
             w_rms = jnp.full((), jnp.nan, r.dtype)
+        # honest failure: the triangle margin I1 + I2 - I3 = 2 λ_min(Σ) near zero, or residuals
+        # far above the noise model
+        on_boundary = (moments[0] + moments[1] - moments[2]) < _BOUNDARY_RTOL * jnp.sum(moments)
+        ratio = jnp.sqrt(s2)
+        solver_ok = sol.result == optx.RESULTS.successful
+        std = jnp.where(on_boundary, jnp.nan, std)
         return dict(
             inertia=I,
             principal_moments=moments,
@@ -242,8 +287,13 @@ def _fit_batch(y0, data, *, scale_fixed, method, substeps, use_rates, rtol, atol
             residuals=r,
             orientation_rms=q_rms,
             rate_rms=w_rms,
-            converged=sol.result == optx.RESULTS.successful,
+            converged=solver_ok & ~on_boundary & (ratio <= _RESIDUAL_RATIO_MAX),
             iterations=sol.stats["num_steps"],
+            solver_converged=solver_ok,
+            on_boundary=on_boundary,
+            residual_ratio=ratio,
+            gyro_bias=bias,
+            gyro_bias_std=bias_std,
         )
 
     if unbatch:  # one recording: no vmap, whose batching of the solver's loops doubles tracing
@@ -272,6 +322,8 @@ def fit_inertia(
     rtol: float = 1e-8,
     atol: float = 1e-8,
     max_steps: int = 100,
+    check_gyro_frame: bool = True,
+    gyro_bias: bool = False,
 ) -> FitResult:
     """Fit a body-frame inertia tensor to a recording of free (or known-torque) rotation.
 
@@ -316,15 +368,43 @@ def fit_inertia(
             and changes the residuals by less than ``atol + rtol·|r|``, or when
             a trial step's actual and predicted reductions of the sum of
             squares are both below ``rtol`` of it (MINPACK's ``ftol`` test).
+        check_gyro_frame: with ``body_rates``, compare them over windows of
+            ~0.1 rad of rotation with the mean rates the orientations imply in
+            the body frame, ``log(q_i⁻¹ ⊗ q_j) / (t_j - t_i)``, and in the world
+            frame, ``log(q_j ⊗ q_i⁻¹) / (t_j - t_i)``; raise ``ValueError`` if
+            the world-frame one fits more than 3x better (median misfit), the
+            signature of a world-frame gyro (convert with
+            ``rb.quat_rotate(rb.quat_conjugate(q), w)``). ``False`` skips it.
+        gyro_bias: fit a constant body-frame gyro bias ``b`` (3 nuisance
+            parameters, rad/s): the gyro residuals become
+            ``(ω_sim + b - ω_meas) / σ_ω``. Needs ``body_rates``. Reported as
+            ``FitResult.gyro_bias`` with ``gyro_bias_std``.
 
     Returns:
         :class:`FitResult` (with a leading ``N`` axis for batched input).
 
     Raises:
-        ValueError: before any tracing, for non-monotonic times, non-unit
+        TypeError: before any tracing, for options of the wrong type (e.g. a
+            float or bool ``max_steps``/``segments``/``substeps``).
+        ValueError: before any tracing, for noise levels, ``continuity_weight``,
+            tolerances that are not finite and > 0; ``max_steps``, ``segments``
+            or ``substeps`` < 1; all-zero ``torques`` (they cannot fix the scale:
+            omit ``torques=``); non-monotonic or non-finite times, non-unit
             quaternions, shape mismatches, too few samples for the parameters,
-            or too little excitation (naming the unidentifiable directions).
+            or too little excitation (naming the unidentifiable directions), or
+            ``body_rates`` that look world-frame (``check_gyro_frame``).
     """
+    _fit_data.check_options(
+        orientation_std=orientation_std,
+        rate_std=rate_std,
+        continuity_weight=continuity_weight,
+        excitation_tol=excitation_tol,
+        rtol=rtol,
+        atol=atol,
+        max_steps=max_steps,
+        segments=segments,
+        substeps=substeps,
+    )
     prob = _fit_data.prepare(
         times,
         orientations,
@@ -338,6 +418,8 @@ def fit_inertia(
         rate_std=rate_std,
         continuity_weight=continuity_weight,
         excitation_tol=excitation_tol,
+        check_gyro_frame=bool(check_gyro_frame),
+        gyro_bias=gyro_bias,
     )
     out = _fit_batch_jit(jax.default_backend())(
         prob.y0,

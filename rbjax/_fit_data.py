@@ -171,6 +171,75 @@ def _rref_columns(basis: np.ndarray) -> list[np.ndarray]:
     return list(A[:r])
 
 
+def _positive_finite(name: str, value, remedy: str) -> float:
+    """``value`` as a float, or ``TypeError``/``ValueError`` naming ``name`` and the remedy."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        if not (isinstance(value, (np.ndarray, jax.Array)) and np.ndim(value) == 0):
+            raise TypeError(f"fit_inertia: {name} must be a real number, got {type(value).__name__}; {remedy}")
+    v = float(value)
+    if not (np.isfinite(v) and v > 0):
+        raise ValueError(f"fit_inertia: {name} must be finite and > 0, got {v!r}; {remedy}")
+    return v
+
+
+def _positive_int(name: str, value, remedy: str) -> int:
+    """``value`` as an int ≥ 1 (not a bool), or ``TypeError``/``ValueError`` naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"fit_inertia: {name} must be an int >= 1, got {type(value).__name__} {value!r}; {remedy}")
+    if value < 1:
+        raise ValueError(f"fit_inertia: {name} must be an int >= 1, got {value}; {remedy}")
+    return int(value)
+
+
+def check_options(
+    *, orientation_std, rate_std, continuity_weight, excitation_tol, rtol, atol, max_steps, segments, substeps
+) -> None:
+    """Validate :func:`rbjax.fit_inertia`'s scalar options before anything is traced."""
+    if orientation_std is not None:
+        _positive_finite("orientation_std", orientation_std, "give the orientation noise std in rad, or omit it")
+    if rate_std is not None:
+        _positive_finite("rate_std", rate_std, "give the gyro noise std in rad/s, or omit it")
+    _positive_finite("continuity_weight", continuity_weight, "the default 1000 suits most recordings")
+    _positive_finite("excitation_tol", excitation_tol, "the default is 1e-3")
+    _positive_finite("rtol", rtol, "the default is 1e-8")
+    _positive_finite("atol", atol, "the default is 1e-8")
+    _positive_int("max_steps", max_steps, "the default is 100")
+    if segments is not None:
+        _positive_int("segments", segments, "or omit it for the default")
+    if substeps is not None:
+        _positive_int("substeps", substeps, "or omit it for the default")
+
+
+def _gyro_frame_check(times: np.ndarray, q: np.ndarray, w: np.ndarray, k: int, ratio: float = 3.0) -> None:
+    """Raise ``ValueError`` when gyro rates ``w (T, 3)`` look world-frame rather than body-frame.
+
+    Over windows of ``k`` samples the orientations ``q (T, 4)`` give the mean
+    body-frame rate ``log(q_i⁻¹ ⊗ q_{i+k}) / Δt`` and the world-frame one
+    ``log(q_{i+k} ⊗ q_i⁻¹) / Δt`` (rad/s); each is compared with the gyro's
+    trapezoid mean over the window. Only if the world-frame rate fits more than
+    ``ratio`` times better (median residual norms) is the gyro taken for
+    world-frame; where the two frames barely differ (little rotation) neither
+    fits better and nothing is raised.
+    """
+    T = q.shape[0]
+    if T <= k:
+        return
+    dt = (times[k:] - times[:-k])[:, None]
+    w_body = _np_qlog(_np_qmul(q[:-k] * _CONJ, q[k:])) / dt
+    w_world = _np_qlog(_np_qmul(q[k:], q[:-k] * _CONJ)) / dt
+    cum = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * np.diff(times)[:, None] * (w[1:] + w[:-1]), 0)])
+    w_mean = (cum[k:] - cum[:-k]) / dt
+    r_body = np.median(np.linalg.norm(w_mean - w_body, axis=-1))
+    r_world = np.median(np.linalg.norm(w_mean - w_world, axis=-1))
+    if r_body > ratio * r_world:
+        raise ValueError(
+            "fit_inertia: body_rates look like world-frame angular velocities: they match the rate "
+            f"implied by the orientations in the world frame (median misfit {r_world:.3g} rad/s) far "
+            f"better than in the body frame ({r_body:.3g} rad/s). Pass body-frame rates R(q)ᵀ ω, e.g. "
+            "rb.quat_rotate(rb.quat_conjugate(q), w), or check_gyro_frame=False to skip this check"
+        )
+
+
 def _check_inputs(times, orientations, body_rates, torques):
     t = np.asarray(times, dtype=np.float64)
     q = np.asarray(orientations)
@@ -181,11 +250,18 @@ def _check_inputs(times, orientations, body_rates, torques):
             f"fit_inertia: orientations must have shape (T, 4) or (N, T, 4) with T = len(times) = "
             f"{t.shape[0]}, got {q.shape}"
         )
-    if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+    if not np.all(np.isfinite(t)):
+        i = int(np.flatnonzero(~np.isfinite(t))[0])
+        raise ValueError(
+            f"fit_inertia: times must be finite and strictly increasing (seconds, one per sample); "
+            f"times[{i}] = {t[i]}; drop the samples without a valid time"
+        )
+    if np.any(np.diff(t) <= 0):
         bad = np.flatnonzero(~(np.diff(t) > 0))
         raise ValueError(
-            f"fit_inertia: times must be finite and strictly increasing; first bad interval at index "
-            f"{bad[0] if bad.size else '?'}"
+            f"fit_inertia: times must be finite and strictly increasing (seconds, one per sample); "
+            f"first bad interval at index {bad[0] if bad.size else '?'}; sort the samples and drop "
+            "duplicates and NaNs"
         )
     if not np.all(np.isfinite(q)):
         raise ValueError("fit_inertia: orientations contain non-finite values")
@@ -207,6 +283,11 @@ def _check_inputs(times, orientations, body_rates, torques):
         if not np.all(np.isfinite(a)):
             raise ValueError(f"fit_inertia: {name} contain non-finite values")
         out.append(np.broadcast_to(a, q.shape[:-1] + (3,)))
+    if torques is not None and not np.any(out[1]):
+        raise ValueError(
+            "fit_inertia: torques are all zero, which cannot fix the inertia's scale (it acts like "
+            "torque-free data); omit torques= for a shape-only fit (normalised to tr I = 1)"
+        )
     return t, q, out[0], out[1]
 
 
@@ -281,6 +362,8 @@ def prepare(
     rate_std,
     continuity_weight,
     excitation_tol,
+    check_gyro_frame=True,
+    gyro_bias=False,
 ) -> Problem:
     """Validate recordings and pack them for :func:`rbjax.fit_inertia` (arguments as there).
 
@@ -299,6 +382,12 @@ def prepare(
     dtype = jax.dtypes.canonicalize_dtype(q.dtype)  # float64 input stays float32 without x64
     torque_free = tau is None
     use_rates = wr is not None
+    if isinstance(gyro_bias, (bool, np.bool_)):
+        gyro_bias = bool(gyro_bias)
+    else:
+        raise TypeError(f"fit_inertia: gyro_bias must be True or False, got {type(gyro_bias).__name__}")
+    if gyro_bias and not use_rates:
+        raise ValueError("fit_inertia: gyro_bias=True needs body_rates (there is no gyro to be biased)")
     q = q.astype(np.float64)
 
     inc = _np_increments(q)  # (N, T-1, 3)
@@ -312,7 +401,7 @@ def prepare(
     if S < 1 or (T - 1) // S < 2:
         raise ValueError(f"fit_inertia: segments={segments} needs at least 2 intervals each; T = {T}")
     n_theta = 5 if torque_free else 6
-    n_params = n_theta + 6 * S
+    n_params = n_theta + (3 if gyro_bias else 0) + 6 * S
     n_data = 3 * T * (2 if use_rates else 1)
     if n_data <= n_params + 1:
         raise ValueError(
@@ -336,10 +425,13 @@ def prepare(
         sw = np.full(N, np.nan)
 
     # rates for the linear start: the gyro, or orientation differences over ~0.1 rad
+    k = int(np.clip(np.ceil(0.1 / max(np.median(angles), 1e-12)), 1, max(1, (T - 1) // 4)))
     if use_rates:
         rates = np.asarray(wr, np.float64)
+        if check_gyro_frame:
+            for n in range(N):
+                _gyro_frame_check(t, q[n], rates[n], k)
     else:
-        k = int(np.clip(np.ceil(0.1 / max(np.median(angles), 1e-12)), 1, max(1, (T - 1) // 4)))
         rates = _rate_estimate(t, q, k)
 
     K = _bucket(-(-(T - 1) // S))  # intervals per segment, padded: shapes from a coarse grid
@@ -365,6 +457,8 @@ def prepare(
         if torque_free:  # the gauge log L00 = 0: rescale so that Σ_xx = 1, drop θ0
             I0 = I0 / (0.5 * np.trace(I0) - I0[0, 0])
         theta0 = _np_params_from_inertia(I0)[(1 if torque_free else 0) :]
+        if gyro_bias:
+            theta0 = np.concatenate([theta0, np.zeros(3)])  # the bias starts at zero
         w_start = rates[n][starts]
         y0s.append(np.concatenate([theta0, np.column_stack([np.zeros((S, 3)), w_start]).reshape(-1)]))
         first = (np.arange(S) == 0).astype(np.float64)
@@ -391,7 +485,13 @@ def prepare(
     return Problem(
         y0=np.stack(y0s).astype(dtype),
         data=data,
-        static=dict(scale_fixed=not torque_free, method=method, substeps=int(substeps), use_rates=use_rates),
+        static=dict(
+            scale_fixed=not torque_free,
+            method=method,
+            substeps=int(substeps),
+            use_rates=use_rates,
+            gyro_bias=gyro_bias,
+        ),
         batched=batched,
         segments=S,
     )

@@ -28,6 +28,7 @@ from ._state import Forces, State, _apply
 
 
 def _inertia(theta: Array, scale_fixed: bool) -> Array:
+    theta = theta[: 6 if scale_fixed else 5]  # the shared block may go on with the gyro bias
     if not scale_fixed:  # gauge: log L00 = 0 (Σ_xx = 1); reported normalised to tr I = 1
         theta = jnp.concatenate([jnp.zeros_like(theta[:1]), theta])
     return inertia_from_params(theta)
@@ -64,7 +65,7 @@ def _pushforward(f, x, tx):
     return jax.vmap(lambda v: jax.jvp(f, (x,), (v,)), out_axes=(None, 0))(tx)
 
 
-def _segments(X, seg, *, n_theta, scale_fixed, method, substeps, use_rates):
+def _segments(X, seg, *, n_theta, scale_fixed, method, substeps, use_rates, gyro_bias=False):
     """Data residuals ``(S, m)`` and end states ``(q, ω_body)`` ``(S, 7)`` of all segments, and
     their derivatives ``(S, m, n)``, ``(S, 7, n)`` in each segment's ``x_s = X[s]`` (``n = n_θ + 6``).
 
@@ -120,6 +121,12 @@ def _segments(X, seg, *, n_theta, scale_fixed, method, substeps, use_rates):
     over_samples = jax.vmap(sample, in_axes=(0, 0, 0, 0, 0, None), out_axes=(0, 1))  # tangents (n, K+1, ...)
     (r_q, r_w, w), (dr_q, dr_w, dw) = jax.vmap(over_samples)(s_all, ds_all, q_meas, w_meas, weight, seg)
     S, n = X.shape
+    if gyro_bias:  # gyro = ω + b (body frame, constant): b = X[s, n_I:n_I+3] enters the rate rows linearly
+        n_I = 6 if scale_fixed else 5
+        g = weight[:, :, None] * seg["ww"][:, None, None]  # (S, K+1, 1)
+        r_w = r_w + g * X[:, None, n_I : n_I + 3]
+        eye = jnp.eye(3, dtype=X.dtype)
+        dr_w = dr_w.at[:, n_I : n_I + 3].add(jnp.einsum("skc,bc->sbkc", g * jnp.ones(3, X.dtype), eye))
     rows, drows = [r_q.reshape(S, -1)], [dr_q.reshape(S, n, -1)]
     if use_rates:
         rows.append(r_w.reshape(S, -1))
@@ -141,15 +148,19 @@ def _continuity(end, p_next, d_next, continuity_weight):
     return continuity_weight * jnp.concatenate([d_next["wq"] * gap, d_next["wc"] * (end[4:] - p_next[3:])])
 
 
-def _model(y, data, *, scale_fixed, method, substeps, use_rates):
-    """Residual vector ``r`` (segments' data rows, then join rows) and its dense Jacobian ``∂r/∂y``."""
+def _model(y, data, *, scale_fixed, method, substeps, use_rates, gyro_bias=False):
+    """Residual vector ``r`` (segments' data rows, then join rows) and its dense Jacobian ``∂r/∂y``.
+
+    ``y = (θ, [b], p_0, ..., p_{S-1})``: inertia parameters θ (5 or 6), with
+    ``gyro_bias`` a constant body-frame gyro bias ``b`` (3, rad/s), then 6 per segment.
+    """
     seg = data["seg"]
     S = seg["dt"].shape[0]
-    n_theta = 6 if scale_fixed else 5
+    n_theta = (6 if scale_fixed else 5) + (3 if gyro_bias else 0)  # the shared block
     theta, P = _unpack(y, n_theta, S)
     X = jnp.concatenate([jnp.broadcast_to(theta, (S, n_theta)), P], -1)  # x_s = (θ, p_s)
     kw = dict(n_theta=n_theta, scale_fixed=scale_fixed, method=method, substeps=substeps, use_rates=use_rates)
-    r_seg, ends, J_seg, J_end = _segments(X, seg, **kw)
+    r_seg, ends, J_seg, J_end = _segments(X, seg, **kw, gyro_bias=gyro_bias)
     m = r_seg.shape[1]
     if S == 1:  # single shooting: no joins
         return r_seg.reshape(-1), J_seg.reshape(m, -1)

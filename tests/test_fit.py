@@ -7,6 +7,7 @@ the shapes below so they reuse compiled programs.
 import jax
 import numpy as np
 import pytest
+import reference
 from reference import imu_noise, reference_rotation, to_body
 
 import rbjax as rb
@@ -83,8 +84,12 @@ def test_known_torques_give_absolute_inertia():
 
 
 # one segment (no joins) compiles its own ~20 s program: with --runslow
-@pytest.mark.parametrize("segments", [pytest.param(1, marks=pytest.mark.slow), 3])
-def test_model_jacobian_matches_autodiff(segments):
+@pytest.mark.parametrize(
+    ("segments", "gyro_bias"),
+    # the bias case compiles its own ~11 s program; the quick suite's bias fit test covers it too
+    [pytest.param(1, False, marks=pytest.mark.slow), (3, False), pytest.param(3, True, marks=pytest.mark.slow)],
+)
+def test_model_jacobian_matches_autodiff(segments, gyro_bias):
     # The solver's Jacobian is assembled by hand: sensitivities carried through the
     # scan per segment, chained through the joins. Against JAX's own forward mode
     # through the residuals, with torques, gyro, irregular times and padded segments.
@@ -95,6 +100,7 @@ def test_model_jacobian_matches_autodiff(segments):
     prob = _fit_data.prepare(
         t, q, wb, tau, initial_inertia=None, method="rk4", segments=segments, substeps=None,
         orientation_std=1e-3, rate_std=1e-2, continuity_weight=1000.0, excitation_tol=1e-3,
+        gyro_bias=gyro_bias,
     )  # fmt: skip
     model = jax.jit(lambda y, d: _fit_model._model(y, d, **prob.static))
     data = jax.tree.map(lambda a: a[0], prob.data)
@@ -216,3 +222,119 @@ def test_full_rate_recordings_4s_1khz():
     assert err < 0.01 and err < _rel(rb.fit_inertia_linear(times, wn), I_BAR) / 10
     z = np.abs(res.principal_moments - np.linalg.eigvalsh(I_BAR)) / res.moment_std
     assert np.all(z < 3), z
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "exc", "match"),
+    [
+        (dict(orientation_std=0.0), ValueError, "orientation_std must be finite and > 0"),
+        (dict(orientation_std=-1e-3), ValueError, "orientation_std must be finite and > 0"),
+        (dict(orientation_std=np.nan), ValueError, "orientation_std must be finite and > 0"),
+        (dict(rate_std=np.inf), ValueError, "rate_std must be finite and > 0"),
+        (dict(rate_std="0.01"), TypeError, "rate_std must be a real number"),
+        (dict(continuity_weight=0.0), ValueError, "continuity_weight must be finite and > 0"),
+        (dict(continuity_weight=np.inf), ValueError, "continuity_weight must be finite and > 0"),
+        (dict(max_steps=0), ValueError, "max_steps must be an int >= 1"),
+        (dict(max_steps=True), TypeError, "max_steps must be an int >= 1"),
+        (dict(max_steps=10.0), TypeError, "max_steps must be an int >= 1"),
+        (dict(segments=0), ValueError, "segments must be an int >= 1"),
+        (dict(segments=2.5), TypeError, "segments must be an int >= 1"),
+        (dict(substeps=False), TypeError, "substeps must be an int >= 1"),
+        (dict(rtol=-1.0), ValueError, "rtol must be finite and > 0"),
+    ],
+)
+def test_bad_options_raise_naming_the_argument(kwargs, exc, match):
+    t = T_FAST[:50]
+    q, wb = _record(t)
+    with pytest.raises(exc, match=match):
+        rb.fit_inertia(t, q, body_rates=wb, **kwargs)
+
+
+def test_bad_times_and_zero_torques_raise_with_remedy():
+    t = T_FAST[:50]
+    q, wb = _record(t)
+    with pytest.raises(ValueError, match="times must be finite and strictly increasing.*index 9.*duplicates"):
+        rb.fit_inertia(np.r_[t[:10], t[9], t[11:]], q)  # a repeated time
+    for v in (np.nan, np.inf):
+        with pytest.raises(ValueError, match=r"times must be finite and strictly increasing.*times\[10\] = (nan|inf)"):
+            rb.fit_inertia(np.r_[t[:10], v, t[11:]], q)
+    with pytest.raises(ValueError, match="torques are all zero.*omit torques="):
+        rb.fit_inertia(t, q, body_rates=wb, torques=np.zeros((50, 3)))
+
+
+def test_world_frame_gyro_is_detected():
+    # the mistake: the reference's world-frame ω passed as body_rates (with the check
+    # off, measured: moments [2e-6, 0.5, 0.5] with σ ≈ 3e-7). Clean: median misfits 3.8e-4
+    # (world frame) vs 2.6 rad/s (body frame), ratio ~7000 against the threshold 3
+    q, w_world = reference_rotation(I_TRUE, np.array([1.0, 0, 0, 0]), W0, T_FAST)
+    for w in (w_world, w_world + np.random.default_rng(6).normal(0, 0.01, w_world.shape)):
+        with pytest.raises(ValueError, match=r"world-frame.*rb.quat_rotate\(rb.quat_conjugate\(q\), w\)"):
+            rb.fit_inertia(T_FAST, q, body_rates=w)
+    # the body-frame gyro passes the check: no raise, before fitting
+    _fit_data.prepare(
+        T_FAST, q, to_body(q, w_world), None, initial_inertia=None, method="rk4", segments=None,
+        substeps=None, orientation_std=None, rate_std=None, continuity_weight=1000.0, excitation_tol=1e-3,
+    )  # fmt: skip
+    # with the check off the fit runs into the edge of the consistent set, and says so now
+    # (measured: moments [2e-6, 0.5, 0.5], residual ratio 1.9e4)
+    res = rb.fit_inertia(T_FAST, q, body_rates=w_world, check_gyro_frame=False)
+    assert bool(res.on_boundary) and not bool(res.converged)
+    assert np.all(np.isnan(np.asarray(res.moment_std)))  # not the ~3e-7 it used to report
+
+
+def test_gyro_frame_check_misfits():
+    # the check's numbers directly: body-frame gyro fits the body frame far better, and a
+    # recording with almost no rotation (frames nearly agree) raises for neither
+    q, w_world = reference_rotation(I_TRUE, np.array([1.0, 0, 0, 0]), W0, T_FAST)
+    wb = to_body(q, w_world)
+    _fit_data._gyro_frame_check(T_FAST, q, wb, 4)
+    with pytest.raises(ValueError, match="world-frame"):
+        _fit_data._gyro_frame_check(T_FAST, q, w_world, 4)
+    q_slow, w_slow = reference_rotation(I_TRUE, np.array([1.0, 0, 0, 0]), 1e-3 * W0, T_FAST)
+    rng = np.random.default_rng(7)
+    _fit_data._gyro_frame_check(T_FAST, q_slow, w_slow + rng.normal(0, 1e-2, w_slow.shape), 4)
+
+
+def test_orientation_glitches_do_not_claim_convergence():
+    # the case: three 1-rad orientation glitches in a clean 2 s @ 200 Hz recording gave
+    # converged=True with σ = 2.8e-19 on the largest moment. The noise level is estimated
+    # robustly (MAD), so the glitches sit far out and the residual ratio says so (measured:
+    # solver converged, ratio 2300, σ ≈ 0.01-0.04 on the moments, errors ≤ 2.3e-3).
+    q, _ = _record(T_FAST)
+    q = q.copy()
+    for i, axis in zip((60, 190, 330), np.eye(3), strict=True):  # 1-rad rotations about x, y, z
+        q[i] = reference.qmul(q[i], np.r_[np.cos(0.5), np.sin(0.5) * axis])
+    res = rb.fit_inertia(T_FAST, q)
+    assert not bool(res.converged)
+    assert float(res.residual_ratio) > 3
+    std = np.asarray(res.moment_std)
+    # never a confident σ: either NaN (on the boundary) or scaled by the huge residuals
+    assert np.all(np.isnan(std) | (std > 1e-6)), std
+    assert bool(res.on_boundary) == bool(np.all(np.isnan(std)))
+    # the clean recording: all flags agree that the fit is good
+    clean = rb.fit_inertia(T_FAST, _record(T_FAST)[0])
+    assert bool(clean.converged) and bool(clean.solver_converged) and not bool(clean.on_boundary)
+    assert float(clean.residual_ratio) < 3
+
+
+def test_gyro_bias_is_fitted_as_a_nuisance_parameter():
+    # the case: a constant 0.02 rad/s bias on a 2 s @ 200 Hz gyro (1e-3 rad + 0.01 rad/s
+    # noise). Measured on this draw: error 4.7e-4 unbiased, 6.7e-3 biased without the option
+    # (and still "converged", residual ratio 1.6), 4.3e-4 with it; bias back to 0.9-2.1 σ.
+    q, wb = _record(T_FAST)
+    qn, wn = imu_noise(q, wb, np.random.default_rng(0))
+    bias = np.array([0.02, -0.02, 0.02])
+    err_clean = _rel(rb.fit_inertia(T_FAST, qn, body_rates=wn).inertia, I_BAR)
+    assert _rel(rb.fit_inertia(T_FAST, qn, body_rates=wn + bias).inertia, I_BAR) > 5 * err_clean
+    res = rb.fit_inertia(T_FAST, qn, body_rates=wn + bias, gyro_bias=True)
+    assert bool(res.converged)
+    assert _rel(res.inertia, I_BAR) < 1.5 * err_clean  # back to the no-bias level
+    z = np.abs(np.asarray(res.gyro_bias) - bias) / np.asarray(res.gyro_bias_std)
+    assert np.all(z < 4), z
+    assert np.all(np.asarray(res.gyro_bias_std) < 2e-3)
+    # off by default: zeros with NaN σ; needs a gyro
+    assert np.all(np.isnan(rb.fit_inertia(T_FAST, qn, body_rates=wn).gyro_bias_std))
+    with pytest.raises(ValueError, match="gyro_bias=True needs body_rates"):
+        rb.fit_inertia(T_FAST, qn, gyro_bias=True)
+    with pytest.raises(TypeError, match="gyro_bias must be True or False"):
+        rb.fit_inertia(T_FAST, qn, body_rates=wn, gyro_bias=1)
