@@ -110,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     th_traj = simulate(th, None, args.dt, steps, method, save_every=max(1, steps // 4000))
     wb = np.asarray(body_angular_velocity(th_traj))
     t = np.arange(wb.shape[0]) * args.dt * max(1, steps // 4000)
-    moments, axes = (np.asarray(a) for a in th_traj.body.principal())
+    moments, axes = (np.asarray(a) for a in th.body.principal())  # the body, not its per-frame copies
     wp = wb @ axes  # components along the principal axes
     flips = int(np.sum(np.diff(np.sign(wp[:, 1])) != 0))
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -83,3 +85,7 @@ def test_demo_writes_the_gif_next_to_the_png(tmp_path, capsys):
     out = capsys.readouterr().out
     gif = PIL.open(tmp_path / "demo.gif")
     assert png.exists() and "animation" in out and gif.n_frames >= 50 and gif.size == (320, 320), out
+    # the T-handle flips (its intermediate-axis rate changes sign) about every 0.75 s: 13 in the
+    # demo's 10 s, so at least 2 in 3 s; 0 meant the flips were counted against the wrong axes
+    flips = int(re.search(r"T-handle\s+(\d+) flips", out).group(1))
+    assert flips >= 2, out
