@@ -113,32 +113,17 @@ def test_resume_with_other_arguments_is_refused(tmp_path):
     d = tmp_path / "run"
     with pytest.raises(_Crash):
         _run(d, writer=_CrashingWriter(d, 2))
+
+    def resume_with(forces, dt):
+        return rb.simulate_chunked(
+            _state(), forces, dt, STEPS, "rk4", save_every=SAVE, chunk_steps=CHUNK, progress=False,
+            writer=rb.ChunkWriter(d, resume=True), resume=True,
+        )  # fmt: skip
+
     with pytest.raises(ValueError, match=r"resume=True\): dt is 0.02 but the interrupted run .* had 0.01"):
-        rb.simulate_chunked(
-            _state(),
-            FORCES,
-            0.02,
-            STEPS,
-            "rk4",
-            save_every=SAVE,
-            chunk_steps=CHUNK,
-            progress=False,
-            writer=rb.ChunkWriter(d, resume=True),
-            resume=True,
-        )
+        resume_with(FORCES, 0.02)
     with pytest.raises(ValueError, match=r"resume=True\): forces_fingerprint is"):
-        rb.simulate_chunked(
-            _state(),
-            rb.Gravity(),
-            DT,
-            STEPS,
-            "rk4",
-            save_every=SAVE,
-            chunk_steps=CHUNK,
-            progress=False,
-            writer=rb.ChunkWriter(d, resume=True),
-            resume=True,
-        )
+        resume_with(rb.Gravity(), DT)
     with pytest.raises(ValueError, match=r"already holds 2 chunk\(s\); pass resume=True"):
         rb.ChunkWriter(d)
     with pytest.raises(ValueError, match=r"resume=True needs writer="):
