@@ -28,6 +28,13 @@ import time
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 
+def _rss_MB() -> tuple[float, float]:
+    """(current, peak so far) resident memory of this process, MB."""
+    with open("/proc/self/statm") as f:
+        current = int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
+    return current, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3
+
+
 def one(n: int, steps: int, save_every: int, method: str) -> dict:
     import jax
     import jax.numpy as jnp
@@ -36,51 +43,63 @@ def one(n: int, steps: int, save_every: int, method: str) -> dict:
     import rbjax as rb
     from rbjax import _simulate
 
+    jnp.zeros(1).block_until_ready()  # the runtime's own memory, before any data
+    base_MB, _ = _rss_MB()
+    rng = np.random.default_rng(0)
     m = jnp.full((n,), 1.0, jnp.float32)
-    v = jnp.asarray(np.random.default_rng(0).normal(size=(n, 3)), jnp.float32)
+    v = jnp.asarray(rng.normal(size=(n, 3)).astype(np.float32))
     state = rb.State.create(rb.sphere(m, jnp.float32(0.3)), velocity=v, angular_velocity=v)
+    del m, v
+    after_state = _rss_MB()
     scene = rb.Scene.build(state, rb.Gravity(), method)
+    after_scene = _rss_MB()
     nbytes = lambda tree: sum(a.nbytes for a in jax.tree.leaves(tree))  # noqa: E731
-    analysis = {}
-    try:  # the compiled program's own accounting (private entry point: best effort)
-        c = (
-            _simulate._simulate.lower(
-                state,
-                scene.forces,
-                jnp.asarray(1e-3),
-                jnp.asarray(0.0),
-                steps=steps,
-                method=scene.kernel,
-                save_every=save_every,
-                series=False,
-                force_fn=None,
-            )
-            .compile()
-            .memory_analysis()
+    # the compiled program's own accounting (private entry point: a failure is a bug in this script)
+    c = (
+        _simulate._simulate.lower(
+            state,
+            scene.forces,
+            jnp.asarray(1e-3),
+            jnp.asarray(0.0),
+            jnp.asarray(0),
+            steps=steps,
+            method=scene.kernel,
+            save_every=save_every,
+            series=False,
+            force_fn=None,
         )
-        analysis = dict(
-            xla_args_MB=c.argument_size_in_bytes / 1e6,
-            xla_out_MB=c.output_size_in_bytes / 1e6,
-            xla_temp_MB=c.temp_size_in_bytes / 1e6,
-        )
-    except Exception as e:  # noqa: BLE001
-        analysis = dict(xla_error=repr(e)[:200])
+        .compile()
+        .memory_analysis()
+    )
+    analysis = dict(
+        xla_args_MB=c.argument_size_in_bytes / 1e6,
+        xla_out_MB=c.output_size_in_bytes / 1e6,
+        xla_temp_MB=c.temp_size_in_bytes / 1e6,
+    )
     t = time.perf_counter()
     traj = jax.block_until_ready(scene.simulate(state, 1e-3, steps, save_every=save_every))
     sec = time.perf_counter() - t
     ok = bool(jnp.all(jnp.isfinite(traj.position[-1])))
+    state_MB, traj_MB = nbytes(state) / 1e6, nbytes(traj) / 1e6
+    peak = _rss_MB()[1]
     return dict(
         n=n,
         steps=steps,
         save_every=save_every,
         method=method,
         frames=int(traj.position.shape[0]),
-        state_MB=nbytes(state) / 1e6,
-        traj_MB=nbytes(jax.tree.map(lambda a: a, traj)) / 1e6,
+        state_MB=state_MB,
+        traj_MB=traj_MB,
         **analysis,
         seconds=sec,
         finite=ok,
-        peak_rss_MB=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3,
+        base_rss_MB=base_MB,
+        state_rss_MB=after_state[0] - base_MB,
+        state_peak_MB=after_state[1] - base_MB,
+        scene_peak_MB=after_scene[1] - base_MB,
+        peak_rss_MB=peak,
+        # the issue's target: at most 2 (state + bodies + saved frames) above the runtime's own memory
+        peak_over_data=(peak - base_MB) / (state_MB + traj_MB),
     )
 
 
@@ -118,7 +137,10 @@ def main() -> None:
         "xla_args_MB",
         "xla_out_MB",
         "xla_temp_MB",
+        "state_peak_MB",
+        "scene_peak_MB",
         "peak_rss_MB",
+        "peak_over_data",
         "seconds",
     ]
     print(" ".join(f"{c:>11s}" for c in cols))

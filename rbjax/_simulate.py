@@ -360,17 +360,36 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
     carry0 = (to_soa(strip(state)), rec0)
     fs = jax.tree.map(lambda a: a.reshape((n_out, save_every) + a.shape[1:]), forces) if series else None
 
-    def chunk(carry, xs):
-        carry = advance(carry, xs)
-        return carry, to_aos(carry[0])
+    if outer is None:
+        # The saved frames go straight into the trajectory: one (n_out + 1)-frame
+        # buffer, filled with the initial state and carried through the scan, each
+        # chunk's state written in place at its index. Scan outputs would need the
+        # initial frame put in front afterwards, a second copy of every saved frame
+        # (peak memory); emitting each chunk's state before advancing it would need a
+        # ``lax.cond`` to skip the last advance, and work in a cond branch is not
+        # hoisted out of the loop (splitting's per-body ``eigh`` then ran every step).
+        # The buffer is linear in the loop (``dynamic_update_slice``), so reverse mode
+        # stores no copy of it per chunk.
+        buf0 = jax.tree.map(lambda a: jnp.broadcast_to(a[None], (n_out + 1,) + a.shape), strip(state))
 
-    # The initial frame is put in front afterwards: one copy of the saved
-    # trajectory. Emitting each chunk's state before advancing it instead needs
-    # a ``lax.cond`` to skip the last advance, and work inside a cond branch is
-    # not hoisted out of the loop (splitting's per-body ``eigh`` then ran every
-    # step with ``save_every=1``: about 3x slower), so the copy stays.
-    (_, rec), traj = _checkpointed_scan(chunk, carry0, (ks, fs), outer)
-    traj = jax.tree.map(lambda a0, a: jnp.concatenate([a0[None], a]), strip(state), traj)
+        def chunk(carry, xs):
+            i, xs = xs
+            inner_carry, buf = carry
+            inner_carry = advance(inner_carry, xs)
+            put = lambda b, a: jax.lax.dynamic_update_index_in_dim(b, a, i + 1, 0)  # noqa: E731
+            return (inner_carry, jax.tree.map(put, buf, to_aos(inner_carry[0]))), None
+
+        ((_, rec), traj), _ = jax.lax.scan(chunk, (carry0, buf0), (jnp.arange(n_out), (ks, fs)))
+    else:
+        # checkpointed segments of chunks save their carry entering each segment for
+        # reverse mode: a carried buffer would be stored once per segment, so the
+        # frames are scan outputs here, with the initial one put in front (a copy)
+        def emit(carry, xs):
+            carry = advance(carry, xs)
+            return carry, to_aos(carry[0])
+
+        (_, rec), traj = _checkpointed_scan(emit, carry0, (ks, fs), outer)
+        traj = jax.tree.map(lambda a0, a: jnp.concatenate([a0[None], a]), strip(state), traj)
     # t0 + (absolute step) dt, as the steps saw it: a chunked run gives the same bits
     times = t0 + (k0 + save_every * jnp.arange(n_out + 1)).astype(dtype) * dt
     traj = stack_frames(traj, initial, times)
