@@ -78,8 +78,15 @@ def _floats(obj: Any, *names: str) -> None:
 
 
 def _is_concrete(*xs: Any) -> bool:
+    """Whether the values of ``xs`` can be read on this host (and so checked before tracing).
+
+    A ``jax.Array`` spread over several processes (not fully addressable) has no
+    host value here: like a traced one, it is checked only by ``checked`` mode.
+    """
     return all(
-        isinstance(x, (np.ndarray, np.generic, float, int, jax.Array)) and not isinstance(x, jax.core.Tracer)
+        isinstance(x, (np.ndarray, np.generic, float, int, jax.Array))
+        and not isinstance(x, jax.core.Tracer)
+        and (not isinstance(x, jax.Array) or x.is_fully_addressable)
         for x in xs
     )
 

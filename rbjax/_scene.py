@@ -21,10 +21,12 @@ which still skips rotation for particles and torque for torque-free forces
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 from typing import Any
 
 import jax
+import jax.core
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
@@ -78,17 +80,32 @@ def body_kind(body: Body) -> str:
     ``body.inertia`` is ``(*B, 3, 3)`` in the body frame (kg m²); the answer
     covers the whole batch (the most general kind any body needs).
     """
-    if not _is_concrete(body.inertia):
+    I = body.inertia
+    if not _has_value(I):
         return "general"
-    I = np.asarray(body.inertia)
-    tol = 16 * np.finfo(I.dtype).eps * np.max(np.abs(I), axis=(-1, -2))
-    off = np.max(np.abs(I - I * np.eye(3)), axis=(-1, -2))
-    d = np.diagonal(I, axis1=-2, axis2=-1)
-    diagonal = off <= tol
-    axisym = diagonal & (np.abs(d[..., 0] - d[..., 1]) <= tol)
-    if np.all(axisym & (np.abs(d[..., 0] - d[..., 2]) <= tol)):
+    # a jax.Array is reduced by XLA where it lives: no host copy of the batch, and
+    # a batch split over processes (not fully addressable) yields one replicated answer
+    iso, axisym = _kind_flags_jit(I) if isinstance(I, jax.Array) else _kind_flags(np.asarray(I), np)
+    if bool(iso):
         return "isotropic"
-    return "axisymmetric" if np.all(axisym) else "general"
+    return "axisymmetric" if bool(axisym) else "general"
+
+
+def _has_value(a: Any) -> bool:
+    """Concrete on this host, or a ``jax.Array`` spread over processes (reduced by XLA): not traced."""
+    return _is_concrete(a) or (isinstance(a, jax.Array) and not isinstance(a, jax.core.Tracer))
+
+
+def _kind_flags(I: Any, xp: Any) -> tuple[Any, Any]:
+    """(every body isotropic, every body axisymmetric about z) for inertias ``I`` ``(*B, 3, 3)``."""
+    tol = 16 * np.finfo(I.dtype).eps * xp.max(xp.abs(I), axis=(-1, -2))
+    off = xp.max(xp.abs(I - I * xp.eye(3, dtype=I.dtype)), axis=(-1, -2))
+    d = xp.diagonal(I, axis1=-2, axis2=-1)
+    axisym = (off <= tol) & (xp.abs(d[..., 0] - d[..., 1]) <= tol)
+    return xp.all(axisym & (xp.abs(d[..., 0] - d[..., 2]) <= tol)), xp.all(axisym)
+
+
+_kind_flags_jit = jax.jit(functools.partial(_kind_flags, xp=jnp))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -186,7 +203,7 @@ class Scene:
             return
         found = body_kind(state.body)
         rank = _specialise.KINDS.index
-        if _is_concrete(state.body.inertia) and rank(found) > rank(self.kind):
+        if _has_value(state.body.inertia) and rank(found) > rank(self.kind):
             raise ValueError(f"this scene is specialised for {self.kind!r} bodies; the state's are {found!r}")
 
     def step(self, state: StateT, dt: Float[ArrayLike, ""], t: Float[ArrayLike, ""] | None = None) -> StateT:

@@ -53,6 +53,16 @@ def start_time(state: AnyState) -> Array:
     ones (inside ``jit``) are taken from the first body.
     """
     t = state.time
+    if not isinstance(t, jax.core.Tracer) and isinstance(t, jax.Array) and not t.is_fully_addressable:
+        # a batch split over processes: its clock from a reduction (replicated), not a host copy
+        lo, hi = _time_range(t)
+        if lo != hi:
+            raise ValueError(
+                f"the states of a batch must share one time to be stepped together; state.time of shape "
+                f"{t.shape} ranges over [{float(lo)}, {float(hi)}]. Set one with dataclasses.replace(state, "
+                "time=t) or pass t0="
+            )
+        return jnp.asarray(np.asarray(lo))
     if not isinstance(t, jax.core.Tracer):
         host = np.asarray(t)
         if host.size > 1 and np.ptp(host) != 0:
@@ -62,6 +72,11 @@ def start_time(state: AnyState) -> Array:
             )
         return jnp.asarray(host.reshape(-1)[0])  # from the host: a sharded time needs no gather
     return jnp.max(t)  # all equal; a reduction, which sharded batches allow
+
+
+@jax.jit
+def _time_range(t: Array) -> tuple[Array, Array]:
+    return jnp.min(t), jnp.max(t)
 
 
 def _canonical(state: Any) -> Any:
