@@ -7,7 +7,12 @@ peak) with float32 spheres under gravity, and reports
 * ``traj_MB``: the returned trajectory (``steps // save_every + 1`` frames);
 * ``xla_args_MB / xla_out_MB / xla_temp_MB``: the compiled program's
   ``memory_analysis()`` (arguments, outputs, scratch);
-* ``peak_rss_MB``: the process's peak resident memory, end to end.
+* ``peak_rss_MB``: the process's peak resident memory, end to end;
+  ``state_peak_MB`` / ``scene_peak_MB``: the peak above the runtime's own
+  memory (``base_rss_MB``, after importing JAX) once the state is built and
+  once ``Scene.build`` has run;
+* ``peak_over_data``: ``(peak - base) / (state + trajectory)``, the issue's
+  measure (target ≤ 2): the trajectory as returned, bodies and time per frame included.
 
     python benchmarks/memory.py [--quick] [--full]     # --full adds N = 1e7
 

@@ -9,6 +9,11 @@ installed:
 
 * ``numpy``: the same explicit-Euler step in NumPy on structure-of-arrays data
   ((3, N) arrays, vector ops);
+* ``numba-limit``: the hand-written limit, the same Euler as one fused,
+  multi-threaded Numba loop (``benchmarks/_numba_limit.py``, the ``bench``
+  extra), checked against rbjax's step to round-off, with ``rbjax-forces``:
+  rbjax's euler on that loop's data (zero force and torque arrays read every
+  step), for N ≥ 1e4;
 * ``mujoco``: MuJoCo's C engine (``mj_step``) on ONE model of N free bodies
   (freejoint, box geoms, contact and constraint disabled, gravity off, the same
   dt), with its ``Euler`` (semi-implicit) and ``RK4`` integrators; float64 (MuJoCo's
@@ -45,6 +50,7 @@ jax.config.update("jax_enable_x64", True)  # allow float64 rows; float32 rows as
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
 sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import _numba_limit  # noqa: E402
 from _common import best_time, compile_timed, machine, peak_rss_mb, write_json  # noqa: E402
 
 import rbjax as rb  # noqa: E402
@@ -275,6 +281,8 @@ def main(argv=None) -> int:
                 peers[mod] = True
             except Exception as e:  # noqa: BLE001  (an optional peer may fail to import in many ways)
                 print(f"{mod} unavailable ({type(e).__name__}: {e}); pip install -e '.[bench]'")
+    if not _numba_limit.available():
+        print("numba unavailable: no hand-written limit column; pip install -e '.[bench]'")
     mj_sizes = [n for n in sizes if n <= (100 if args.quick else 10_000)]
     # MJX on CPU runs 1e5-1e6 body-steps/s: N = 1e4 took minutes to time and its rate had flattened by 1e3
     mjx_sizes = [] if args.quick else [n for n in sizes if n <= 1_000]
@@ -322,6 +330,24 @@ def main(argv=None) -> int:
                 print(
                     f"jax SoA euler (hand-written, (3, N) layout) {dname} N={n:>8}: "
                     f"{n * steps / t_js:.3e} body-steps/s",
+                    flush=True,
+                )
+            if n >= 10_000 and _numba_limit.available():
+                lim = _numba_limit.check_and_time(state, steps, DT, best_time)
+                common = dict(method="euler", dtype=dname, bodies=n, steps=steps)
+                rows.append(
+                    dict(
+                        engine="numba-limit",
+                        body_steps_per_s=lim["limit"],
+                        agreement_eps=lim["agreement_eps"],
+                        **common,
+                    )
+                )
+                # rbjax on the limit's data: the force and torque arrays are read every step
+                rows.append(dict(engine="rbjax-forces", body_steps_per_s=lim["rbjax"], **common))
+                print(
+                    f"numba limit euler {dname} N={n:>8}: {lim['limit']:.3e} body-steps/s; rbjax on its data "
+                    f"{lim['rbjax']:.3e} ({lim['rbjax'] / lim['limit']:.2f}x; agree to {lim['agreement_eps']:.1f} eps)",
                     flush=True,
                 )
             for method in methods:
@@ -452,8 +478,16 @@ def evaluate_goals(rows, hw, methods) -> dict:
         )
         if r:
             per_method[m] = dict(roofline_fraction=r["roofline_fraction"], met=r["roofline_fraction"] >= 0.5)
+    # the target: euler at least 0.9x the hand-written loop at every N and dtype measured
+    vs_limit = {}
+    for r in rows:
+        if r["engine"] == "numba-limit":
+            ours = _rate(rows, engine="rbjax-forces", dtype=r["dtype"], bodies=r["bodies"])
+            ratio = ours / r["body_steps_per_s"]
+            vs_limit[f"{r['dtype']} N={r['bodies']}"] = dict(ratio=ratio, target=0.9, met=ratio >= 0.9)
     return dict(
         bodies=n,
+        euler_vs_limit=vs_limit,
         euler_vs_numpy=dict(ratio=eu / npy, target=3.0, met=eu / npy >= 3.0),
         euler_vs_mujoco=dict(
             ratio=eu / mj_rate if mj_rate else None,
@@ -471,16 +505,23 @@ def table(rows, hw, goals) -> str:
         f"Memory bandwidth {hw['bandwidth_Bps'] / 1e9:.1f} GB/s, "
         f"attainable {hw['flops_per_s'] / 1e9:.1f} GFLOP/s "
         f"(float32 FMA chain). Machine: {machine()['cpu']}, {os.cpu_count()} cores.\n",
-        "| method | dtype | N | body-steps/s | vs NumPy | compile (s) | peak MiB | flops/step | roofline |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---:|",
+        "The hand-written limit: explicit Euler as one fused multi-threaded Numba loop (benchmarks/"
+        "_numba_limit.py), reading zero force and torque arrays each step; `vs limit` is rbjax's euler on "
+        "that same data over the loop's rate.\n",
+        "| method | dtype | N | body-steps/s | vs NumPy | hand-written limit | vs limit | compile (s) "
+        "| peak MiB | flops/step | roofline |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
         if r["engine"] != "rbjax":
             continue
         npy = _rate(rows, engine="numpy", dtype=r["dtype"], bodies=r["bodies"])
+        lim = _rate(rows, engine="numba-limit", dtype=r["dtype"], bodies=r["bodies"])
+        ours = _rate(rows, engine="rbjax-forces", dtype=r["dtype"], bodies=r["bodies"])
+        lim_cols = f"{lim:.2e} | {ours / lim:.2f}x" if lim and ours and r["method"] == "euler" else "- | -"
         out.append(
             f"| {r['method']} | {r['dtype']} | {r['bodies']:,} | {r['body_steps_per_s']:.2e} | "
-            f"{r['body_steps_per_s'] / npy:.1f}x | {r['compile_s']:.2f} | {r['peak_mb'] or 0:.1f} | "
+            f"{r['body_steps_per_s'] / npy:.1f}x | {lim_cols} | {r['compile_s']:.2f} | {r['peak_mb'] or 0:.1f} | "
             f"{r['flops']:.0f} | {r['roofline_fraction']:.0%} |"
         )
     out += [
@@ -489,7 +530,7 @@ def table(rows, hw, goals) -> str:
         "|---|---|---|---:|---:|---:|---:|",
     ]
     for r in rows:
-        if r["engine"] in ("rbjax",):
+        if r["engine"] in ("rbjax", "rbjax-forces", "numba-limit"):
             continue
         m = "rk4" if r["method"] == "RK4" else "euler"
         dt = "float32" if r["engine"] == "mjx" and "32" in r["dtype"] else r["dtype"]
@@ -513,6 +554,11 @@ def table(rows, hw, goals) -> str:
         f"- euler memory-bandwidth fraction: {g['euler_bandwidth_fraction']['fraction']:.0%} (target 50%): "
         f"{'met' if g['euler_bandwidth_fraction']['met'] else 'NOT met'}",
     ]
+    for k, v in g["euler_vs_limit"].items():
+        out.append(
+            f"- euler vs the hand-written limit, {k}: {v['ratio']:.2f}x (target ≥ 0.9x): "
+            + ("met" if v["met"] else "NOT met")
+        )
     for m, v in g["methods_within_2x_of_roofline"].items():
         out.append(
             f"- {m}: {v['roofline_fraction']:.0%} of its roofline bound (target ≥ 50%): "

@@ -2,11 +2,12 @@
 
 They check that the scripts keep working as rbjax changes (new methods appear
 automatically), not how fast anything is: timings on a shared machine are noise.
-Both quick runs start together (separate processes) to keep this file near a minute.
+The quick runs start together (separate processes) to keep this file near a minute.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import math
 import os
@@ -47,6 +48,7 @@ def quick_runs(tmp_path_factory):
             "--json",
             str(out / "throughput.json"),
         ],
+        "memory": [sys.executable, os.path.join(BENCH, "memory.py"), "--quick", "--out", str(out / "memory.json")],
     }
     procs = {
         k: subprocess.Popen(c, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
@@ -110,6 +112,23 @@ def test_throughput_quick_output(quick_runs):
     assert data["hardware"]["bandwidth_Bps"] > 1e8 and data["hardware"]["flops_per_s"] > 1e8
     assert {"euler_vs_numpy", "euler_vs_mujoco", "euler_bandwidth_fraction"} <= set(data["goals"])
     assert (out / "throughput.md").read_text().count("| euler |") >= 2
+    if importlib.util.find_spec("numba") is not None:  # the hand-written limit (bench extra)
+        limit = [r for r in rows if r["engine"] == "numba-limit"]
+        assert [r["bodies"] for r in limit] == [10_000]  # --quick's N >= 1e4
+        # the script raises unless the loop agrees with rbjax's Euler (64 eps); the row records by how much
+        assert all(r["agreement_eps"] <= 64 for r in limit)
+        assert list(data["goals"]["euler_vs_limit"]) == ["float32 N=10000"]
+
+
+def test_memory_quick_output(quick_runs):
+    out, _ = quick_runs
+    rows = json.loads((out / "memory.json").read_text())
+    assert [(r["n"], r["save_every"]) for r in rows] == [(10_000, 20), (100_000, 20), (100_000, 1)]
+    for r in rows:
+        # the compiled program's accounting is there (it once failed silently), and outputs = the trajectory
+        assert r["xla_temp_MB"] > 0 and abs(r["xla_out_MB"] - r["traj_MB"]) < 1e-3 * r["traj_MB"]
+        assert r["frames"] == 20 // r["save_every"] + 1 and r["finite"]
+        assert r["peak_rss_MB"] > r["base_rss_MB"] and r["peak_over_data"] > 0
 
 
 def test_run_all_lists_every_benchmark():
