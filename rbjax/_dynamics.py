@@ -18,7 +18,7 @@ import jax.numpy as jnp
 
 from ._batching import lift
 from ._body import inertia_of
-from ._math import _matmul3, _pure_quat_multiply, cross, skew
+from ._math import _matmul3, _over, _pure_quat_multiply, cross, skew
 from ._pytree import replace
 from ._quantities import _omega_world
 from ._state import AnyState, Forces, ParticleState, State, StateT, _apply
@@ -28,7 +28,7 @@ __all__ = ["derivative"]
 
 def _one_derivative(s: AnyState, f: Forces) -> AnyState:
     m = s.mass if isinstance(s, ParticleState) else s.body.mass
-    a = jnp.zeros_like(s.velocity) if f.force is None else f.force / m
+    a = jnp.zeros_like(s.velocity) if f.force is None else _over(f.force, m)
     if isinstance(s, ParticleState):
         return replace(s, position=s.velocity, velocity=a)
     tau = jnp.zeros_like(s.velocity) if f.torque is None else f.torque

@@ -27,7 +27,7 @@ from typing import Any
 import jax.numpy as jnp
 
 from ._batching import lift
-from ._math import _dot3, _matmul3, _pure_quat_multiply, cross, quat_normalize, skew
+from ._math import _dot3, _matmul3, _over, _pure_quat_multiply, cross, quat_normalize, skew
 from ._methods._common import project
 from ._pytree import replace
 from ._quantities import _omega_world
@@ -73,7 +73,7 @@ def _rates(s: Any, f: Forces, kind: str) -> dict[str, Any]:
     """``d/dt`` of each changing field of one body; ``None`` where it is zero by structure."""
     out: dict[str, Any] = {
         "position": s.velocity,
-        "velocity": None if f.force is None else f.force / s.body.mass,
+        "velocity": None if f.force is None else _over(f.force, s.body.mass),
     }
     if isinstance(s, State):
         w = omega_of(s, kind)

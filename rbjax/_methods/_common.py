@@ -12,7 +12,7 @@ from jax import Array
 from jax.extend.core import Literal
 
 from .._batching import lift
-from .._math import _dot3, cross, matrix_to_quat, orthonormalize, quat_normalize
+from .._math import _dot3, _kick3, cross, matrix_to_quat, orthonormalize, quat_normalize
 from .._pytree import replace
 from .._quantities import to_matrix_state, to_state
 from .._simulate_support import constant_fields
@@ -21,7 +21,7 @@ from .._state import Forces, MatrixState, State, _apply
 
 def kick(s: State, f: Forces, h) -> State:
     """``v += F/m h``, ``L += τ h`` (world frame): the exact flow of constant forces."""
-    v = s.velocity if f.force is None else s.velocity + f.force / s.body.mass * h
+    v = s.velocity if f.force is None else _kick3(s.velocity, f.force, s.body.mass, h)
     L = s.angular_momentum if f.torque is None else s.angular_momentum + f.torque * h
     return replace(s, velocity=v, angular_momentum=L)
 

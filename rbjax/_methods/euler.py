@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 
 from .._batching import lift
-from .._math import _matmul3, _pure_quat_multiply, cross, orthonormalize, quat_normalize, skew
+from .._math import _kick3, _matmul3, _pure_quat_multiply, cross, orthonormalize, quat_normalize, skew
 from .._pytree import replace
 from .._quantities import _omega_world
 from .._state import Forces, MatrixState, ParticleState, State, _apply
@@ -27,7 +27,7 @@ from . import Method, register
 
 
 def _translate(x, v, m, f: Forces, dt):
-    v_new = v if f.force is None else v + f.force / m * dt
+    v_new = v if f.force is None else _kick3(v, f.force, m, dt)
     return x + v * dt, v_new
 
 

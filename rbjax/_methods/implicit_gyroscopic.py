@@ -20,7 +20,7 @@ never for long-horizon physics or energy studies.
 
 from __future__ import annotations
 
-from .._math import _matmul3, cross, quat_conjugate, quat_exp, quat_multiply, quat_normalize, quat_rotate, skew
+from .._math import _kick3, _matmul3, cross, quat_conjugate, quat_exp, quat_multiply, quat_normalize, quat_rotate, skew
 from .._pytree import replace
 from .._state import Forces, MatrixState, State, _apply
 from . import Method, register
@@ -29,7 +29,7 @@ from ._common import batch, solve3, via_state
 
 def implicit_gyroscopic_state(s: State, f: Forces, dt) -> State:
     """One implicit-gyroscopic step of one body in the ``(x, v, q, L)`` form."""
-    v = s.velocity if f.force is None else s.velocity + f.force / s.body.mass * dt
+    v = s.velocity if f.force is None else _kick3(s.velocity, f.force, s.body.mass, dt)
     q, I = s.orientation, s.body.inertia
     pi = quat_rotate(quat_conjugate(q), s.angular_momentum)  # I_L ω₀
     w0 = _apply(s.body.inverse_inertia, pi)

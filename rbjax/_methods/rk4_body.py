@@ -29,7 +29,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from .._batching import lift
-from .._math import cross, quat_conjugate, quat_multiply, quat_rotate
+from .._math import _over, cross, quat_conjugate, quat_multiply, quat_rotate
 from .._pytree import replace
 from .._state import Forces, MatrixState, State, _apply
 from . import Method, register
@@ -59,7 +59,7 @@ def _body_derivative(s: State, f: Forces) -> State:
     dpi = cross(pi, w)
     if f.torque is not None:
         dpi = dpi + quat_rotate(quat_conjugate(q), f.torque)
-    a = jnp.zeros_like(s.velocity) if f.force is None else f.force / s.body.mass
+    a = jnp.zeros_like(s.velocity) if f.force is None else _over(f.force, s.body.mass)
     dq = 0.5 * quat_multiply(q, jnp.concatenate([jnp.zeros_like(w[:1]), w]))
     return replace(s, position=s.velocity, velocity=a, orientation=dq, angular_momentum=dpi)
 

@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 
 from .._math import (
+    _kick3,
     _matmul3,
     orthonormalize,
     quat_conjugate,
@@ -52,7 +53,7 @@ def semi_implicit_state(s: State, f: Forces, dt) -> State:
 def semi_implicit_matrix(s: MatrixState, f: Forces, dt) -> MatrixState:
     """One semi-implicit Euler step of one body in the ``(x, v, R, ω)`` form."""
     R, I, I_inv = s.rotation, s.body.inertia, s.body.inverse_inertia
-    v = s.velocity if f.force is None else s.velocity + f.force / s.body.mass * dt
+    v = s.velocity if f.force is None else _kick3(s.velocity, f.force, s.body.mass, dt)
     L = _apply(R, _apply(I, _apply(R.T, s.angular_velocity)))
     if f.torque is not None:
         L = L + f.torque * dt
@@ -65,7 +66,7 @@ def semi_implicit_matrix(s: MatrixState, f: Forces, dt) -> MatrixState:
 
 def semi_implicit_particles(s: ParticleState, f: Forces, dt) -> ParticleState:
     """One symplectic-Euler step of one particle."""
-    v = s.velocity if f.force is None else s.velocity + f.force / s.mass * dt
+    v = s.velocity if f.force is None else _kick3(s.velocity, f.force, s.mass, dt)
     return replace(s, position=s.position + v * dt, velocity=v)
 
 

@@ -44,7 +44,7 @@ import jax
 import jax.numpy as jnp
 
 from .._batching import lift
-from .._math import quat_conjugate, quat_multiply, quat_normalize, quat_rotate
+from .._math import _kick3, quat_conjugate, quat_multiply, quat_normalize, quat_rotate
 from .._pytree import replace
 from .._state import MatrixState, ParticleState, State
 from . import Method, register
@@ -98,7 +98,7 @@ def _drift_particles(s: ParticleState, h) -> ParticleState:
 
 
 def _kick_particles(s: ParticleState, f, h) -> ParticleState:
-    return s if f.force is None else replace(s, velocity=s.velocity + f.force / s.mass * h)
+    return s if f.force is None else replace(s, velocity=_kick3(s.velocity, f.force, s.mass, h))
 
 
 def _strang(kick_fn, drift_fn):
