@@ -125,8 +125,9 @@ def check_and_time(state: Any, steps: int, dt: float, best_time: Any, check_step
     """The loop against rbjax's Euler on the same data (zero force and torque arrays, read every step).
 
     Raises ``AssertionError`` unless the two agree to round-off after
-    ``check_steps`` steps (64 eps of the largest value; measured ≤ 7 eps after 20
-    steps); returns both rates (body-steps/s) and the agreement in eps.
+    ``check_steps`` steps (64 eps of the largest value; measured ≤ 9 eps after 20
+    steps); returns both rates (body-steps/s), the loop's better thread count
+    and the agreement in eps.
     """
     import jax
     import jax.numpy as jnp
@@ -144,8 +145,32 @@ def check_and_time(state: Any, steps: int, dt: float, best_time: Any, check_step
         err = max(err, float(np.max(np.abs(ours - want))) / (eps * max(1.0, float(np.max(np.abs(want))))))
     assert err <= 64, f"the Numba loop and rbjax's Euler differ by {err:.1f} eps after {check_steps} steps"
     data = soa_data(state, forces)
-    t_loop = best_time(lambda: run(data, dt, steps))
+    # all threads and one: each step ends at a barrier, and on a shared machine a thread descheduled
+    # by another job stalls every step (measured 1e3x slower at N = 1e4); the limit is the better one
+    threads, rates = numba.get_num_threads(), {}
+    for k in sorted({1, threads}):
+        numba.set_num_threads(k)
+        rates[k] = n * steps / best_time(lambda: run(data, dt, steps))
+    numba.set_num_threads(threads)
     f = jax.jit(lambda s, fs: rb.simulate(s, fs, dt, steps, "euler", save_every=steps))
     jax.block_until_ready(f(state, forces))
     t_rb = best_time(f, state, forces)
-    return dict(limit=n * steps / t_loop, rbjax=n * steps / t_rb, agreement_eps=err)
+    return dict(limit=max(rates.values()), threads=max(rates, key=rates.get), rbjax=n * steps / t_rb, agreement_eps=err)
+
+
+def limit_rows(state: Any, steps: int, dt: float, best_time: Any) -> list[dict]:
+    """throughput.py's rows: ``numba-limit`` and ``rbjax-forces`` (rbjax's euler on the loop's data)."""
+    n, dname = state.batch_shape[0], np.dtype(state.dtype).name
+    lim = check_and_time(state, steps, dt, best_time)
+    common = dict(method="euler", dtype=dname, bodies=n, steps=steps)
+    print(
+        f"numba limit euler {dname} N={n:>8}: {lim['limit']:.3e} body-steps/s ({lim['threads']} threads); "
+        f"rbjax on its data {lim['rbjax']:.3e} ({lim['rbjax'] / lim['limit']:.2f}x; "
+        f"agree to {lim['agreement_eps']:.1f} eps)",
+        flush=True,
+    )
+    limit = dict(engine="numba-limit", body_steps_per_s=lim["limit"], threads=lim["threads"], **common)
+    return [
+        dict(limit, agreement_eps=lim["agreement_eps"]),
+        dict(engine="rbjax-forces", body_steps_per_s=lim["rbjax"], **common),
+    ]

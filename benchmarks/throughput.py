@@ -333,23 +333,7 @@ def main(argv=None) -> int:
                     flush=True,
                 )
             if n >= 10_000 and _numba_limit.available():
-                lim = _numba_limit.check_and_time(state, steps, DT, best_time)
-                common = dict(method="euler", dtype=dname, bodies=n, steps=steps)
-                rows.append(
-                    dict(
-                        engine="numba-limit",
-                        body_steps_per_s=lim["limit"],
-                        agreement_eps=lim["agreement_eps"],
-                        **common,
-                    )
-                )
-                # rbjax on the limit's data: the force and torque arrays are read every step
-                rows.append(dict(engine="rbjax-forces", body_steps_per_s=lim["rbjax"], **common))
-                print(
-                    f"numba limit euler {dname} N={n:>8}: {lim['limit']:.3e} body-steps/s; rbjax on its data "
-                    f"{lim['rbjax']:.3e} ({lim['rbjax'] / lim['limit']:.2f}x; agree to {lim['agreement_eps']:.1f} eps)",
-                    flush=True,
-                )
+                rows += _numba_limit.limit_rows(state, steps, DT, best_time)
             for method in methods:
                 r = time_rbjax(state, method, steps)
                 itemsize = np.dtype(dtype).itemsize
