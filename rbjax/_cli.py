@@ -104,6 +104,8 @@ def _fit(args: argparse.Namespace) -> int:
         rec = read_recording(Path(args.recording), args.time_unit or "s")
     except RecordingError as e:
         raise CLIError(str(e)) from e
+    if "quaternions" not in rec and "gyro" not in rec:
+        raise CLIError(f"{args.recording}: the recording has neither quaternions (qw,qx,qy,qz) nor gyro (gx,gy,gz)")
     if args.time_unit is None and (hint := time_unit_hint(rec)) is not None:
         if not hint.startswith("note:"):
             raise CLIError(f"{args.recording}: {hint}")
@@ -116,8 +118,6 @@ def _fit(args: argparse.Namespace) -> int:
     ):
         if flag and key not in rec:
             raise CLIError(f"{args.recording}: {what} needs the {key} columns in the recording")
-    if "quaternions" not in rec and "gyro" not in rec:
-        raise CLIError(f"{args.recording}: the recording has neither quaternions (qw,qx,qy,qz) nor gyro (gx,gy,gz)")
     ignored = [] if args.accelerometer or "accelerations" not in rec else ["ax,ay,az (pass --accelerometer)"]
     if ignored:
         print(f"note: ignoring columns {', '.join(ignored)}", file=sys.stderr)
