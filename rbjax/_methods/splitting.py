@@ -144,6 +144,46 @@ def free_rotor(q, L, inertia, h):
     return quat_normalize(quat_multiply(qp, quat_conjugate(p)))
 
 
+def free_rotor_of_kind(q, L, body, h, kind: str):
+    """:func:`free_rotor` for a body known to be ``"isotropic"`` or ``"axisymmetric"`` (about body z).
+
+    With two equal moments one of the body turns has ``k = 0`` and is the
+    identity, and the other turns about the symmetry axis: no principal frame,
+    no ``eigh``. Isotropic ``I = i·1``: ``q ← Rot_L(|L| h / i) q``, the exact
+    flow. Axisymmetric ``I = diag(a, a, c)``: the middle moment is ``a`` whether
+    the top is oblate or prolate, so ``q ← Rot_L(|L| h / a) q Rot_z(θ)`` with
+    ``θ = (1/c - 1/a) m_z h`` and ``m_z = L·n``, ``n = R e_z``: the exact flow of
+    the symmetric top. Both are :func:`free_rotor` to round-off (the general
+    path's two half turns about the symmetry axis of an oblate top are one turn
+    here: the same angle to ``O(θ¹¹)``, see :func:`_cayley`).
+    """
+    e = body.inverse_inertia[0, 0]
+    if kind == "axisymmetric":
+        w, x, y, z = q[0], q[1], q[2], q[3]
+        n = jnp.stack([2 * (x * z + w * y), 2 * (y * z - w * x), w * w - x * x - y * y + z * z])
+        m_z = _dot3(L, n)
+        c2, t2 = _cayley(h * (body.inverse_inertia[2, 2] - e) / 4, m_z * m_z)
+        s2 = t2 * m_z
+        q = jnp.stack([w * c2 - z * s2, x * c2 + y * s2, y * c2 - x * s2, z * c2 + w * s2])  # q ⊗ (c2, s2 e_z)
+    elif kind != "isotropic":
+        raise ValueError(f"free_rotor_of_kind: kind must be 'isotropic' or 'axisymmetric', got {kind!r}")
+    return quat_normalize(quat_multiply(_turn_about_momentum(L, e, h), q))
+
+
+def splitting_of_kind(state, force_fn, t, dt, kind: str, torque_free: bool):
+    """The ``"splitting"`` step of a :class:`rbjax.Scene` of ``kind`` bodies (see :func:`free_rotor_of_kind`)."""
+
+    def drift(s: State, h) -> State:
+        q = free_rotor_of_kind(s.orientation, s.angular_momentum, s.body, h, kind)
+        return replace(s, position=s.position + s.velocity * h, orientation=q)
+
+    def forces(s, tt):
+        f = force_fn(s, tt)
+        return replace(f, torque=None) if torque_free else f
+
+    return _strang(kick, drift)(state, forces, t, dt)
+
+
 def _drift(s: State, h) -> State:
     q = free_rotor(s.orientation, s.angular_momentum, s.body.inertia, h)
     return replace(s, position=s.position + s.velocity * h, orientation=q)
