@@ -127,7 +127,12 @@ def _fit(args: argparse.Namespace) -> int:
         kwargs["accelerations"] = rec["accelerations"]
     try:
         res = fit_inertia(
-            rec["times"], rec.get("quaternions"), body_rates=rec.get("gyro"), torques=rec.get("torques"), **kwargs
+            rec["times"],
+            rec.get("quaternions"),
+            body_rates=rec.get("gyro"),
+            torques=rec.get("torques"),
+            body_torques=rec.get("body_torques"),
+            **kwargs,
         )
     except (ValueError, TypeError) as e:
         raise CLIError(str(e)) from e

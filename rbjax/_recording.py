@@ -6,11 +6,12 @@ nothing:
     t             sample times (s; see --time-unit)
     qw,qx,qy,qz   orientation, body to world, [w, x, y, z]
     gx,gy,gz      gyro: angular velocity, body (gyro) frame (rad/s)
-    tx,ty,tz      known torque about the centre of mass (N m)
+    tx,ty,tz      known torque about the centre of mass, world frame (N m)
+    btx,bty,btz   known torque about the centre of mass, body frame (N m; a reaction wheel)
     ax,ay,az      accelerometer, body frame, in free flight (m/s²)
 
 NPZ files hold the same data as arrays named times (T,), quaternions (T, 4),
-gyro, torques and accelerations (each (T, 3)).
+gyro, torques, body_torques and accelerations (each (T, 3)).
 
 Every way a CSV can be malformed that we have met (empty, header only, another
 delimiter, ragged rows, text in a number column, a half group of columns)
@@ -34,6 +35,7 @@ GROUPS: dict[str, tuple[str, ...]] = {
     "quaternions": ("qw", "qx", "qy", "qz"),
     "gyro": ("gx", "gy", "gz"),
     "torques": ("tx", "ty", "tz"),
+    "body_torques": ("btx", "bty", "btz"),
     "accelerations": ("ax", "ay", "az"),
 }
 
