@@ -189,7 +189,7 @@ def test_fit_options_reach_the_sensor_models(tmp_path, capsys):
     import json
 
     import numpy as np
-    from reference import reference_rotation, to_body
+    from reference import qmul, reference_rotation, to_body
 
     from rbjax._cli import main
 
@@ -219,8 +219,8 @@ def test_fit_options_reach_the_sensor_models(tmp_path, capsys):
     # orientations with three 1-rad glitches, robust loss: the glitches are named
     glitched = q.copy()
     bad = [40, 100, 160]
-    for i in bad:
-        glitched[i] = np.concatenate([[np.cos(0.5)], np.sin(0.5) * np.array([1.0, 0, 0])])
+    for i in bad:  # a 1 rad turn about the body x axis
+        glitched[i] = qmul(q[i], np.array([np.cos(0.5), np.sin(0.5), 0.0, 0.0]))
     code, res = fit([glitched, gyro], "t,qw,qx,qy,qz,gx,gy,gz", "--gyro-bias", "--loss", "huber")
     assert set(bad) <= set(res["outliers"]), res["outliers"]
     assert "down-weighted samples" in capsys.readouterr().out
