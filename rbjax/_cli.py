@@ -78,83 +78,132 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
-def _read_recording(path: Path) -> dict:
-    """times (T,), quaternions (T, 4) [w, x, y, z], optional gyro (T, 3) and torques (T, 3).
-
-    NPZ: arrays named ``times``, ``quaternions`` and optionally ``gyro``, ``torques``.
-    CSV (header row): ``t, qw, qx, qy, qz`` and optionally ``gx, gy, gz`` (body rad/s)
-    and ``tx, ty, tz`` (world N m).
-    """
-    import numpy as np
-
-    if not path.exists():
-        raise CLIError(f"no such file: {path}")
-    if path.suffix == ".npz":
-        with np.load(path) as z:
-            missing = {"times", "quaternions"} - set(z.files)
-            if missing:
-                raise CLIError(f"{path}: missing arrays {sorted(missing)} (found {z.files})")
-            return {
-                k: np.asarray(z[k], np.float64) for k in ("times", "quaternions", "gyro", "torques") if k in z.files
-            }
-    if path.suffix == ".csv":
-        data = np.genfromtxt(path, delimiter=",", names=True)
-        cols = [c.strip().lower() for c in (data.dtype.names or ())]
-        need = ["t", "qw", "qx", "qy", "qz"]
-        if any(c not in cols for c in need):
-            raise CLIError(f"{path}: CSV needs columns {need} (found {cols})")
-        raw = data.dtype.names or ()
-        col = lambda names: np.stack([np.asarray(data[raw[cols.index(n)]], np.float64) for n in names], -1)  # noqa: E731
-        rec = {"times": col(["t"])[:, 0], "quaternions": col(["qw", "qx", "qy", "qz"])}
-        if all(c in cols for c in ("gx", "gy", "gz")):
-            rec["gyro"] = col(["gx", "gy", "gz"])
-        if all(c in cols for c in ("tx", "ty", "tz")):
-            rec["torques"] = col(["tx", "ty", "tz"])
-        return rec
-    raise CLIError(f"{path}: expected a .csv or .npz recording")
+_FIT_OPTIONS = {  # CLI flag destination -> fit_inertia keyword, passed only when given
+    "method": "method",
+    "segments": "segments",
+    "substeps": "substeps",
+    "orientation_std": "orientation_std",
+    "rate_std": "rate_std",
+    "acceleration_std": "acceleration_std",
+    "max_steps": "max_steps",
+    "loss": "loss",
+    "loss_scale": "loss_scale",
+}
 
 
 def _fit(args: argparse.Namespace) -> int:
     import json
 
     import jax
-    import numpy as np
 
     jax.config.update("jax_enable_x64", True)
     from . import fit_inertia
+    from ._recording import RecordingError, read_recording, time_unit_hint
 
-    rec = _read_recording(Path(args.recording))
     try:
-        res = fit_inertia(rec["times"], rec["quaternions"], body_rates=rec.get("gyro"), torques=rec.get("torques"))
-    except ValueError as e:
+        rec = read_recording(Path(args.recording), args.time_unit or "s")
+    except RecordingError as e:
         raise CLIError(str(e)) from e
-    I = np.asarray(res.inertia)
-    out = {
-        "inertia": I.tolist(),
-        "principal_moments": np.asarray(res.principal_moments).tolist(),
-        "moment_std": np.asarray(res.moment_std).tolist(),
-        "principal_axes": np.asarray(res.principal_axes).tolist(),
-        "scale_fixed": bool(res.scale_fixed),
-        "converged": bool(res.converged),
-        "iterations": int(res.iterations),
-        "orientation_rms_rad": float(res.orientation_rms),
-    }
+    if "quaternions" not in rec and "gyro" not in rec:
+        raise CLIError(f"{args.recording}: the recording has neither quaternions (qw,qx,qy,qz) nor gyro (gx,gy,gz)")
+    if args.time_unit is None and (hint := time_unit_hint(rec)) is not None:
+        if not hint.startswith("note:"):
+            raise CLIError(f"{args.recording}: {hint}")
+        print(f"{args.recording}: {hint}", file=sys.stderr)
+    if args.gyro_only:
+        rec.pop("quaternions", None)
+    for flag, key, what in (
+        (args.accelerometer, "accelerations", "--accelerometer"),
+        (args.gyro_bias or args.gyro_rotation or args.gyro_only, "gyro", "--gyro-bias/--gyro-rotation/--gyro-only"),
+    ):
+        if flag and key not in rec:
+            raise CLIError(f"{args.recording}: {what} needs the {key} columns in the recording")
+    ignored = [] if args.accelerometer or "accelerations" not in rec else ["ax,ay,az (pass --accelerometer)"]
+    if ignored:
+        print(f"note: ignoring columns {', '.join(ignored)}", file=sys.stderr)
+    kwargs = {kw: getattr(args, dest) for dest, kw in _FIT_OPTIONS.items() if getattr(args, dest) is not None}
+    kwargs.update({k: True for k in ("gyro_bias", "gyro_rotation") if getattr(args, k)})
+    if args.accelerometer:
+        kwargs["accelerations"] = rec["accelerations"]
+    try:
+        res = fit_inertia(
+            rec["times"],
+            rec.get("quaternions"),
+            body_rates=rec.get("gyro"),
+            torques=rec.get("torques"),
+            body_torques=rec.get("body_torques"),
+            **kwargs,
+        )
+    except (ValueError, TypeError) as e:
+        raise CLIError(str(e)) from e
+    out = _fit_report(res)
     unit = "kg m²" if out["scale_fixed"] else "normalised to trace 1 (no torques: scale not identifiable)"
     print(f"inertia ({unit}), body frame:")
-    for row in I:
+    for row in out["inertia"]:
         print("  [" + "  ".join(f"{v: .6e}" for v in row) + "]")
     print(
         "principal moments: "
         + ", ".join(f"{m:.6e} ± {s:.1e}" for m, s in zip(out["principal_moments"], out["moment_std"]))
     )
+    for key, label, unit in (
+        ("gyro_bias", "gyro bias", "rad/s"),
+        ("lever_arm", "accelerometer lever arm", "m"),
+        ("accelerometer_bias", "accelerometer bias", "m/s²"),
+    ):
+        if key in out:
+            values = zip(out[key], out[key + "_std"], strict=True)
+            print(f"{label} ({unit}): " + ", ".join(f"{v: .4e} ± {s:.1e}" for v, s in values))
+    if "gyro_rotation" in out:
+        print("gyro to body rotation [w, x, y, z]: " + ", ".join(f"{v: .6f}" for v in out["gyro_rotation"]))
+    if out.get("outliers"):
+        print(f"down-weighted samples (robust loss): {len(out['outliers'])}, times {out['outlier_times'][:10]}")
     print(
-        f"converged: {out['converged']} after {out['iterations']} iterations; "
-        f"orientation rms {out['orientation_rms_rad']:.2e} rad"
+        f"converged: {out['converged']} after {out['iterations']} iterations"
+        f" (solver converged {out['solver_converged']}, on boundary {out['on_boundary']},"
+        f" residual ratio {out['residual_ratio']:.3g})"
     )
     if args.out:
         Path(args.out).write_text(json.dumps(out, indent=1))
         print(f"saved: {args.out}")
     return 0 if out["converged"] else 1
+
+
+def _fit_report(res) -> dict:
+    """The JSON-ready fields of a FitResult (plain floats, lists and bools)."""
+    import numpy as np
+
+    out: dict = {"scale_fixed": bool(res.scale_fixed), "segments": int(res.segments)}
+    for k in ("inertia", "principal_moments", "moment_std", "principal_axes", "initial_angular_velocity"):
+        out[k] = np.asarray(getattr(res, k)).tolist()
+    for k in ("converged", "solver_converged", "on_boundary"):
+        out[k] = bool(getattr(res, k))
+    out["iterations"] = int(res.iterations)
+    for k, name in (
+        ("orientation_rms", "orientation_rms_rad"),
+        ("rate_rms", "rate_rms_rad_s"),
+        ("residual_ratio", "residual_ratio"),
+    ):
+        v = float(getattr(res, k))
+        if np.isfinite(v):
+            out[name] = v
+    # sensor models: only the fitted ones (a field that was not fitted is zeros / NaN)
+    for k in ("gyro_bias", "lever_arm", "accelerometer_bias"):
+        std = getattr(res, k + "_std", None)
+        if std is not None and np.all(np.isfinite(np.asarray(std))):
+            out[k], out[k + "_std"] = np.asarray(getattr(res, k)).tolist(), np.asarray(std).tolist()
+    rot = getattr(res, "gyro_rotation", None)
+    if rot is not None and np.any(np.asarray(rot)[1:] != 0):
+        out["gyro_rotation"] = np.asarray(rot).tolist()
+    mask = getattr(res, "outliers", None)
+    if mask is not None:
+        out["outliers"] = np.flatnonzero(np.asarray(mask)).tolist()
+    return out
+
+
+def _recording_help() -> str:
+    from ._recording import __doc__ as doc
+
+    return (doc or "").split("\n\n", 1)[1].split("\nEvery way")[0]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -188,11 +237,35 @@ def build_parser() -> argparse.ArgumentParser:
         "fit",
         parents=[common],
         help="fit an inertia tensor to recorded motion",
-        description="Fit an inertia tensor to recorded motion. " + (_read_recording.__doc__ or ""),
+        description="Fit an inertia tensor to recorded motion. Exit status 0: converged; 1: not "
+        "converged (see the diagnostics printed); 2: an error.\n\n" + _recording_help(),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     fit.add_argument("recording", help="a .csv or .npz recording (see above)")
     fit.add_argument("--out", default=None, help="write the result as JSON to this path")
+    fit.add_argument("--time-unit", choices=["s", "ms", "us"], default=None, help="unit of the t column (default s)")
+    fit.add_argument("--method", default=None, help="integrator of the model (see rbjax.methods(); default rk4)")
+    fit.add_argument("--segments", type=int, default=None, help="multiple-shooting segments (default: one per 2π)")
+    fit.add_argument("--substeps", type=int, default=None, help="integrator steps per sample interval")
+    fit.add_argument("--max-steps", type=int, default=None, help="Levenberg–Marquardt step limit (default 100)")
+    noise = fit.add_argument_group("noise levels (default: estimated from the data)")
+    noise.add_argument("--orientation-std", type=float, default=None, metavar="RAD")
+    noise.add_argument("--rate-std", type=float, default=None, metavar="RAD_S", help="gyro noise")
+    noise.add_argument("--acceleration-std", type=float, default=None, metavar="M_S2", help="accelerometer noise")
+    sensors = fit.add_argument_group("sensor models (each opt-in)")
+    sensors.add_argument("--gyro-only", action="store_true", help="ignore the quaternion columns: fit body rates alone")
+    sensors.add_argument("--gyro-bias", action="store_true", help="fit a constant gyro bias (rad/s)")
+    sensors.add_argument(
+        "--gyro-rotation", action="store_true", help="fit a fixed rotation from the gyro frame to the body frame"
+    )
+    sensors.add_argument(
+        "--accelerometer",
+        action="store_true",
+        help="use the ax,ay,az columns: fit the lever arm and accelerometer bias",
+    )
+    robust = fit.add_argument_group("robust fitting")
+    robust.add_argument("--loss", choices=["squared", "huber", "cauchy"], default=None, help="default squared")
+    robust.add_argument("--loss-scale", type=float, default=None, metavar="SIGMAS", help="where the robust loss bends")
     fit.set_defaults(func=_fit)
     return parser
 

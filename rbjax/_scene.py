@@ -11,7 +11,9 @@ A scene decides, once, from concrete inputs, what its step needs:
   once with :func:`jax.eval_shape`), so no torque is accumulated or integrated.
 
 These are static fields; ``Body`` is untouched. The specialised kernels
-(:mod:`rbjax._specialise`) exist for ``"euler"`` and ``"rk4"``; another method
+(:mod:`rbjax._specialise`) exist for ``"euler"`` and ``"rk4"``, and for
+``"splitting"`` on isotropic and axisymmetric bodies (the exact free rotor
+without a principal frame, :func:`rbjax._methods.splitting.free_rotor_of_kind`); another method
 registers its own with :func:`register_kernel` (the hook for ``"splitting"`` and
 other methods of :mod:`rbjax._methods`), and otherwise runs its general step,
 which still skips rotation for particles and torque for torque-free forces
@@ -65,6 +67,8 @@ for _name in ("euler", "rk4"):
     for _kind in ("isotropic", "axisymmetric", "general"):
         for _type in (State, MatrixState):
             register_kernel(_name, _kind, _type, _specialise.explicit_step(_name))
+for _kind in ("isotropic", "axisymmetric"):
+    register_kernel("splitting", _kind, State, _methods.splitting.splitting_of_kind)
 # rbjax's own kernels lift all per-body work, so they run in either batch layout
 # (rbjax._batching.batch_last); a user's kernel is always given batch-first states
 _LAYOUT_AGNOSTIC = frozenset(_KERNELS.values())

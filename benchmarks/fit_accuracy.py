@@ -1,0 +1,259 @@
+"""Accuracy of ``rb.fit_inertia`` against recording length, rate, noise, excitation and sensor model.
+
+Each case fixes a true body and motion, records it with scipy's DOP853
+(tests/reference.py, never rbjax), adds independent noise ``draws`` times and
+fits all draws in one batched call. Beside the achieved error it puts
+
+* ``sigma``: the σ the fit reports (``FitResult.moment_std``, mean over draws);
+* ``crb``: the Cramér–Rao bound, ``sqrt(diag(F⁻¹))`` pushed to the principal
+  moments, with ``F = JᵀJ`` the Fisher information of the whitened
+  measurements at the *truth*, ``J`` by central differences of DOP853
+  solutions (this file's own model, independent of rbjax's residuals);
+* ``z_rms``: the RMS over draws and moments of ``(fitted - true) / crb``: about
+  1 when the estimator is efficient (its error is the bound's), above 1 by the
+  factor it loses;
+* ``cal``: the RMS of ``(fitted - true) / sigma``: about 1 when the reported σ
+  is calibrated.
+
+Moments are those of ``I / tr I`` unless torques fix the scale (none here:
+every case is torque-free, as a thrown or tumbling body is). Errors are
+relative, ``|λ_fit - λ_true| / λ_true``, the worst of the three moments, median
+over draws.
+
+    python benchmarks/fit_accuracy.py [--quick] [--draws 8] [--json fit_accuracy.json]
+
+``--quick`` runs two small cases with 2 draws (< 1 min); the default runs every
+sweep (about 10 minutes on the 2-core machine).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import pathlib
+import sys
+import time
+
+import jax
+import numpy as np
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests"))
+from reference import qmul, reference_rotation, to_body  # noqa: E402
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from _common import machine, write_json  # noqa: E402
+
+import rbjax as rb  # noqa: E402
+
+jax.config.update("jax_enable_x64", True)
+
+# a body whose principal axes are not the recording's axes: the fit must find them too
+_AXES = np.linalg.qr(np.array([[1.0, 0.3, -0.2], [0.1, 1.0, 0.4], [-0.3, 0.2, 1.0]]))[0]
+INERTIA = _AXES @ np.diag([1.0, 2.0, 2.6]) @ _AXES.T
+
+
+@dataclasses.dataclass(frozen=True)
+class Case:
+    sweep: str
+    sensors: str = "orientation+gyro"  # | "gyro" | "gyro+bias" | "gyro+accel"
+    duration: float = 2.0  # s
+    rate: float = 200.0  # Hz
+    orientation_std: float = 1e-3  # rad
+    rate_std: float = 0.01  # rad/s
+    acceleration_std: float = 0.05  # m/s²
+    spin: float = 3.0  # |ω| (rad/s)
+    excitation: str = "tumble"  # | "near-axis": spin 0.05 rad off the major axis (little information)
+    bias: tuple = (0.02, -0.01, 0.015)  # rad/s, used with "+bias"
+    lever_arm: tuple = (0.05, -0.02, 0.03)  # m, used with "+accel"
+    accel_bias: tuple = (0.1, 0.0, -0.05)  # m/s², used with "+accel"
+
+
+def cases(quick: bool) -> list[Case]:
+    if quick:
+        return [Case("quick", duration=1.0), Case("quick", sensors="gyro", duration=1.0)]
+    out = [Case("length", duration=d) for d in (0.5, 1.0, 2.0, 4.0, 8.0)]
+    out += [Case("rate", rate=r) for r in (100.0, 400.0, 1000.0)]
+    out += [Case("noise", orientation_std=1e-3 * k, rate_std=0.01 * k) for k in (0.1, 10.0)]
+    out += [Case("excitation", excitation="near-axis")]
+    out += [Case("sensors", sensors=s) for s in ("gyro", "gyro+bias")]
+    out += [Case("sensors", sensors="gyro+accel", duration=1.0, spin=10.0)]
+    out += [Case("thrown", sensors="gyro", duration=1.0, rate=400.0, spin=10.0, rate_std=2e-3)]
+    return out
+
+
+def initial_rate(case: Case) -> np.ndarray:
+    """Body-frame ω at t = 0 with ``|ω| = case.spin``."""
+    evals, evecs = np.linalg.eigh(INERTIA)
+    if case.excitation == "near-axis":
+        a = 0.05
+        d = np.cos(a) * evecs[:, 2] + np.sin(a) * (evecs[:, 0] + evecs[:, 1]) / np.sqrt(2)
+    else:  # a generic tumble: every axis excited
+        d = evecs @ np.array([0.5, 0.6, 0.62])
+    return case.spin * d / np.linalg.norm(d)
+
+
+# --- the measurement model at parameters p (this file's own; DOP853) ---
+
+
+def _traceless_basis() -> np.ndarray:
+    """Five symmetric traceless 3x3 matrices: the directions of ``I / tr I`` at fixed trace."""
+    E = []
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        m = np.zeros((3, 3))
+        m[i, j] = m[j, i] = 1.0
+        E.append(m)
+    E.append(np.diag([1.0, -1.0, 0.0]))
+    E.append(np.diag([1.0, 1.0, -2.0]) / np.sqrt(3))
+    return np.array(E)
+
+
+def _qexp(v: np.ndarray) -> np.ndarray:
+    a = np.linalg.norm(v)
+    return np.concatenate([[np.cos(a / 2)], np.sinc(a / (2 * np.pi)) / 2 * v])
+
+
+def _qlog(q: np.ndarray) -> np.ndarray:
+    q = q * np.sign(q[..., :1] + (q[..., :1] == 0))
+    n = np.linalg.norm(q[..., 1:], axis=-1, keepdims=True)
+    return 2 * np.arctan2(n, q[..., :1]) * q[..., 1:] / np.where(n > 0, n, 1.0)
+
+
+def measurements(case: Case, times: np.ndarray, p: np.ndarray) -> dict[str, np.ndarray]:
+    """Noise-free readings at parameters ``p = (5 inertia, 3 orientation, 3 rate, nuisance...)``."""
+    I = INERTIA / np.trace(INERTIA) + np.tensordot(p[:5], _traceless_basis(), 1)
+    q0 = _qexp(p[5:8])
+    wb0 = initial_rate(case) + p[8:11]
+    q, w_world = reference_rotation(I, q0, to_body(q0[None] * [[1, -1, -1, -1]], wb0[None])[0], times)
+    wb = to_body(q, w_world)
+    out = {"q": q}
+    k = 11
+    out["gyro"] = wb + (p[k : k + 3] if "bias" in case.sensors else 0.0)
+    if "accel" in case.sensors:
+        r, ba = p[k : k + 3], p[k + 3 : k + 6]
+        wdot = np.linalg.solve(I, -np.cross(wb, wb @ I.T).T).T  # torque-free Euler, body frame
+        out["accel"] = np.cross(wdot, r) + np.cross(wb, np.cross(wb, r)) + ba
+    return out
+
+
+def truth(case: Case) -> np.ndarray:
+    nuisance = {"bias": case.bias, "accel": case.lever_arm + case.accel_bias}
+    extra = [v for k, v in nuisance.items() if k in case.sensors]
+    return np.concatenate([np.zeros(11), *[np.asarray(e, float) for e in extra]])
+
+
+def whitened(case: Case, times: np.ndarray, p: np.ndarray, q_ref: np.ndarray) -> np.ndarray:
+    m = measurements(case, times, p)
+    parts = []
+    if case.sensors == "orientation+gyro":
+        conj = q_ref * np.array([1, -1, -1, -1])
+        parts.append(np.stack([_qlog(qmul(a, b)) for a, b in zip(conj, m["q"], strict=True)]) / case.orientation_std)
+    parts.append(m["gyro"] / case.rate_std)
+    if "accel" in m:
+        parts.append(m["accel"] / case.acceleration_std)
+    return np.concatenate([x.ravel() for x in parts])
+
+
+def cramer_rao(case: Case, times: np.ndarray) -> np.ndarray:
+    """CRB σ of the principal moments of ``I / tr I`` (ascending), from ``F = JᵀJ`` at the truth."""
+    p0 = truth(case)
+    q_ref = measurements(case, times, p0)["q"]
+    free = [i for i in range(len(p0)) if not (case.sensors != "orientation+gyro" and 5 <= i < 8)]
+    h = 1e-6  # DOP853 at rtol 1e-13: central-difference error ~1e-13/h + h² ≈ 1e-7 relative
+    J = np.stack(
+        [
+            (whitened(case, times, p0 + h * e, q_ref) - whitened(case, times, p0 - h * e, q_ref)) / (2 * h)
+            for e in np.eye(len(p0))[free]
+        ],
+        -1,
+    )
+    cov = np.linalg.inv(J.T @ J)[:5, :5]
+    lam, V = np.linalg.eigh(INERTIA / np.trace(INERTIA))
+    G = np.einsum("ik,ejl,lk->ke", V, _traceless_basis(), V)  # dλ_k / dp_e = v_kᵀ E_e v_k
+    return np.sqrt(np.einsum("ke,ef,kf->k", G, cov, G))
+
+
+def recordings(case: Case, times: np.ndarray, draws: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    m = measurements(case, times, truth(case))
+    T = len(times)
+    out: dict[str, np.ndarray] = {}
+    if case.sensors == "orientation+gyro":
+        noise = rng.normal(0, case.orientation_std, (draws, T, 3))
+        out["orientations"] = np.stack(
+            [np.stack([qmul(a, _qexp(b)) for a, b in zip(m["q"], n, strict=True)]) for n in noise]
+        )
+    out["body_rates"] = m["gyro"] + rng.normal(0, case.rate_std, (draws, T, 3))
+    if "accel" in m:
+        out["accelerations"] = m["accel"] + rng.normal(0, case.acceleration_std, (draws, T, 3))
+    return out
+
+
+def fit(case: Case, times: np.ndarray, rec: dict[str, np.ndarray]):
+    kwargs = {k: v for k, v in rec.items() if k != "orientations"}
+    if "bias" in case.sensors:
+        kwargs["gyro_bias"] = True
+    return rb.fit_inertia(times, rec.get("orientations"), **kwargs)
+
+
+def run(case: Case, draws: int, rng: np.random.Generator) -> dict:
+    times = np.linspace(0.0, case.duration, int(round(case.duration * case.rate)) + 1)
+    t0 = time.perf_counter()
+    crb = cramer_rao(case, times)
+    t_crb = time.perf_counter() - t0
+    rec = recordings(case, times, draws, rng)
+    t0 = time.perf_counter()
+    res = fit(case, times, rec)
+    jax.block_until_ready(res.inertia)
+    t_fit = time.perf_counter() - t0
+    lam = np.linalg.eigvalsh(INERTIA / np.trace(INERTIA))
+    got, sig = np.asarray(res.principal_moments), np.asarray(res.moment_std)
+    err = np.max(np.abs(got - lam) / lam, axis=-1)
+    out = dict(
+        dataclasses.asdict(case),
+        draws=draws,
+        converged=float(np.mean(np.asarray(res.converged))),
+        error_median=float(np.median(err)),
+        error_max=float(np.max(err)),
+        sigma_rel=float(np.nanmean(sig / lam)),
+        crb_rel=float(np.mean(crb / lam)),
+        z_rms=float(np.sqrt(np.mean(((got - lam) / crb) ** 2))),
+        cal=float(np.sqrt(np.nanmean(((got - lam) / sig) ** 2))),
+        fit_s=t_fit,
+        crb_s=t_crb,
+    )
+    if "accel" in case.sensors and hasattr(res, "lever_arm"):
+        out["lever_arm_error_mm"] = float(
+            np.median(np.linalg.norm(np.asarray(res.lever_arm) - np.asarray(case.lever_arm), axis=-1)) * 1e3
+        )
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--draws", type=int, default=8)
+    ap.add_argument("--json", default="fit_accuracy.json")
+    args = ap.parse_args()
+    draws = 2 if args.quick else args.draws
+    rng = np.random.default_rng(0)
+    rows = []
+    head = (
+        f"{'sweep':>10} {'sensors':>17} {'T s':>4} {'Hz':>5} {'σ_q':>7} {'σ_ω':>6} {'exc':>9} "
+        f"{'conv':>5} {'err med':>8} {'err max':>8} {'σ rep':>8} {'CRB':>8} {'z_rms':>6} {'cal':>5} {'fit s':>6}"
+    )
+    print(head)
+    for case in cases(args.quick):
+        r = run(case, draws, rng)
+        rows.append(r)
+        print(
+            f"{r['sweep']:>10} {r['sensors']:>17} {r['duration']:>4g} {r['rate']:>5g} {r['orientation_std']:>7.0e} "
+            f"{r['rate_std']:>6.0e} {r['excitation']:>9} {r['converged']:>5.2f} {r['error_median']:>8.1e} "
+            f"{r['error_max']:>8.1e} {r['sigma_rel']:>8.1e} {r['crb_rel']:>8.1e} {r['z_rms']:>6.2f} {r['cal']:>5.2f} "
+            f"{r['fit_s']:>6.1f}"
+            + (f"  lever arm {r['lever_arm_error_mm']:.2f} mm" if "lever_arm_error_mm" in r else ""),
+            flush=True,
+        )
+    write_json(args.json, {"machine": machine(), "draws": draws, "cases": rows})
+
+
+if __name__ == "__main__":
+    main()
