@@ -11,7 +11,7 @@ import reference
 from reference import imu_noise, reference_rotation, to_body
 
 import rbjax as rb
-from rbjax import _fit, _fit_data, _fit_model
+from rbjax.identification import _checks, _fit, _model, _problem
 
 # a generic asymmetric body with off-diagonal products of inertia (unit-trace shape below)
 I_TRUE = np.array([[1.0, 0.1, -0.05], [0.1, 2.0, 0.08], [-0.05, 0.08, 2.6]])
@@ -97,12 +97,12 @@ def test_model_jacobian_matches_autodiff(segments, gyro_bias):
     t = np.cumsum(np.r_[0.0, np.random.default_rng(3).uniform(0.01, 0.03, 61)])  # 62 samples
     q, wb = _record(t, torque=_torque)
     tau = np.stack([_torque(ti, None, None) for ti in t])
-    prob = _fit_data.prepare(
+    prob = _problem.prepare(
         t, q, wb, tau, initial_inertia=None, method="rk4", segments=segments, substeps=None,
         orientation_std=1e-3, rate_std=1e-2, continuity_weight=1000.0, excitation_tol=1e-3,
         gyro_bias=gyro_bias,
     )  # fmt: skip
-    model = jax.jit(lambda y, d: _fit_model._model(y, d, **prob.static))
+    model = jax.jit(lambda y, d: _model._model(y, d, **prob.static))
     data = jax.tree.map(lambda a: a[0], prob.data)
     y = prob.y0[0] + np.random.default_rng(4).normal(0, 0.05, prob.y0.shape[1])  # off the optimum
     assert data["seg"]["mask"].min() == 0  # 61 intervals / 3 segments: padding exercised
@@ -271,7 +271,7 @@ def test_world_frame_gyro_is_detected():
         with pytest.raises(ValueError, match=r"world-frame.*rb.quat_rotate\(rb.quat_conjugate\(q\), w\)"):
             rb.fit_inertia(T_FAST, q, body_rates=w)
     # the body-frame gyro passes the check: no raise, before fitting
-    _fit_data.prepare(
+    _problem.prepare(
         T_FAST, q, to_body(q, w_world), None, initial_inertia=None, method="rk4", segments=None,
         substeps=None, orientation_std=None, rate_std=None, continuity_weight=1000.0, excitation_tol=1e-3,
     )  # fmt: skip
@@ -287,12 +287,12 @@ def test_gyro_frame_check_misfits():
     # recording with almost no rotation (frames nearly agree) raises for neither
     q, w_world = reference_rotation(I_TRUE, np.array([1.0, 0, 0, 0]), W0, T_FAST)
     wb = to_body(q, w_world)
-    _fit_data._gyro_frame_check(T_FAST, q, wb, 4)
+    _checks._gyro_frame_check(T_FAST, q, wb, 4)
     with pytest.raises(ValueError, match="world-frame"):
-        _fit_data._gyro_frame_check(T_FAST, q, w_world, 4)
+        _checks._gyro_frame_check(T_FAST, q, w_world, 4)
     q_slow, w_slow = reference_rotation(I_TRUE, np.array([1.0, 0, 0, 0]), 1e-3 * W0, T_FAST)
     rng = np.random.default_rng(7)
-    _fit_data._gyro_frame_check(T_FAST, q_slow, w_slow + rng.normal(0, 1e-2, w_slow.shape), 4)
+    _checks._gyro_frame_check(T_FAST, q_slow, w_slow + rng.normal(0, 1e-2, w_slow.shape), 4)
 
 
 def test_orientation_glitches_do_not_claim_convergence():

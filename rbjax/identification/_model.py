@@ -1,7 +1,7 @@
 """The traced model of inertia fitting: residuals and their dense Jacobian.
 
 One recording (``vmap``-ped for batches) cut into ``S`` multiple-shooting
-segments; see :mod:`rbjax._fit` for the residuals and the solver.
+segments; see :mod:`._fit` for the residuals and the solver.
 """
 
 from __future__ import annotations
@@ -12,12 +12,12 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from . import _methods
-from ._body import Body, inverse_3x3
-from ._inertia_param import inertia_from_params
-from ._math import quat_conjugate, quat_exp, quat_log, quat_multiply, quat_rotate
-from ._pytree import new_unchecked
-from ._state import Forces, State, _apply
+from .. import _methods
+from .._body import Body, inverse_3x3
+from .._inertia_param import inertia_from_params
+from .._math import quat_conjugate, quat_exp, quat_log, quat_multiply, quat_rotate
+from .._pytree import new_unchecked
+from .._state import Forces, State, _apply
 
 # Layout: S segments of K sample intervals (padding intervals have dt = 0 and
 # mask 0). Segment s has local parameters p_s = (δ_s, ω_s) (6) and shares the

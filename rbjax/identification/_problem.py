@@ -1,0 +1,211 @@
+"""Recordings packed for the solver: noise levels, segment defaults, padded segments.
+
+NumPy only, before any tracing (eager ``jnp`` calls would compile once per new
+shape): :func:`prepare` checks the inputs (:mod:`._checks`) and identifiability,
+estimates noise levels from second differences, fits the linear start
+(:mod:`._linear`), chooses substeps and segments, and cuts the recordings into
+padded multiple-shooting segments for the traced model (:mod:`._model`).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import numpy as np
+
+from .. import _methods
+from .._body import Body
+from .._state import State
+from ._checks import _check_inputs, _gyro_frame_check
+from ._linear import _identifiability, _initial_inertia, _momentum_system, _np_params_from_inertia
+from ._rotations_np import _np_increments, _rate_estimate
+
+
+def _mad_sigma(x: np.ndarray) -> np.ndarray:
+    """Noise std of white noise seen through a second difference (variance 6σ²), robustly."""
+    return 1.4826 * np.median(np.abs(x), axis=(-2, -1)) / np.sqrt(6.0)
+
+
+# Default numerics (see fit_inertia's docstring for the error budget)
+_MAX_STEP_ANGLE = 0.05  # rad turned per integrator step: rk4 error ~1e-9 rad per step at this size
+_SEGMENT_INTERVALS = 512  # target intervals per shooting segment (scan depth)
+
+
+def _next_pow2(x: float) -> int:
+    return 1 << max(0, int(np.ceil(np.log2(max(float(x), 1.0)))))
+
+
+def _bucket(k: int) -> int:
+    """Round ``k`` up onto a grid with at most 12.5% padding (multiples of 2^(⌊log2 k⌋-3))."""
+    g = 1 << max(0, int(np.floor(np.log2(max(k, 1)))) - 3)
+    return int(-(-k // g) * g)
+
+
+def _default_segments(n_intervals: int, total_angle: float) -> int:
+    """A power of two: about one segment per 512 intervals and per two turns (4π) of rotation.
+
+    Only the power of two depends on the data, so recordings of similar length and
+    motion share a compiled program; pass ``segments=`` to pin it.
+    """
+    want = max(n_intervals / _SEGMENT_INTERVALS, total_angle / (4 * np.pi))
+    return int(min(_next_pow2(want), max(1, n_intervals // 8)))
+
+
+class Problem(NamedTuple):
+    """Recordings packed for the solver: start ``y0 (N, p)``, segment data (leading ``N``), static options."""
+
+    y0: np.ndarray
+    data: dict
+    static: dict  # scale_fixed, method, substeps, use_rates: fixed per compiled program
+    batched: bool
+    segments: int
+
+
+def prepare(
+    times,
+    orientations,
+    body_rates,
+    torques,
+    *,
+    initial_inertia,
+    method,
+    segments,
+    substeps,
+    orientation_std,
+    rate_std,
+    continuity_weight,
+    excitation_tol,
+    check_gyro_frame=True,
+    gyro_bias=False,
+) -> Problem:
+    """Validate recordings and pack them for :func:`rbjax.fit_inertia` (arguments as there).
+
+    NumPy only, before any tracing: checks inputs and identifiability, estimates
+    noise levels, fits the linear start, chooses substeps and segments, and cuts
+    the recordings into padded segments.
+    """
+    _methods.get(method, State)  # unknown method: ValueError now, not in the solver
+    t, q, wr, tau = _check_inputs(times, orientations, body_rates, torques)
+    batched = q.ndim == 3
+    if not batched:
+        q = q[None]
+        wr = None if wr is None else wr[None]
+        tau = None if tau is None else tau[None]
+    N, T = q.shape[:2]
+    dtype = jax.dtypes.canonicalize_dtype(q.dtype)  # float64 input stays float32 without x64
+    torque_free = tau is None
+    use_rates = wr is not None
+    if isinstance(gyro_bias, (bool, np.bool_)):
+        gyro_bias = bool(gyro_bias)
+    else:
+        raise TypeError(f"fit_inertia: gyro_bias must be True or False, got {type(gyro_bias).__name__}")
+    if gyro_bias and not use_rates:
+        raise ValueError("fit_inertia: gyro_bias=True needs body_rates (there is no gyro to be biased)")
+    q = q.astype(np.float64)
+
+    inc = _np_increments(q)  # (N, T-1, 3)
+    angles = np.linalg.norm(inc, axis=-1)
+    dts = np.diff(t)
+    if substeps is None:  # a power of two, so similar recordings share a compiled program
+        substeps = _next_pow2(np.ceil(angles.max() / _MAX_STEP_ANGLE))
+    if segments is None:
+        segments = _default_segments(T - 1, angles.sum(-1).max())
+    S = int(segments)
+    if S < 1 or (T - 1) // S < 2:
+        raise ValueError(f"fit_inertia: segments={segments} needs at least 2 intervals each; T = {T}")
+    n_theta = 5 if torque_free else 6
+    n_params = n_theta + (3 if gyro_bias else 0) + 6 * S
+    n_data = 3 * T * (2 if use_rates else 1)
+    if n_data <= n_params + 1:
+        raise ValueError(
+            f"fit_inertia: {T} samples give {n_data} residuals, too few for {n_params} parameters "
+            f"({n_theta} inertia + 6 per segment × {S} segments); record more samples or use fewer segments"
+        )
+
+    # noise levels from second differences (robust MAD), floored so clean data stay finite
+    if orientation_std is None:
+        sq = _mad_sigma(np.diff(inc, axis=-2))
+        sq = np.maximum(sq, 1e-12)
+    else:
+        sq = np.full(N, float(orientation_std))
+    if use_rates:
+        sw = (
+            np.full(N, float(rate_std))
+            if rate_std is not None
+            else np.maximum(_mad_sigma(np.diff(wr, 2, axis=-2)), 1e-12)
+        )
+    else:
+        sw = np.full(N, np.nan)
+
+    # rates for the linear start: the gyro, or orientation differences over ~0.1 rad
+    k = int(np.clip(np.ceil(0.1 / max(np.median(angles), 1e-12)), 1, max(1, (T - 1) // 4)))
+    if use_rates:
+        rates = np.asarray(wr, np.float64)
+        if check_gyro_frame:
+            for n in range(N):
+                _gyro_frame_check(t, q[n], rates[n], k)
+    else:
+        rates = _rate_estimate(t, q, k)
+
+    K = _bucket(-(-(T - 1) // S))  # intervals per segment, padded: shapes from a coarse grid
+    n_real = np.full(S, (T - 1) // S) + (np.arange(S) < (T - 1) % S)  # spread the real intervals evenly
+    starts = np.concatenate([[0], np.cumsum(n_real)[:-1]])
+    local = np.arange(K)[None, :]
+    mask = local < n_real[:, None]
+    idx_c = np.minimum(starts[:, None] + local, T - 2)  # interval index (padding repeats the last)
+    seg_dt = np.where(mask, dts[idx_c], 0.0)
+    seg_dur = seg_dt.sum(-1).mean()
+    samp = np.minimum(starts[:, None] + np.arange(K + 1)[None, :], T - 1)  # sample index per segment
+
+    y0s, datas = [], []
+    for n in range(N):
+        tau_n = None if torque_free else np.asarray(tau[n], np.float64)
+        MtM, Mtb, scale = _momentum_system(t, q[n], rates[n], tau_n)
+        _identifiability(MtM, excitation_tol, torque_free)
+        if initial_inertia is None:
+            I0 = _initial_inertia(MtM, Mtb, scale, torque_free)
+        else:
+            I0 = np.asarray(initial_inertia, np.float64)
+            Body(1.0, I0)  # validates a user guess
+        if torque_free:  # the gauge log L00 = 0: rescale so that Σ_xx = 1, drop θ0
+            I0 = I0 / (0.5 * np.trace(I0) - I0[0, 0])
+        theta0 = _np_params_from_inertia(I0)[(1 if torque_free else 0) :]
+        if gyro_bias:
+            theta0 = np.concatenate([theta0, np.zeros(3)])  # the bias starts at zero
+        w_start = rates[n][starts]
+        y0s.append(np.concatenate([theta0, np.column_stack([np.zeros((S, 3)), w_start]).reshape(-1)]))
+        first = (np.arange(S) == 0).astype(np.float64)
+        ones = np.ones(S)
+        seg = dict(
+            q_start=q[n][starts],
+            q_first=np.broadcast_to(q[n][0], (S, 4)),
+            w_first=np.broadcast_to(rates[n][0], (S, 3)),
+            first=first,
+            q_meas=q[n][idx_c + 1],
+            w_meas=rates[n][idx_c + 1],
+            dt=seg_dt,
+            t0=t[starts] - t[0],
+            mask=mask.astype(np.float64),
+            wq=ones / sq[n],
+            ww=ones / sw[n] if use_rates else ones,
+            wc=ones * ((1 / sw[n]) if use_rates else seg_dur / sq[n]),
+        )
+        if tau_n is not None:  # i.e. not torque_free
+            seg["t_samples"], seg["tau"] = t[samp] - t[0], tau_n[samp]
+        datas.append(dict(seg=seg, n_data=np.float64(n_data), continuity_weight=np.float64(continuity_weight)))
+    # NumPy all the way into the jitted solver: eager jnp here would compile once per shape
+    data = jax.tree.map(lambda *a: np.stack(a).astype(dtype), *datas)
+    return Problem(
+        y0=np.stack(y0s).astype(dtype),
+        data=data,
+        static=dict(
+            scale_fixed=not torque_free,
+            method=method,
+            substeps=int(substeps),
+            use_rates=use_rates,
+            gyro_bias=gyro_bias,
+        ),
+        batched=batched,
+        segments=S,
+    )

@@ -1,0 +1,147 @@
+"""FitResult: the fitted inertia, its uncertainty and the diagnostics of the fit."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jax import Array
+from jaxtyping import Bool, Float, Int
+
+from .._math import quat_exp, quat_multiply
+from .._pytree import field, pytree_dataclass, static_field
+from ._model import _normalised_moments, _unpack
+
+
+@pytree_dataclass
+class FitResult:
+    """Result of :func:`fit_inertia` (leading batch axis when recordings were batched).
+
+    Attributes:
+        inertia: ``(3, 3)`` fitted inertia, body frame (the frame of the
+            recorded quaternions and gyro), about the centre of mass. kg m² when
+            ``scale_fixed``; otherwise normalised to ``tr I = 1`` (dimensionless).
+        principal_moments: ``(3,)`` ascending eigenvalues of ``inertia``.
+        principal_axes: ``(3, 3)`` columns are the principal axes (body frame).
+        moment_std: ``(3,)`` one-sigma uncertainty of ``principal_moments``,
+            from the Gauss–Newton covariance ``s² (JᵀJ)⁻¹`` with ``s²`` the
+            residual variance per degree of freedom.
+        initial_angular_velocity: ``(3,)`` fitted body-frame ``ω`` at ``times[0]`` (rad/s).
+        initial_orientation: ``(4,)`` fitted orientation at ``times[0]``.
+        residuals: ``(n,)`` final weighted residual vector (dimensionless).
+        orientation_rms: RMS orientation residual (rad).
+        rate_rms: RMS gyro residual (rad/s); NaN without ``body_rates``.
+        converged: whether the fit can be trusted: ``solver_converged`` and
+            not ``on_boundary`` and ``residual_ratio ≤ 3``. Check it (and the
+            two flags for the reason) before using ``moment_std``.
+        iterations: Levenberg–Marquardt steps taken.
+        solver_converged: whether Levenberg–Marquardt met its tolerances
+            (what ``converged`` meant before the two checks below were added).
+        on_boundary: the fitted moments (ascending ``I1 ≤ I2 ≤ I3``) meet the
+            triangle inequality within ``(I1 + I2 - I3) / tr I < 1e-3``, i.e.
+            the smallest eigenvalue of ``Σ = ½ tr(I) 1 - I`` (the log-Cholesky
+            pivot ``exp(θ)``) is below 5e-4 of ``tr Σ``: the fit ran into the edge of
+            the physically consistent set, where the parametrisation flattens
+            (``d I / d θ → 0``) and the Gauss–Newton covariance is meaningless,
+            so ``moment_std`` is NaN there. Usual causes: gyro in the wrong
+            frame, orientation glitches, wrong torques. A genuinely planar
+            body (a thin plate, ``I1 + I2 = I3``) also lands here.
+        residual_ratio: RMS of the weighted data residuals per degree of
+            freedom, ``sqrt(Σ r² / (n - p))`` (dimensionless): ≈ 1 when the
+            residuals are as large as the noise levels (given or estimated)
+            predict; above 3 the model or noise model does not fit the data
+            (outliers, glitches, bias, wrong noise levels) and ``converged`` is
+            ``False``. ``moment_std`` already scales with it (``s² = ratio²``).
+        gyro_bias: ``(3,)`` fitted constant gyro bias ``b`` (body frame, rad/s;
+            gyro = ω + b) with ``fit_inertia(..., gyro_bias=True)``; zeros otherwise.
+        gyro_bias_std: ``(3,)`` its one-sigma uncertainty (rad/s, same
+            covariance as ``moment_std``); NaN without ``gyro_bias=True``.
+        scale_fixed: ``True`` when known torques fix the absolute scale;
+            ``False`` for torque-free data, where only ``I / tr I`` is identifiable.
+        segments: number of shooting segments used.
+    """
+
+    inertia: Float[Array, "*N 3 3"] = field(core_ndim=2)
+    principal_moments: Float[Array, "*N 3"] = field(core_ndim=1)
+    principal_axes: Float[Array, "*N 3 3"] = field(core_ndim=2)
+    moment_std: Float[Array, "*N 3"] = field(core_ndim=1)
+    initial_angular_velocity: Float[Array, "*N 3"] = field(core_ndim=1)
+    initial_orientation: Float[Array, "*N 4"] = field(core_ndim=1)
+    residuals: Float[Array, "*N n"] = field(core_ndim=1)
+    orientation_rms: Float[Array, "*N"] = field(core_ndim=0)
+    rate_rms: Float[Array, "*N"] = field(core_ndim=0)
+    converged: Bool[Array, "*N"] = field(core_ndim=0)
+    iterations: Int[Array, "*N"] = field(core_ndim=0)
+    solver_converged: Bool[Array, "*N"] = field(core_ndim=0)
+    on_boundary: Bool[Array, "*N"] = field(core_ndim=0)
+    residual_ratio: Float[Array, "*N"] = field(core_ndim=0)
+    gyro_bias: Float[Array, "*N 3"] = field(core_ndim=1)
+    gyro_bias_std: Float[Array, "*N 3"] = field(core_ndim=1)
+    scale_fixed: bool = static_field(default=False)
+    segments: int = static_field(default=1)
+
+
+_BOUNDARY_RTOL = 1e-3  # (I1 + I2 - I3) / tr I below this: on the edge of the consistent set
+_RESIDUAL_RATIO_MAX = 3.0  # RMS weighted residual above this: the noise model does not fit
+
+
+def summarise(y, r, J, data, solver_ok, iterations, *, scale_fixed, use_rates, gyro_bias):
+    """FitResult fields of one recording from the solver's final ``y``, residuals ``r`` and Jacobian ``J``.
+
+    Covariance ``s² (JᵀJ)⁺`` with ``s²`` the data residuals' variance per degree
+    of freedom (the continuity rows are constraints, not data), propagated to
+    the principal moments; then the honest-failure diagnostics.
+    """
+    seg = data["seg"]
+    S, K = seg["dt"].shape
+    p = y.shape[0]
+    n_rows = S * (3 + 3 * K) * (2 if use_rates else 1)  # data rows, incl. zero padding
+    n_cont = r.shape[0] - n_rows
+    # continuity residuals act as constraints: they remove degrees of freedom, add no data
+    s2 = jnp.sum(r[:n_rows] ** 2) / (data["n_data"] - (p - n_cont))
+    # (JᵀJ)⁺ from the SVD of J, not pinv(JᵀJ): forming JᵀJ squares the condition number
+    # (~1e4 from the continuity weight alone), which float32 cannot hold; cut only
+    # directions at rounding level
+    _, sv, Vt = jnp.linalg.svd(J, full_matrices=False)
+    inv_s2 = jnp.where(sv > 10 * p * jnp.finfo(J.dtype).eps * sv[0], 1 / sv**2, 0)
+    cov = s2 * (Vt.T * inv_s2) @ Vt
+    I, moments = _normalised_moments(y, scale_fixed)
+    G = jax.jacfwd(lambda yy: _normalised_moments(yy, scale_fixed)[1])(y)
+    std = jnp.sqrt(jnp.diagonal(G @ cov @ G.T))
+    _, axes = jnp.linalg.eigh(I)
+    axes = axes * jnp.sign(jnp.linalg.det(axes))
+    n_I = 6 if scale_fixed else 5
+    _, P = _unpack(y, n_I + (3 if gyro_bias else 0), S)
+    if gyro_bias:
+        bias, bias_std = y[n_I : n_I + 3], jnp.sqrt(jnp.diagonal(cov)[n_I : n_I + 3])
+    else:
+        bias, bias_std = jnp.zeros(3, y.dtype), jnp.full(3, jnp.nan, y.dtype)
+    r_seg = r[:n_rows].reshape(S, 2 if use_rates else 1, 3 + 3 * K)
+    nq = seg["mask"].sum() * 3 + 3
+    q_rms = jnp.sqrt(jnp.sum(r_seg[:, 0] ** 2) / nq) / seg["wq"][0]
+    if use_rates:
+        w_rms = jnp.sqrt(jnp.sum(r_seg[:, 1] ** 2) / nq) / seg["ww"][0]
+    else:
+        w_rms = jnp.full((), jnp.nan, r.dtype)
+    # honest failure: the triangle margin I1 + I2 - I3 = 2 λ_min(Σ) near zero, or residuals
+    # far above the noise model
+    on_boundary = (moments[0] + moments[1] - moments[2]) < _BOUNDARY_RTOL * jnp.sum(moments)
+    ratio = jnp.sqrt(s2)
+    std = jnp.where(on_boundary, jnp.nan, std)
+    return dict(
+        inertia=I,
+        principal_moments=moments,
+        principal_axes=axes,
+        moment_std=std,
+        initial_angular_velocity=P[0, 3:],
+        initial_orientation=quat_multiply(seg["q_start"][0], quat_exp(P[0, :3])),
+        residuals=r,
+        orientation_rms=q_rms,
+        rate_rms=w_rms,
+        converged=solver_ok & ~on_boundary & (ratio <= _RESIDUAL_RATIO_MAX),
+        iterations=iterations,
+        solver_converged=solver_ok,
+        on_boundary=on_boundary,
+        residual_ratio=ratio,
+        gyro_bias=bias,
+        gyro_bias_std=bias_std,
+    )
