@@ -145,11 +145,11 @@ def test_batch_members_report_their_own_iterations():
     assert np.all(np.asarray(batch.converged))
     for k, q in enumerate(qs):
         single = rb.fit_inertia(T_FAST, q, segments=2)
-        # both stop by the relative-reduction test (ftol = rtol = 1e-8): the step left
-        # is at most sqrt(ftol (n - p)) ≈ 0.004 σ long (n - p ≈ 1200), so the two stops
-        # agree to 0.01 σ (measured 0.001 σ)
+        # both stop by the reduction test: the step left reduces ½χ² by at most
+        # sigma_tol² = 0.01, i.e. is at most √2 · 0.1 σ long, so the two stops agree to
+        # 2 · 0.14 σ < 0.3 σ
         diff = np.abs(np.asarray(batch.principal_moments[k]) - np.asarray(single.principal_moments))
-        np.testing.assert_array_less(diff, 0.01 * np.asarray(single.moment_std))
+        np.testing.assert_array_less(diff, 0.3 * np.asarray(single.moment_std))
 
 
 def test_similar_lengths_share_one_compiled_program():
@@ -338,3 +338,71 @@ def test_gyro_bias_is_fitted_as_a_nuisance_parameter():
         rb.fit_inertia(T_FAST, qn, gyro_bias=True)
     with pytest.raises(TypeError, match="gyro_bias must be True or False"):
         rb.fit_inertia(T_FAST, qn, body_rates=wn, gyro_bias=1)
+
+
+def _body_torque(t):
+    return np.array([0.3 * np.sin(3 * t), 0.2 * np.cos(2 * t), 0.25 * np.sin(t + 0.5)])
+
+
+def test_gyro_only_fits_the_shape_from_euler_equations():
+    # no orientations: I ω̇ + ω × I ω = 0 fixes I / tr I from the body rates alone
+    q, wb = _record(T_FAST)
+    clean = rb.fit_inertia(T_FAST, body_rates=wb)
+    # clean float64 rates, rk4 at ~0.015 rad per step: model error ~1e-8 (as for orientations)
+    assert _rel(clean.inertia, I_BAR) < 1e-6 and bool(clean.converged)
+    wn = wb + np.random.default_rng(0).normal(0, 0.01, wb.shape)
+    res = rb.fit_inertia(T_FAST, None, body_rates=wn)
+    assert bool(res.converged) and not res.scale_fixed
+    # 0.01 rad/s on ~3 rad/s for 400 samples: measured 0.8% on this draw (σ of the moments ~1e-3)
+    assert _rel(res.inertia, I_BAR) < 0.02
+    z = np.abs(np.asarray(res.principal_moments) - np.linalg.eigvalsh(I_BAR)) / np.asarray(res.moment_std)
+    assert np.all(z < 4), z  # one draw, 3 moments
+    np.testing.assert_allclose(res.rate_rms, 0.01, rtol=0.1)  # the residuals recover the noise level
+    assert np.isnan(float(res.orientation_rms))
+    # the world frame is the body frame at times[0]: segment 0's rotation is pinned
+    np.testing.assert_array_equal(np.asarray(res.initial_orientation), [1.0, 0.0, 0.0, 0.0])
+
+
+def test_thrown_object_gyro_only():
+    # the issue's case: 1 s @ 400 Hz, |ω| ≈ 10 rad/s, gyro noise 2e-3 rad/s, no orientations; goal
+    # error ≤ 0.5% (measured 1e-4 on three draws). 401 samples: the compiled program of the test above
+    t = np.linspace(0.0, 1.0, 401)
+    q, wb = _record(t, w0=np.array([1.0, 9.8, 1.3]))
+    res = rb.fit_inertia(t, body_rates=wb + np.random.default_rng(1).normal(0, 2e-3, wb.shape))
+    assert bool(res.converged)
+    assert _rel(res.inertia, I_BAR) < 0.005
+    z = np.abs(np.asarray(res.principal_moments) - np.linalg.eigvalsh(I_BAR)) / np.asarray(res.moment_std)
+    assert np.all(z < 4), z
+
+
+def test_body_torques_fix_the_scale_with_and_without_orientations():
+    # a reaction-wheel-like body-frame torque (the DOP853 reference applies R(q) τ_b in the world)
+    q, w = reference_rotation(
+        I_TRUE, np.array([1.0, 0, 0, 0]), W0, T_FAST, torque_world=lambda t, q, w: reference.qrot(q, _body_torque(t))
+    )
+    wb = to_body(q, w)
+    tau_b = np.stack([_body_torque(t) for t in T_FAST])
+    qn, wn = imu_noise(q, wb, np.random.default_rng(2), sq=1e-4, sw=1e-3)
+    # absolute inertia within 1% (measured 0.19% gyro only, 0.05% with orientations); the torque
+    # is linear between samples to O(dt²) ≈ 1e-5
+    res = rb.fit_inertia(T_FAST, body_rates=wn, body_torques=tau_b)
+    assert res.scale_fixed and bool(res.converged)
+    assert _rel(res.inertia, I_TRUE) < 0.01
+    res = rb.fit_inertia(T_FAST, qn, body_rates=wn, body_torques=tau_b)
+    assert res.scale_fixed and bool(res.converged)
+    assert _rel(res.inertia, I_TRUE) < 0.01
+
+
+def test_gyro_only_bad_inputs_name_the_remedy():
+    t = T_FAST[:50]
+    q, wb = _record(t)
+    with pytest.raises(ValueError, match="give orientations, body_rates or both"):
+        rb.fit_inertia(t)
+    with pytest.raises(ValueError, match="torques= are world-frame.*body_torques="):
+        rb.fit_inertia(t, body_rates=wb, torques=np.ones((50, 3)))
+    with pytest.raises(ValueError, match="not both"):
+        rb.fit_inertia(t, q, body_rates=wb, torques=np.ones((50, 3)), body_torques=np.ones((50, 3)))
+    with pytest.raises(ValueError, match="body_torques are all zero.*omit body_torques="):
+        rb.fit_inertia(t, body_rates=wb, body_torques=np.zeros((50, 3)))
+    with pytest.raises(ValueError, match=r"body_rates must have shape \(T, 3\) or \(N, T, 3\)"):
+        rb.fit_inertia(t, body_rates=wb[:-1])

@@ -45,7 +45,7 @@ def check_options(
     _positive_finite("excitation_tol", excitation_tol, "the default is 1e-3")
     _positive_finite("rtol", rtol, "the default is 1e-8")
     _positive_finite("atol", atol, "the default is 1e-8")
-    _positive_int("max_steps", max_steps, "the default is 100")
+    _positive_int("max_steps", max_steps, "the default is 200")
     if segments is not None:
         _positive_int("segments", segments, "or omit it for the default")
     if substeps is not None:
@@ -82,15 +82,46 @@ def _gyro_frame_check(times: np.ndarray, q: np.ndarray, w: np.ndarray, k: int, r
         )
 
 
-def _check_inputs(times, orientations, body_rates, torques):
+def _check_inputs(times, orientations, body_rates, torques, body_torques=None):
+    """Checked NumPy copies ``(t, q, ω, τ, τ_b)``; ``q`` is None for a gyro-only recording.
+
+    The batch shape ``(N,)`` or ``()`` comes from ``orientations``, or from
+    ``body_rates`` without them; the other arrays may be ``(T, 3)`` (shared).
+    """
     t = np.asarray(times, dtype=np.float64)
-    q = np.asarray(orientations)
     if t.ndim != 1:
         raise ValueError(f"fit_inertia: times must be 1-D (T,), got shape {t.shape}")
-    if q.ndim not in (2, 3) or q.shape[-2:] != (t.shape[0], 4):
+    if orientations is None:
+        if body_rates is None:
+            raise ValueError(
+                "fit_inertia: give orientations, body_rates or both; a gyro-only fit needs "
+                "body_rates (body frame, rad/s) with orientations=None"
+            )
+        if torques is not None:
+            raise ValueError(
+                "fit_inertia: torques= are world-frame and need orientations to be used; for a "
+                "gyro-only fit pass the known torques in the body frame as body_torques="
+            )
+        w = np.asarray(body_rates)
+        if w.ndim not in (2, 3) or w.shape[-2:] != (t.shape[0], 3):
+            raise ValueError(
+                f"fit_inertia: body_rates must have shape (T, 3) or (N, T, 3) with T = len(times) = "
+                f"{t.shape[0]}, got {w.shape}"
+            )
+        lead = w.shape[:-1]
+        q = None
+    else:
+        q = np.asarray(orientations)
+        if q.ndim not in (2, 3) or q.shape[-2:] != (t.shape[0], 4):
+            raise ValueError(
+                f"fit_inertia: orientations must have shape (T, 4) or (N, T, 4) with T = len(times) = "
+                f"{t.shape[0]}, got {q.shape}"
+            )
+        lead = q.shape[:-1]
+    if torques is not None and body_torques is not None:
         raise ValueError(
-            f"fit_inertia: orientations must have shape (T, 4) or (N, T, 4) with T = len(times) = "
-            f"{t.shape[0]}, got {q.shape}"
+            "fit_inertia: give torques= (world frame) or body_torques= (body frame), not both; "
+            "add them in one frame first"
         )
     if not np.all(np.isfinite(t)):
         i = int(np.flatnonzero(~np.isfinite(t))[0])
@@ -105,29 +136,31 @@ def _check_inputs(times, orientations, body_rates, torques):
             f"first bad interval at index {bad[0] if bad.size else '?'}; sort the samples and drop "
             "duplicates and NaNs"
         )
-    if not np.all(np.isfinite(q)):
-        raise ValueError("fit_inertia: orientations contain non-finite values")
-    err = np.abs(np.linalg.norm(q.astype(np.float64), axis=-1) - 1)
-    tol = quat_tolerance(q.dtype)
-    if np.any(err > tol):
-        raise ValueError(
-            f"fit_inertia: orientations must be unit quaternions [w, x, y, z]; max |‖q‖ - 1| = "
-            f"{err.max():.3g} exceeds the tolerance {tol:.3g} (normalise them first)"
-        )
+    if q is not None:
+        if not np.all(np.isfinite(q)):
+            raise ValueError("fit_inertia: orientations contain non-finite values")
+        err = np.abs(np.linalg.norm(q.astype(np.float64), axis=-1) - 1)
+        tol = quat_tolerance(q.dtype)
+        if np.any(err > tol):
+            raise ValueError(
+                f"fit_inertia: orientations must be unit quaternions [w, x, y, z]; max |‖q‖ - 1| = "
+                f"{err.max():.3g} exceeds the tolerance {tol:.3g} (normalise them first)"
+            )
     out = []
-    for name, a in (("body_rates", body_rates), ("torques", torques)):
+    for name, a in (("body_rates", body_rates), ("torques", torques), ("body_torques", body_torques)):
         if a is None:
             out.append(None)
             continue
         a = np.asarray(a)
-        if a.shape not in (q.shape[:-1] + (3,), (t.shape[0], 3)):
-            raise ValueError(f"fit_inertia: {name} must have shape {q.shape[:-1] + (3,)}, got {a.shape}")
+        if a.shape not in (lead + (3,), (t.shape[0], 3)):
+            raise ValueError(f"fit_inertia: {name} must have shape {lead + (3,)}, got {a.shape}")
         if not np.all(np.isfinite(a)):
             raise ValueError(f"fit_inertia: {name} contain non-finite values")
-        out.append(np.broadcast_to(a, q.shape[:-1] + (3,)))
-    if torques is not None and not np.any(out[1]):
-        raise ValueError(
-            "fit_inertia: torques are all zero, which cannot fix the inertia's scale (it acts like "
-            "torque-free data); omit torques= for a shape-only fit (normalised to tr I = 1)"
-        )
-    return t, q, out[0], out[1]
+        out.append(np.broadcast_to(a, lead + (3,)))
+    for name, a in (("torques", out[1]), ("body_torques", out[2])):
+        if a is not None and not np.any(a):
+            raise ValueError(
+                f"fit_inertia: {name} are all zero, which cannot fix the inertia's scale (it acts like "
+                f"torque-free data); omit {name}= for a shape-only fit (normalised to tr I = 1)"
+            )
+    return t, q, out[0], out[1], out[2]

@@ -50,16 +50,17 @@ def _fit_batch_jit(backend: str):
     CPU-s) and made the solve faster too (3.1 → 2.0 CPU-s), same result.
     """
     options = {"xla_cpu_use_fusion_emitters": False} if backend == "cpu" else None
-    static = ("scale_fixed", "method", "substeps", "use_rates", "gyro_bias", "rtol", "atol", "max_steps", "unbatch")
+    static = ("model_opts", "rtol", "atol", "max_steps", "unbatch")
     return jax.jit(_fit_batch, static_argnames=static, compiler_options=options)
 
 
-def _fit_batch(y0, data, *, scale_fixed, method, substeps, use_rates, gyro_bias, rtol, atol, max_steps, unbatch):
-    model = functools.partial(
-        _model, scale_fixed=scale_fixed, method=method, substeps=substeps, use_rates=use_rates, gyro_bias=gyro_bias
-    )
+def _fit_batch(y0, data, *, model_opts, rtol, atol, max_steps, unbatch):
+    """Fit ``N`` recordings (leading axes of ``y0``, ``data``); ``model_opts``: sorted ``(name, value)`` pairs."""
+    opts = dict(model_opts)
+    model = functools.partial(_model, **opts)
     res_fn = _with_dense_jacobian(model)
     solver = _LevenbergMarquardt(rtol, atol)
+    keep = ("scale_fixed", "use_rates", "gyro_bias", "use_orientations")
 
     def one(y0, data):
         sol = optx.least_squares(res_fn, solver, y0, data, max_steps=max_steps, throw=False)
@@ -68,10 +69,8 @@ def _fit_batch(y0, data, *, scale_fixed, method, substeps, use_rates, gyro_bias,
         f_info = sol.state.f_info
         r, J = f_info.residual, lx.materialise(f_info.jac).as_matrix()
         solver_ok = sol.result == optx.RESULTS.successful
-        return summarise(
-            sol.value, r, J, data, solver_ok, sol.stats["num_steps"],
-            scale_fixed=scale_fixed, use_rates=use_rates, gyro_bias=gyro_bias,
-        )  # fmt: skip
+        kw = {k: opts[k] for k in keep}
+        return summarise(sol.value, r, J, data, solver_ok, sol.stats["num_steps"], **kw)
 
     if unbatch:  # one recording: no vmap, whose batching of the solver's loops doubles tracing
         return one(y0[0], jax.tree.map(lambda a: a[0], data))
@@ -84,10 +83,11 @@ def _fit_batch(y0, data, *, scale_fixed, method, substeps, use_rates, gyro_bias,
 
 def fit_inertia(
     times: Float[ArrayLike, " T"],
-    orientations: Float[ArrayLike, "*N T 4"],
+    orientations: Float[ArrayLike, "*N T 4"] | None = None,
     *,
     body_rates: Float[ArrayLike, "*N T 3"] | None = None,
     torques: Float[ArrayLike, "*N T 3"] | None = None,
+    body_torques: Float[ArrayLike, "*N T 3"] | None = None,
     initial_inertia: Float[ArrayLike, "3 3"] | None = None,
     method: str = "rk4",
     segments: int | None = None,
@@ -98,7 +98,7 @@ def fit_inertia(
     excitation_tol: float = 1e-3,
     rtol: float = 1e-8,
     atol: float = 1e-8,
-    max_steps: int = 100,
+    max_steps: int = 200,
     check_gyro_frame: bool = True,
     gyro_bias: bool = False,
 ) -> FitResult:
@@ -113,13 +113,24 @@ def fit_inertia(
             (each interval is its own ``dt``, split into ``substeps`` steps).
         orientations: ``(T, 4)`` unit quaternions ``[w, x, y, z]`` body to world,
             or ``(N, T, 4)`` for ``N`` recordings fitted together (one compiled
-            program, ``vmap`` over recordings).
+            program, ``vmap`` over recordings). ``None`` for a gyro-only
+            recording (then ``body_rates`` is required and sets the batch
+            shape): the torque-free Euler equations ``I ω̇ + ω × I ω = 0``
+            fix the shape of ``I`` from body rates alone, ``body_torques``
+            also its scale; the body frame at ``times[0]`` is taken as the
+            world frame (``initial_orientation`` is the identity, and
+            ``orientation_rms`` is NaN).
         body_rates: optional ``(T, 3)`` / ``(N, T, 3)`` gyro readings, body frame (rad/s).
         torques: optional ``(T, 3)`` / ``(N, T, 3)`` known world-frame torques
             about the centre of mass (N m), taken as linear in time between
             samples. With them the inertia is absolute (kg m²); without them only
             its shape is identifiable and the result is normalised to ``tr I = 1``
-            (``FitResult.scale_fixed = False``).
+            (``FitResult.scale_fixed = False``). Needs ``orientations`` (a
+            world-frame torque means nothing without the attitude).
+        body_torques: optional ``(T, 3)`` / ``(N, T, 3)`` known torques in the
+            body frame (N m, e.g. a reaction wheel's), linear in time between
+            samples; with or without ``orientations``, instead of ``torques``
+            (not both). They fix the scale like ``torques``.
         initial_inertia: optional ``(3, 3)`` starting guess (body frame); default:
             linear least squares on conservation of angular momentum.
         method: integrator (see :func:`rbjax.methods`); ``"rk4"`` recommended.
@@ -144,7 +155,10 @@ def fit_inertia(
             The solve stops when an accepted step is within ``atol + rtol·|y|``
             and changes the residuals by less than ``atol + rtol·|r|``, or when
             a trial step's actual and predicted reductions of the sum of
-            squares are both below ``rtol`` of it (MINPACK's ``ftol`` test).
+            squares are both below ``rtol`` of it (MINPACK's ``ftol`` test) or
+            below ``0.02 / (n - p)`` of it (``n`` residuals, ``p`` parameters):
+            what is left would move the estimate by under ~0.14 of its standard
+            error, which is all short, weakly determined recordings can say.
         check_gyro_frame: with ``body_rates``, compare them over windows of
             ~0.1 rad of rotation with the mean rates the orientations imply in
             the body frame, ``log(q_i⁻¹ ⊗ q_j) / (t_j - t_i)``, and in the world
@@ -197,11 +211,12 @@ def fit_inertia(
         excitation_tol=excitation_tol,
         check_gyro_frame=bool(check_gyro_frame),
         gyro_bias=gyro_bias,
+        body_torques=body_torques,
     )
     out = _fit_batch_jit(jax.default_backend())(
         prob.y0,
         prob.data,
-        **prob.static,
+        model_opts=tuple(sorted(prob.static.items())),
         rtol=float(rtol),
         atol=float(atol),
         max_steps=int(max_steps),

@@ -57,6 +57,36 @@ def _momentum_system(times, q, w, tau):
     return M.T @ M, M.T @ b, scale
 
 
+def _skew(w: np.ndarray) -> np.ndarray:
+    """``[ω]×`` ``(..., 3, 3)``: ``[ω]× v = ω × v``."""
+    wx, wy, wz = w[..., 0], w[..., 1], w[..., 2]
+    z = np.zeros_like(wx)
+    return np.stack([np.stack([z, -wz, wy], -1), np.stack([wz, z, -wx], -1), np.stack([-wy, wx, z], -1)], -2)
+
+
+def _cumtrapz(times: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """``∫_{t0}^{t_i} f dt`` by the trapezoid rule along axis 0 (zero at ``t0``)."""
+    dt = np.diff(times).reshape((-1,) + (1,) * (f.ndim - 1))
+    return np.concatenate([np.zeros_like(f[:1]), np.cumsum(0.5 * dt * (f[1:] + f[:-1]), 0)])
+
+
+def _body_momentum_system(times, w, tau_b):
+    """Normal matrix and right side of the body-frame integral form (gyro only, one recording).
+
+    Euler's equations ``I ω̇ + ω × I ω = τ_b`` integrated from ``t0``:
+    ``I ω(t_i) + ∫_{t0}^{t_i} ω × I ω dt - l_0 = ∫_{t0}^{t_i} τ_b dt`` with
+    ``l_0 = I ω(t0)`` a free unknown, linear in ``(I, l_0)`` and, unlike the
+    differentiated form of :func:`fit_inertia_linear`, free of ``ω̇``. Rows
+    ``[A(ω_i) + ∫[ω]× A(ω) dt, -1]`` (the ``I`` columns scaled by the RMS rate).
+    """
+    scale = np.sqrt(np.mean(np.sum(w * w, -1))) + 1e-300
+    A = _regressor(w)
+    C = _cumtrapz(times, _skew(w) @ A)
+    M = np.concatenate([(A + C) / scale, -np.broadcast_to(np.eye(3), (w.shape[0], 3, 3))], -1).reshape(-1, 9)
+    b = np.zeros(M.shape[0]) if tau_b is None else _cumtrapz(times, tau_b).reshape(-1)
+    return M.T @ M, M.T @ b, scale
+
+
 def _identifiability(MtM: np.ndarray, tol: float, torque_free: bool) -> None:
     """Raise ``ValueError`` naming the inertia directions the data cannot determine."""
     evals, evecs = np.linalg.eigh(MtM)

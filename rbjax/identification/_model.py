@@ -41,7 +41,8 @@ def _unpack(y: Array, n_theta: int, S: int):
 def _start(x, d, *, n_theta, scale_fixed):
     """Start state of one segment from ``x = (θ, δ_s, ω_s)``: ``q = q_start ⊗ exp(δ_s)``, ``L = R I ω_s``."""
     I = _inertia(x[:n_theta], scale_fixed)
-    delta, w0 = x[n_theta : n_theta + 3], x[n_theta + 3 :]
+    # delta_free = 0 pins segment 0's rotation where no orientation data fix the world frame
+    delta, w0 = d["delta_free"] * x[n_theta : n_theta + 3], x[n_theta + 3 :]
     q0 = quat_multiply(d["q_start"], quat_exp(delta))
     one = jnp.ones((), I.dtype)
     body = new_unchecked(Body, mass=one, inertia=I, _inverse=inverse_3x3(I))
@@ -65,7 +66,7 @@ def _pushforward(f, x, tx):
     return jax.vmap(lambda v: jax.jvp(f, (x,), (v,)), out_axes=(None, 0))(tx)
 
 
-def _segments(X, seg, *, n_theta, scale_fixed, method, substeps, use_rates, gyro_bias=False):
+def _segments(X, seg, *, n_theta, scale_fixed, method, substeps, use_rates, gyro_bias=False, use_orientations=True):
     """Data residuals ``(S, m)`` and end states ``(q, ω_body)`` ``(S, 7)`` of all segments, and
     their derivatives ``(S, m, n)``, ``(S, 7, n)`` in each segment's ``x_s = X[s]`` (``n = n_θ + 6``).
 
@@ -87,10 +88,18 @@ def _segments(X, seg, *, n_theta, scale_fixed, method, substeps, use_rates, gyro
     s0, ds0 = jax.vmap(lambda x, d: _pushforward(lambda x: start(x, d), x, basis))(X, seg)
 
     def forces(d):
-        if "tau" not in d:
-            return lambda st, t: Forces()
-        ts, tau = d["t_samples"], d["tau"]
-        return lambda st, t: Forces(torque=jnp.stack([jnp.interp(t, ts, tau[:, i]) for i in range(3)]))
+        if "tau" in d:  # world frame
+            ts, tau = d["t_samples"], d["tau"]
+            return lambda st, t: Forces(torque=jnp.stack([jnp.interp(t, ts, tau[:, i]) for i in range(3)]))
+        if "tau_b" in d:  # body frame: turned into the world by the simulated attitude
+            ts, tau_b = d["t_samples"], d["tau_b"]
+
+            def body(st, t):
+                tb = jnp.stack([jnp.interp(t, ts, tau_b[:, i]) for i in range(3)])
+                return Forces(torque=quat_rotate(st.orientation, tb))
+
+            return body
+        return lambda st, t: Forces()
 
     def advance(s, ds, t, dt, d):
         return _pushforward(lambda s: step_fn(s, forces(d), t, dt), s, ds)
@@ -127,7 +136,10 @@ def _segments(X, seg, *, n_theta, scale_fixed, method, substeps, use_rates, gyro
         r_w = r_w + g * X[:, None, n_I : n_I + 3]
         eye = jnp.eye(3, dtype=X.dtype)
         dr_w = dr_w.at[:, n_I : n_I + 3].add(jnp.einsum("skc,bc->sbkc", g * jnp.ones(3, X.dtype), eye))
-    rows, drows = [r_q.reshape(S, -1)], [dr_q.reshape(S, n, -1)]
+    rows, drows = [], []
+    if use_orientations:
+        rows.append(r_q.reshape(S, -1))
+        drows.append(dr_q.reshape(S, n, -1))
     if use_rates:
         rows.append(r_w.reshape(S, -1))
         drows.append(dr_w.reshape(S, n, -1))
@@ -145,10 +157,10 @@ def _continuity(end, p_next, d_next, continuity_weight):
     """Join residuals (6,): orientation gap (rad) and rate gap, weighted."""
     q_next = quat_multiply(d_next["q_start"], quat_exp(p_next[:3]))
     gap = quat_log(quat_multiply(quat_conjugate(end[:4]), q_next))
-    return continuity_weight * jnp.concatenate([d_next["wq"] * gap, d_next["wc"] * (end[4:] - p_next[3:])])
+    return continuity_weight * jnp.concatenate([d_next["wcq"] * gap, d_next["wc"] * (end[4:] - p_next[3:])])
 
 
-def _model(y, data, *, scale_fixed, method, substeps, use_rates, gyro_bias=False):
+def _model(y, data, *, scale_fixed, method, substeps, use_rates, gyro_bias=False, use_orientations=True):
     """Residual vector ``r`` (segments' data rows, then join rows) and its dense Jacobian ``∂r/∂y``.
 
     ``y = (θ, [b], p_0, ..., p_{S-1})``: inertia parameters θ (5 or 6), with
@@ -160,7 +172,7 @@ def _model(y, data, *, scale_fixed, method, substeps, use_rates, gyro_bias=False
     theta, P = _unpack(y, n_theta, S)
     X = jnp.concatenate([jnp.broadcast_to(theta, (S, n_theta)), P], -1)  # x_s = (θ, p_s)
     kw = dict(n_theta=n_theta, scale_fixed=scale_fixed, method=method, substeps=substeps, use_rates=use_rates)
-    r_seg, ends, J_seg, J_end = _segments(X, seg, **kw, gyro_bias=gyro_bias)
+    r_seg, ends, J_seg, J_end = _segments(X, seg, **kw, gyro_bias=gyro_bias, use_orientations=use_orientations)
     m = r_seg.shape[1]
     if S == 1:  # single shooting: no joins
         return r_seg.reshape(-1), J_seg.reshape(m, -1)

@@ -18,8 +18,14 @@ from .. import _methods
 from .._body import Body
 from .._state import State
 from ._checks import _check_inputs, _gyro_frame_check
-from ._linear import _identifiability, _initial_inertia, _momentum_system, _np_params_from_inertia
-from ._rotations_np import _np_increments, _rate_estimate
+from ._linear import (
+    _body_momentum_system,
+    _identifiability,
+    _initial_inertia,
+    _momentum_system,
+    _np_params_from_inertia,
+)
+from ._rotations_np import _np_increments, _np_qmat, _rate_estimate
 
 
 def _mad_sigma(x: np.ndarray) -> np.ndarray:
@@ -78,23 +84,30 @@ def prepare(
     excitation_tol,
     check_gyro_frame=True,
     gyro_bias=False,
+    body_torques=None,
 ) -> Problem:
     """Validate recordings and pack them for :func:`rbjax.fit_inertia` (arguments as there).
 
     NumPy only, before any tracing: checks inputs and identifiability, estimates
     noise levels, fits the linear start, chooses substeps and segments, and cuts
-    the recordings into padded segments.
+    the recordings into padded segments. Without orientations (gyro only) the
+    body frame at ``times[0]`` is taken as the world frame: every segment starts
+    from the identity times its fitted rotation, chained by the joins.
     """
     _methods.get(method, State)  # unknown method: ValueError now, not in the solver
-    t, q, wr, tau = _check_inputs(times, orientations, body_rates, torques)
-    batched = q.ndim == 3
-    if not batched:
-        q = q[None]
-        wr = None if wr is None else wr[None]
-        tau = None if tau is None else tau[None]
-    N, T = q.shape[:2]
-    dtype = jax.dtypes.canonicalize_dtype(q.dtype)  # float64 input stays float32 without x64
-    torque_free = tau is None
+    t, q, wr, tau, tau_b = _check_inputs(times, orientations, body_rates, torques, body_torques)
+    use_q = q is not None
+    lead = (q if use_q else wr).shape[:-1]
+    batched = len(lead) == 2
+    add = (lambda a: a) if batched else (lambda a: None if a is None else a[None])
+    q, wr, tau, tau_b = add(q), add(wr), add(tau), add(tau_b)
+    main = q if q is not None else wr  # the recording that sets batch shape and dtype
+    assert main is not None  # _check_inputs: orientations or body_rates
+    N, T = main.shape[:2]
+    dtype = jax.dtypes.canonicalize_dtype(main.dtype)  # float64 input stays float32 without x64
+    if not np.issubdtype(dtype, np.floating):
+        dtype = jax.dtypes.canonicalize_dtype(np.float64)
+    torque_free = tau is None and tau_b is None
     use_rates = wr is not None
     if isinstance(gyro_bias, (bool, np.bool_)):
         gyro_bias = bool(gyro_bias)
@@ -102,11 +115,16 @@ def prepare(
         raise TypeError(f"fit_inertia: gyro_bias must be True or False, got {type(gyro_bias).__name__}")
     if gyro_bias and not use_rates:
         raise ValueError("fit_inertia: gyro_bias=True needs body_rates (there is no gyro to be biased)")
-    q = q.astype(np.float64)
 
-    inc = _np_increments(q)  # (N, T-1, 3)
-    angles = np.linalg.norm(inc, axis=-1)
     dts = np.diff(t)
+    if q is not None:
+        q = q.astype(np.float64)
+        inc = _np_increments(q)  # (N, T-1, 3)
+        angles = np.linalg.norm(inc, axis=-1)
+    else:
+        speed = np.linalg.norm(np.asarray(wr, np.float64), axis=-1)
+        angles = 0.5 * (speed[:, 1:] + speed[:, :-1]) * dts  # rad turned per interval (trapezoid)
+        q = np.broadcast_to(np.array([1.0, 0.0, 0.0, 0.0]), (N, T, 4))  # body frame at t0 = world
     if substeps is None:  # a power of two, so similar recordings share a compiled program
         substeps = _next_pow2(np.ceil(angles.max() / _MAX_STEP_ANGLE))
     if segments is None:
@@ -116,7 +134,7 @@ def prepare(
         raise ValueError(f"fit_inertia: segments={segments} needs at least 2 intervals each; T = {T}")
     n_theta = 5 if torque_free else 6
     n_params = n_theta + (3 if gyro_bias else 0) + 6 * S
-    n_data = 3 * T * (2 if use_rates else 1)
+    n_data = 3 * T * (int(use_q) + int(use_rates))
     if n_data <= n_params + 1:
         raise ValueError(
             f"fit_inertia: {T} samples give {n_data} residuals, too few for {n_params} parameters "
@@ -124,9 +142,10 @@ def prepare(
         )
 
     # noise levels from second differences (robust MAD), floored so clean data stay finite
-    if orientation_std is None:
-        sq = _mad_sigma(np.diff(inc, axis=-2))
-        sq = np.maximum(sq, 1e-12)
+    if not use_q:
+        sq = np.full(N, np.nan)
+    elif orientation_std is None:
+        sq = np.maximum(_mad_sigma(np.diff(inc, axis=-2)), 1e-12)
     else:
         sq = np.full(N, float(orientation_std))
     if use_rates:
@@ -142,7 +161,7 @@ def prepare(
     k = int(np.clip(np.ceil(0.1 / max(np.median(angles), 1e-12)), 1, max(1, (T - 1) // 4)))
     if use_rates:
         rates = np.asarray(wr, np.float64)
-        if check_gyro_frame:
+        if check_gyro_frame and use_q:
             for n in range(N):
                 _gyro_frame_check(t, q[n], rates[n], k)
     else:
@@ -160,8 +179,14 @@ def prepare(
 
     y0s, datas = [], []
     for n in range(N):
-        tau_n = None if torque_free else np.asarray(tau[n], np.float64)
-        MtM, Mtb, scale = _momentum_system(t, q[n], rates[n], tau_n)
+        tau_n = None if tau is None else np.asarray(tau[n], np.float64)
+        taub_n = None if tau_b is None else np.asarray(tau_b[n], np.float64)
+        if use_q:
+            # world-frame torques for the momentum law: body ones rotated by the recorded attitude
+            tau_w = tau_n if taub_n is None else np.einsum("tij,tj->ti", _np_qmat(q[n]), taub_n)
+            MtM, Mtb, scale = _momentum_system(t, q[n], rates[n], tau_w)
+        else:
+            MtM, Mtb, scale = _body_momentum_system(t, rates[n], taub_n)
         _identifiability(MtM, excitation_tol, torque_free)
         if initial_inertia is None:
             I0 = _initial_inertia(MtM, Mtb, scale, torque_free)
@@ -177,6 +202,12 @@ def prepare(
         y0s.append(np.concatenate([theta0, np.column_stack([np.zeros((S, 3)), w_start]).reshape(-1)]))
         first = (np.arange(S) == 0).astype(np.float64)
         ones = np.ones(S)
+        if use_q:
+            wq, wcq = ones / sq[n], ones / sq[n]
+        else:
+            # no orientation data: the joins' orientation gaps only chain the segments (they matter
+            # with body torques); a gap g weighs like a rate error g / segment duration
+            wq, wcq = ones, ones / (sw[n] * seg_dur)
         seg = dict(
             q_start=q[n][starts],
             q_first=np.broadcast_to(q[n][0], (S, 4)),
@@ -187,13 +218,27 @@ def prepare(
             dt=seg_dt,
             t0=t[starts] - t[0],
             mask=mask.astype(np.float64),
-            wq=ones / sq[n],
+            wq=wq,
+            wcq=wcq,
+            delta_free=ones if use_q else 1.0 - first,
             ww=ones / sw[n] if use_rates else ones,
             wc=ones * ((1 / sw[n]) if use_rates else seg_dur / sq[n]),
         )
-        if tau_n is not None:  # i.e. not torque_free
+        if tau_n is not None:
             seg["t_samples"], seg["tau"] = t[samp] - t[0], tau_n[samp]
-        datas.append(dict(seg=seg, n_data=np.float64(n_data), continuity_weight=np.float64(continuity_weight)))
+        if taub_n is not None:
+            seg["t_samples"], seg["tau_b"] = t[samp] - t[0], taub_n[samp]
+        # without orientations segment 0's rotation δ_0 is pinned (delta_free = 0): 3 parameters
+        # with a zero Jacobian column, not degrees of freedom of the fit
+        n_unused = 0.0 if use_q else 3.0
+        datas.append(
+            dict(
+                seg=seg,
+                n_data=np.float64(n_data),
+                n_unused=np.float64(n_unused),
+                continuity_weight=np.float64(continuity_weight),
+            )
+        )
     # NumPy all the way into the jitted solver: eager jnp here would compile once per shape
     data = jax.tree.map(lambda *a: np.stack(a).astype(dtype), *datas)
     return Problem(
@@ -205,6 +250,7 @@ def prepare(
             substeps=int(substeps),
             use_rates=use_rates,
             gyro_bias=gyro_bias,
+            use_orientations=use_q,
         ),
         batched=batched,
         segments=S,

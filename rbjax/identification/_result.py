@@ -84,7 +84,7 @@ _BOUNDARY_RTOL = 1e-3  # (I1 + I2 - I3) / tr I below this: on the edge of the co
 _RESIDUAL_RATIO_MAX = 3.0  # RMS weighted residual above this: the noise model does not fit
 
 
-def summarise(y, r, J, data, solver_ok, iterations, *, scale_fixed, use_rates, gyro_bias):
+def summarise(y, r, J, data, solver_ok, iterations, *, scale_fixed, use_rates, gyro_bias, use_orientations=True):
     """FitResult fields of one recording from the solver's final ``y``, residuals ``r`` and Jacobian ``J``.
 
     Covariance ``s² (JᵀJ)⁺`` with ``s²`` the data residuals' variance per degree
@@ -94,10 +94,11 @@ def summarise(y, r, J, data, solver_ok, iterations, *, scale_fixed, use_rates, g
     seg = data["seg"]
     S, K = seg["dt"].shape
     p = y.shape[0]
-    n_rows = S * (3 + 3 * K) * (2 if use_rates else 1)  # data rows, incl. zero padding
+    n_blocks = int(use_orientations) + int(use_rates)
+    n_rows = S * (3 + 3 * K) * n_blocks  # data rows, incl. zero padding
     n_cont = r.shape[0] - n_rows
     # continuity residuals act as constraints: they remove degrees of freedom, add no data
-    s2 = jnp.sum(r[:n_rows] ** 2) / (data["n_data"] - (p - n_cont))
+    s2 = jnp.sum(r[:n_rows] ** 2) / (data["n_data"] - (p - n_cont - data["n_unused"]))
     # (JᵀJ)⁺ from the SVD of J, not pinv(JᵀJ): forming JᵀJ squares the condition number
     # (~1e4 from the continuity weight alone), which float32 cannot hold; cut only
     # directions at rounding level
@@ -115,13 +116,11 @@ def summarise(y, r, J, data, solver_ok, iterations, *, scale_fixed, use_rates, g
         bias, bias_std = y[n_I : n_I + 3], jnp.sqrt(jnp.diagonal(cov)[n_I : n_I + 3])
     else:
         bias, bias_std = jnp.zeros(3, y.dtype), jnp.full(3, jnp.nan, y.dtype)
-    r_seg = r[:n_rows].reshape(S, 2 if use_rates else 1, 3 + 3 * K)
+    r_seg = r[:n_rows].reshape(S, n_blocks, 3 + 3 * K)
     nq = seg["mask"].sum() * 3 + 3
-    q_rms = jnp.sqrt(jnp.sum(r_seg[:, 0] ** 2) / nq) / seg["wq"][0]
-    if use_rates:
-        w_rms = jnp.sqrt(jnp.sum(r_seg[:, 1] ** 2) / nq) / seg["ww"][0]
-    else:
-        w_rms = jnp.full((), jnp.nan, r.dtype)
+    nan = jnp.full((), jnp.nan, r.dtype)
+    q_rms = jnp.sqrt(jnp.sum(r_seg[:, 0] ** 2) / nq) / seg["wq"][0] if use_orientations else nan
+    w_rms = jnp.sqrt(jnp.sum(r_seg[:, -1] ** 2) / nq) / seg["ww"][0] if use_rates else nan
     # honest failure: the triangle margin I1 + I2 - I3 = 2 λ_min(Σ) near zero, or residuals
     # far above the noise model
     on_boundary = (moments[0] + moments[1] - moments[2]) < _BOUNDARY_RTOL * jnp.sum(moments)
