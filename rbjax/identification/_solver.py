@@ -17,7 +17,6 @@ import jax.numpy as jnp
 import optimistix as optx
 from jax import Array
 
-
 # the stop also fires once a trial step's reductions are below σ_tol² of ½χ² per degree of
 # freedom, i.e. the step left moves the estimate by ≲ √2 · 0.1 σ (see _TrustRegion)
 _SIGMA_TOL = 0.1
