@@ -34,7 +34,18 @@ def _positive_int(name: str, value, remedy: str) -> int:
 
 
 def check_options(
-    *, orientation_std, rate_std, continuity_weight, excitation_tol, rtol, atol, max_steps, segments, substeps
+    *,
+    orientation_std,
+    rate_std,
+    continuity_weight,
+    excitation_tol,
+    rtol,
+    atol,
+    max_steps,
+    segments,
+    substeps,
+    loss="squared",
+    loss_scale=3.0,
 ) -> None:
     """Validate :func:`rbjax.fit_inertia`'s scalar options before anything is traced."""
     if orientation_std is not None:
@@ -46,6 +57,12 @@ def check_options(
     _positive_finite("rtol", rtol, "the default is 1e-8")
     _positive_finite("atol", atol, "the default is 1e-8")
     _positive_int("max_steps", max_steps, "the default is 200")
+    if not isinstance(loss, str) or loss not in ("squared", "huber", "cauchy"):
+        raise ValueError(
+            f"fit_inertia: loss must be 'squared', 'huber' or 'cauchy', got {loss!r}; "
+            "'huber' or 'cauchy' down-weight glitches"
+        )
+    _positive_finite("loss_scale", loss_scale, "it is the robust loss's threshold in noise σ; the default is 3")
     if segments is not None:
         _positive_int("segments", segments, "or omit it for the default")
     if substeps is not None:

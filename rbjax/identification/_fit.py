@@ -26,12 +26,15 @@ from __future__ import annotations
 import functools
 
 import jax
+import jax.numpy as jnp
 import lineax as lx
+import numpy as np
 import optimistix as optx
 from jaxtyping import Float
 
 from .._pytree import new_unchecked
 from .._typing import ArrayLike
+from . import _robust
 from ._checks import check_options
 from ._model import _model
 from ._problem import prepare
@@ -50,11 +53,11 @@ def _fit_batch_jit(backend: str):
     CPU-s) and made the solve faster too (3.1 → 2.0 CPU-s), same result.
     """
     options = {"xla_cpu_use_fusion_emitters": False} if backend == "cpu" else None
-    static = ("model_opts", "rtol", "atol", "max_steps", "unbatch")
+    static = ("model_opts", "loss", "rtol", "atol", "max_steps", "unbatch")
     return jax.jit(_fit_batch, static_argnames=static, compiler_options=options)
 
 
-def _fit_batch(y0, data, *, model_opts, rtol, atol, max_steps, unbatch):
+def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
     """Fit ``N`` recordings (leading axes of ``y0``, ``data``); ``model_opts``: sorted ``(name, value)`` pairs."""
     opts = dict(model_opts)
     model = functools.partial(_model, **opts)
@@ -62,15 +65,23 @@ def _fit_batch(y0, data, *, model_opts, rtol, atol, max_steps, unbatch):
     solver = _LevenbergMarquardt(rtol, atol)
     keep = ("scale_fixed", "use_rates", "gyro_bias", "use_orientations")
 
-    def one(y0, data):
+    def solve(y0, data):
         sol = optx.least_squares(res_fn, solver, y0, data, max_steps=max_steps, throw=False)
         # residual and Jacobian at the accepted point, as the solver last linearised them:
         # reusing them keeps a second copy of the simulation out of the compiled program
         f_info = sol.state.f_info
         r, J = f_info.residual, lx.materialise(f_info.jac).as_matrix()
-        solver_ok = sol.result == optx.RESULTS.successful
+        return sol.value, r, J, sol.result == optx.RESULTS.successful, sol.stats["num_steps"]
+
+    def one(y0, data):
+        if loss == "squared":
+            (y, r, J, ok, steps), used = solve(y0, data), data
+        else:
+            (y, r, J, ok, steps), used = _robust.irls(solve, y0, data, loss)
         kw = {k: opts[k] for k in keep}
-        return summarise(sol.value, r, J, data, solver_ok, sol.stats["num_steps"], **kw)
+        out = summarise(y, r, J, used, ok, steps, **kw, outlier_weight=_robust.outlier_weight(loss))
+        out["robust_weights"] = used["seg"]["rw"]
+        return out
 
     if unbatch:  # one recording: no vmap, whose batching of the solver's loops doubles tracing
         return one(y0[0], jax.tree.map(lambda a: a[0], data))
@@ -101,6 +112,8 @@ def fit_inertia(
     max_steps: int = 200,
     check_gyro_frame: bool = True,
     gyro_bias: bool = False,
+    loss: str = "squared",
+    loss_scale: float = 3.0,
 ) -> FitResult:
     """Fit a body-frame inertia tensor to a recording of free (or known-torque) rotation.
 
@@ -170,6 +183,19 @@ def fit_inertia(
             parameters, rad/s): the gyro residuals become
             ``(ω_sim + b - ω_meas) / σ_ω``. Needs ``body_rates``. Reported as
             ``FitResult.gyro_bias`` with ``gyro_bias_std``.
+        loss: ``"squared"`` (least squares, the default), ``"huber"`` or
+            ``"cauchy"``: a robust loss on each sample's residual 3-vector per
+            sensor (``|r|`` in units of that sensor's σ), minimised by
+            iteratively reweighted least squares (:mod:`rbjax.identification._robust`);
+            glitches get small weights instead of dragging the fit.
+            ``FitResult.robust_weights`` holds the final weights and
+            ``FitResult.outliers`` the samples beyond ``2 loss_scale`` σ. σ comes
+            from the weighted fit, ``s² (JᵀWJ)⁻¹`` with the data count
+            ``Σ 3 w``.
+        loss_scale: ``c`` of the robust loss, in σ: Huber is quadratic
+            within ``c``, weight ``c / |r|`` beyond; Cauchy weighs
+            ``1 / (1 + (|r|/c)²)``. The default 3 leaves Gaussian residual
+            3-vectors (``|r|`` mostly < 3) almost untouched.
 
     Returns:
         :class:`FitResult` (with a leading ``N`` axis for batched input).
@@ -195,6 +221,8 @@ def fit_inertia(
         max_steps=max_steps,
         segments=segments,
         substeps=substeps,
+        loss=loss,
+        loss_scale=loss_scale,
     )
     prob = prepare(
         times,
@@ -213,13 +241,31 @@ def fit_inertia(
         gyro_bias=gyro_bias,
         body_torques=body_torques,
     )
+    data = dict(prob.data, loss_scale=np.full(prob.y0.shape[0], float(loss_scale), prob.y0.dtype))
     out = _fit_batch_jit(jax.default_backend())(
         prob.y0,
-        prob.data,
+        data,
         model_opts=tuple(sorted(prob.static.items())),
+        loss=loss,
         rtol=float(rtol),
         atol=float(atol),
         max_steps=int(max_steps),
         unbatch=not prob.batched,
     )
+    rw = np.asarray(out.pop("robust_weights"))
+    out["robust_weights"], out["outliers"] = _sample_weights(prob, rw, _robust.outlier_weight(loss))
     return new_unchecked(FitResult, **out, scale_fixed=prob.static["scale_fixed"], segments=prob.segments)
+
+
+def _sample_weights(prob, rw: np.ndarray, outlier_weight: float):
+    """Segment-row weights ``(*N, S, B, K+1)`` as ``(*N, T, 2)`` [orientation, gyro], and the outliers ``(*N, T)``."""
+    rw = rw if prob.batched else rw[None]
+    idx, valid = prob.sample_index[prob.sample_valid], prob.sample_valid
+    T = int(idx.max()) + 1
+    W = np.ones((rw.shape[0], T, 2), rw.dtype)
+    for b, name in enumerate(prob.sensors):
+        W[:, idx, ("orientation", "gyro").index(name)] = rw[:, :, b, :][:, valid]
+    outliers = np.any(W < outlier_weight, -1)
+    if not prob.batched:
+        W, outliers = W[0], outliers[0]
+    return jnp.asarray(W), jnp.asarray(outliers)

@@ -174,6 +174,11 @@ def _model(y, data, *, scale_fixed, method, substeps, use_rates, gyro_bias=False
     kw = dict(n_theta=n_theta, scale_fixed=scale_fixed, method=method, substeps=substeps, use_rates=use_rates)
     r_seg, ends, J_seg, J_end = _segments(X, seg, **kw, gyro_bias=gyro_bias, use_orientations=use_orientations)
     m = r_seg.shape[1]
+    # robust (IRLS) weights per sample and sensor block, rw (S, blocks, K+1): rows scaled by √w
+    sw = jnp.sqrt(seg["rw"])
+    B, K1 = sw.shape[1:]
+    r_seg = (r_seg.reshape(S, B, K1, 3) * sw[..., None]).reshape(S, m)
+    J_seg = (J_seg.reshape(S, B, K1, 3, -1) * sw[..., None, None]).reshape(S, m, -1)
     if S == 1:  # single shooting: no joins
         return r_seg.reshape(-1), J_seg.reshape(m, -1)
     c = functools.partial(_continuity, continuity_weight=data["continuity_weight"])  # traced: no recompile

@@ -66,6 +66,9 @@ class Problem(NamedTuple):
     static: dict  # scale_fixed, method, substeps, use_rates: fixed per compiled program
     batched: bool
     segments: int
+    sample_index: np.ndarray  # (S, K+1) recording sample of each segment row
+    sample_valid: np.ndarray  # (S, K+1) the row is a real sample (not padding, not a repeat)
+    sensors: tuple  # the sensor blocks in row order, e.g. ("orientation", "gyro")
 
 
 def prepare(
@@ -221,6 +224,8 @@ def prepare(
             wq=wq,
             wcq=wcq,
             delta_free=ones if use_q else 1.0 - first,
+            # robust-loss weights per sensor block and sample (1: squared loss; IRLS updates them)
+            rw=np.ones((S, int(use_q) + int(use_rates), K + 1)),
             ww=ones / sw[n] if use_rates else ones,
             wc=ones * ((1 / sw[n]) if use_rates else seg_dur / sq[n]),
         )
@@ -254,4 +259,7 @@ def prepare(
         ),
         batched=batched,
         segments=S,
+        sample_index=np.concatenate([np.zeros((S, 1), int), idx_c + 1], 1),
+        sample_valid=np.concatenate([(np.arange(S) == 0)[:, None], mask], 1),
+        sensors=(("orientation",) if use_q else ()) + (("gyro",) if use_rates else ()),
     )

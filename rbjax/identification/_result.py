@@ -55,6 +55,14 @@ class FitResult:
             gyro = ω + b) with ``fit_inertia(..., gyro_bias=True)``; zeros otherwise.
         gyro_bias_std: ``(3,)`` its one-sigma uncertainty (rad/s, same
             covariance as ``moment_std``); NaN without ``gyro_bias=True``.
+        robust_weights: ``(T, 2)`` final robust-loss weights of each sample's
+            orientation (column 0) and gyro (column 1) residuals, in [0, 1];
+            1 with ``loss="squared"`` and for a sensor not given.
+        outliers: ``(T,)`` bool: samples whose residual is beyond ``2 loss_scale`` σ
+            (robust weight below 0.5 for Huber, 0.2 for Cauchy): the glitches
+            the robust loss set aside; all ``False`` with ``loss="squared"``.
+            ``orientation_rms``, ``rate_rms`` and ``residual_ratio`` are taken
+            over the other samples.
         scale_fixed: ``True`` when known torques fix the absolute scale;
             ``False`` for torque-free data, where only ``I / tr I`` is identifiable.
         segments: number of shooting segments used.
@@ -76,6 +84,8 @@ class FitResult:
     residual_ratio: Float[Array, "*N"] = field(core_ndim=0)
     gyro_bias: Float[Array, "*N 3"] = field(core_ndim=1)
     gyro_bias_std: Float[Array, "*N 3"] = field(core_ndim=1)
+    robust_weights: Float[Array, "*N T 2"] = field(core_ndim=2)
+    outliers: Bool[Array, "*N T"] = field(core_ndim=1)
     scale_fixed: bool = static_field(default=False)
     segments: int = static_field(default=1)
 
@@ -84,7 +94,20 @@ _BOUNDARY_RTOL = 1e-3  # (I1 + I2 - I3) / tr I below this: on the edge of the co
 _RESIDUAL_RATIO_MAX = 3.0  # RMS weighted residual above this: the noise model does not fit
 
 
-def summarise(y, r, J, data, solver_ok, iterations, *, scale_fixed, use_rates, gyro_bias, use_orientations=True):
+def summarise(
+    y,
+    r,
+    J,
+    data,
+    solver_ok,
+    iterations,
+    *,
+    scale_fixed,
+    use_rates,
+    gyro_bias,
+    use_orientations=True,
+    outlier_weight=0.0,
+):
     """FitResult fields of one recording from the solver's final ``y``, residuals ``r`` and Jacobian ``J``.
 
     Covariance ``s² (JᵀJ)⁺`` with ``s²`` the data residuals' variance per degree
@@ -98,7 +121,14 @@ def summarise(y, r, J, data, solver_ok, iterations, *, scale_fixed, use_rates, g
     n_rows = S * (3 + 3 * K) * n_blocks  # data rows, incl. zero padding
     n_cont = r.shape[0] - n_rows
     # continuity residuals act as constraints: they remove degrees of freedom, add no data
-    s2 = jnp.sum(r[:n_rows] ** 2) / (data["n_data"] - (p - n_cont - data["n_unused"]))
+    # residual variance from the samples the robust loss kept (all of them for squared loss):
+    # a glitch's w r² = c |r| would otherwise inflate s² with what the loss set aside.
+    # Data count: 3 rows per kept sample and sensor, times its robust weight
+    valid = jnp.concatenate([seg["first"][:, None], seg["mask"]], 1)  # (S, K+1): real samples
+    kept = jnp.where(seg["rw"] >= outlier_weight, valid[:, None, :], 0)
+    n_eff = 3 * jnp.sum(seg["rw"] * kept)
+    r_kept = r[:n_rows].reshape(kept.shape + (3,)) * kept[..., None]
+    s2 = jnp.sum(r_kept**2) / (n_eff - (p - n_cont - data["n_unused"]))
     # (JᵀJ)⁺ from the SVD of J, not pinv(JᵀJ): forming JᵀJ squares the condition number
     # (~1e4 from the continuity weight alone), which float32 cannot hold; cut only
     # directions at rounding level
@@ -116,11 +146,11 @@ def summarise(y, r, J, data, solver_ok, iterations, *, scale_fixed, use_rates, g
         bias, bias_std = y[n_I : n_I + 3], jnp.sqrt(jnp.diagonal(cov)[n_I : n_I + 3])
     else:
         bias, bias_std = jnp.zeros(3, y.dtype), jnp.full(3, jnp.nan, y.dtype)
-    r_seg = r[:n_rows].reshape(S, n_blocks, 3 + 3 * K)
-    nq = seg["mask"].sum() * 3 + 3
+    n_kept = 3 * jnp.sum(kept, (0, 2))  # per sensor block
+    rms = jnp.sqrt(jnp.sum(r_kept**2 / seg["rw"][..., None], (0, 2, 3)) / n_kept)  # undo √w: σ units
     nan = jnp.full((), jnp.nan, r.dtype)
-    q_rms = jnp.sqrt(jnp.sum(r_seg[:, 0] ** 2) / nq) / seg["wq"][0] if use_orientations else nan
-    w_rms = jnp.sqrt(jnp.sum(r_seg[:, -1] ** 2) / nq) / seg["ww"][0] if use_rates else nan
+    q_rms = rms[0] / seg["wq"][0] if use_orientations else nan
+    w_rms = rms[-1] / seg["ww"][0] if use_rates else nan
     # honest failure: the triangle margin I1 + I2 - I3 = 2 λ_min(Σ) near zero, or residuals
     # far above the noise model
     on_boundary = (moments[0] + moments[1] - moments[2]) < _BOUNDARY_RTOL * jnp.sum(moments)

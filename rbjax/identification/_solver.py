@@ -73,7 +73,8 @@ class _TrustRegion(optx.ClassicalTrustRegion):
         loss = f_info.as_min()
         predicted = -self.predict_reduction(y_eval - y, f_info)
         actual = loss - f_eval_info.as_min()
-        dof = max(f_info.residual.size - y.size, 1)
+        n = sum(jnp.size(r) for r in jax.tree.leaves(getattr(f_info, "residual", ())))  # Levenberg–Marquardt's
+        dof = max(n - y.size, 1)
         tol = loss * max(self.ftol, 2 * self.sigma_tol**2 / dof)
         stalled = ~first_step & (jnp.abs(actual) <= tol) & (predicted <= tol) & (actual <= 2 * predicted)
         return step_size, accept, result, _TrustRegionState(inner.step_size, stalled)
