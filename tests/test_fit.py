@@ -85,11 +85,16 @@ def test_known_torques_give_absolute_inertia():
 
 # one segment (no joins) compiles its own ~20 s program: with --runslow
 @pytest.mark.parametrize(
-    ("segments", "gyro_bias"),
-    # the bias case compiles its own ~11 s program; the quick suite's bias fit test covers it too
-    [pytest.param(1, False, marks=pytest.mark.slow), (3, False), pytest.param(3, True, marks=pytest.mark.slow)],
+    ("segments", "gyro_bias", "gyro_rotation"),
+    # the bias and rotation cases compile their own ~11 s programs; the quick suite's fits cover them too
+    [
+        pytest.param(1, False, False, marks=pytest.mark.slow),
+        (3, False, False),
+        pytest.param(3, True, False, marks=pytest.mark.slow),
+        pytest.param(3, True, True, marks=pytest.mark.slow),
+    ],
 )
-def test_model_jacobian_matches_autodiff(segments, gyro_bias):
+def test_model_jacobian_matches_autodiff(segments, gyro_bias, gyro_rotation):
     # The solver's Jacobian is assembled by hand: sensitivities carried through the
     # scan per segment, chained through the joins. Against JAX's own forward mode
     # through the residuals, with torques, gyro, irregular times and padded segments.
@@ -100,7 +105,7 @@ def test_model_jacobian_matches_autodiff(segments, gyro_bias):
     prob = _problem.prepare(
         t, q, wb, tau, initial_inertia=None, method="rk4", segments=segments, substeps=None,
         orientation_std=1e-3, rate_std=1e-2, continuity_weight=1000.0, excitation_tol=1e-3,
-        gyro_bias=gyro_bias,
+        gyro_bias=gyro_bias, gyro_rotation=gyro_rotation,
     )  # fmt: skip
     model = jax.jit(lambda y, d: _model._model(y, d, **prob.static))
     data = jax.tree.map(lambda a: a[0], prob.data)
@@ -468,3 +473,57 @@ def test_bad_robust_options_raise(kwargs, exc, match):
     q, wb = _record(T_FAST[:50])
     with pytest.raises(exc, match=match):
         rb.fit_inertia(T_FAST[:50], q, body_rates=wb, **kwargs)
+
+
+@pytest.mark.slow
+def test_short_random_tumbles_converge_with_calibrated_sigma():
+    # the case: random 1 s @ 200 Hz tumbles, 1e-3 rad + 0.01 rad/s noise, converged only
+    # 72-90% of the time (the solver crept along the flat valleys of near-spherical bodies). Goal
+    # ≥ 98% converged, ≥ 95% of the moments within 3σ. On the 100-draw study
+    # (benchmarks/fit_convergence.py) 99% / 98%; here 40 draws of the same generator, one batch.
+    # Binomial spread at 40 draws is ~2% on each rate, so the bounds are one failure fewer than
+    # the goal allows: ≥ 39/40 converged and ≥ 93% within 3σ
+    rng = np.random.default_rng(0)
+    t = np.linspace(0.0, 1.0, 201)
+    Is, qs, ws = [], [], []
+    while len(Is) < 40:
+        d = rng.uniform(1.0, 3.0, 3)
+        if d.min() + np.sort(d)[1] <= d.max():
+            continue
+        q, wb = _record(t, I=np.diag(d), w0=rng.normal(0, 1, 3) + np.array([0, 3.0, 0]))
+        qn, wn = imu_noise(q, wb, rng)
+        Is.append(np.diag(d) / d.sum())
+        qs.append(qn)
+        ws.append(wn)
+    res = rb.fit_inertia(t, np.stack(qs), body_rates=np.stack(ws))
+    conv = np.asarray(res.converged)
+    assert conv.sum() >= 39, np.flatnonzero(~conv)
+    truth = np.stack([np.linalg.eigvalsh(I) for I in Is])
+    z = np.abs(np.asarray(res.principal_moments) - truth) / np.asarray(res.moment_std)
+    assert np.mean(z[conv] < 3) >= 0.93, np.sort(z[conv].ravel())[-10:]
+
+
+def test_gyro_rotation_is_fitted_as_a_nuisance_parameter():
+    # a gyro mounted 0.07 rad off the frame of the recorded orientations: reading R_gᵀ ω_body.
+    # Measured on this draw: error 2.2e-2 and residual ratio 7.4 without the option (not
+    # converged), 4.2e-4 with it (4.7e-4 unrotated); rotation back within 1.5 σ (σ ≈ 2.5e-4 rad)
+    q, wb = _record(T_FAST)
+    qn, wn = imu_noise(q, wb, np.random.default_rng(0))
+    rho = np.array([0.03, -0.05, 0.04])
+    angle = np.linalg.norm(rho)
+    q_g = np.r_[np.cos(angle / 2), np.sin(angle / 2) * rho / angle]
+    w_gyro = np.stack([reference.qrot(q_g * np.array([1, -1, -1, -1]), v) for v in wn])
+    err_clean = _rel(rb.fit_inertia(T_FAST, qn, body_rates=wn).inertia, I_BAR)
+    res = rb.fit_inertia(T_FAST, qn, body_rates=w_gyro, gyro_rotation=True)
+    assert bool(res.converged)
+    assert _rel(res.inertia, I_BAR) < 1.5 * err_clean
+    # the fitted rotation against the true one, as a rotation vector (rad), in its σ
+    q_fit = np.asarray(res.gyro_rotation)
+    d = reference.qmul(q_g * np.array([1, -1, -1, -1]), q_fit)
+    z = np.abs(2 * d[1:] * np.sign(d[0])) / np.asarray(res.gyro_rotation_std)
+    assert np.all(z < 4), z
+    assert np.all(np.asarray(res.gyro_rotation_std) < 1e-3)
+    with pytest.raises(ValueError, match="gyro_rotation=True needs body_rates and orientations"):
+        rb.fit_inertia(T_FAST, body_rates=w_gyro, gyro_rotation=True)
+    with pytest.raises(TypeError, match="gyro_rotation must be True or False"):
+        rb.fit_inertia(T_FAST, qn, body_rates=w_gyro, gyro_rotation="yes")

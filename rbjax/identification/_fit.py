@@ -63,7 +63,7 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
     model = functools.partial(_model, **opts)
     res_fn = _with_dense_jacobian(model)
     solver = _LevenbergMarquardt(rtol, atol)
-    keep = ("scale_fixed", "use_rates", "gyro_bias", "use_orientations")
+    keep = ("scale_fixed", "use_rates", "gyro_bias", "use_orientations", "gyro_rotation")
 
     def solve(y0, data):
         sol = optx.least_squares(res_fn, solver, y0, data, max_steps=max_steps, throw=False)
@@ -112,6 +112,7 @@ def fit_inertia(
     max_steps: int = 200,
     check_gyro_frame: bool = True,
     gyro_bias: bool = False,
+    gyro_rotation: bool = False,
     loss: str = "squared",
     loss_scale: float = 3.0,
 ) -> FitResult:
@@ -183,6 +184,15 @@ def fit_inertia(
             parameters, rad/s): the gyro residuals become
             ``(ω_sim + b - ω_meas) / σ_ω``. Needs ``body_rates``. Reported as
             ``FitResult.gyro_bias`` with ``gyro_bias_std``.
+        gyro_rotation: fit a fixed rotation ``R_g = exp(ρ)`` between the gyro's
+            frame and the frame of the recorded orientations (3 nuisance
+            parameters, rad): the predicted gyro reading is ``R_gᵀ ω_body (+ b)``.
+            Needs ``body_rates`` and ``orientations`` (without them the gyro
+            frame simply is the body frame). Reported as
+            ``FitResult.gyro_rotation`` (quaternion, gyro→body) with
+            ``gyro_rotation_std`` (rad). Start: the identity, so the rotation
+            should be small (≲ 0.3 rad); the world-frame gyro check
+            (``check_gyro_frame``) runs on the unrotated gyro.
         loss: ``"squared"`` (least squares, the default), ``"huber"`` or
             ``"cauchy"``: a robust loss on each sample's residual 3-vector per
             sensor (``|r|`` in units of that sensor's σ), minimised by
@@ -240,6 +250,7 @@ def fit_inertia(
         check_gyro_frame=bool(check_gyro_frame),
         gyro_bias=gyro_bias,
         body_torques=body_torques,
+        gyro_rotation=gyro_rotation,
     )
     data = dict(prob.data, loss_scale=np.full(prob.y0.shape[0], float(loss_scale), prob.y0.dtype))
     out = _fit_batch_jit(jax.default_backend())(

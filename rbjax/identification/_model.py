@@ -66,7 +66,19 @@ def _pushforward(f, x, tx):
     return jax.vmap(lambda v: jax.jvp(f, (x,), (v,)), out_axes=(None, 0))(tx)
 
 
-def _segments(X, seg, *, n_theta, scale_fixed, method, substeps, use_rates, gyro_bias=False, use_orientations=True):
+def _segments(
+    X,
+    seg,
+    *,
+    n_theta,
+    scale_fixed,
+    method,
+    substeps,
+    use_rates,
+    gyro_bias=False,
+    use_orientations=True,
+    gyro_rotation=False,
+):
     """Data residuals ``(S, m)`` and end states ``(q, ω_body)`` ``(S, 7)`` of all segments, and
     their derivatives ``(S, m, n)``, ``(S, 7, n)`` in each segment's ``x_s = X[s]`` (``n = n_θ + 6``).
 
@@ -130,6 +142,20 @@ def _segments(X, seg, *, n_theta, scale_fixed, method, substeps, use_rates, gyro
     over_samples = jax.vmap(sample, in_axes=(0, 0, 0, 0, 0, None), out_axes=(0, 1))  # tangents (n, K+1, ...)
     (r_q, r_w, w), (dr_q, dr_w, dw) = jax.vmap(over_samples)(s_all, ds_all, q_meas, w_meas, weight, seg)
     S, n = X.shape
+    if gyro_rotation:  # gyro = R_gᵀ ω (+ b): R_g = exp(ρ) maps gyro-frame vectors to body-frame ones
+        n_R = (6 if scale_fixed else 5) + (3 if gyro_bias else 0)
+        g = weight[:, :, None] * seg["ww"][:, None, None]  # (S, K+1, 1)
+        rho = X[0, n_R : n_R + 3]
+
+        def to_gyro(rho, w):
+            return quat_rotate(quat_conjugate(quat_exp(rho)), w)
+
+        wg = jax.vmap(jax.vmap(lambda w: to_gyro(rho, w)))(w)
+        Fw = jax.vmap(jax.vmap(lambda w: jax.jacfwd(to_gyro, argnums=1)(rho, w)))(w)  # (S, K+1, 3, 3)
+        Fr = jax.vmap(jax.vmap(lambda w: jax.jacfwd(to_gyro, argnums=0)(rho, w)))(w)
+        r_w = g * (wg - w_meas)
+        dr_w = g[:, None] * jnp.einsum("skij,snkj->snki", Fw, dw)
+        dr_w = dr_w.at[:, n_R : n_R + 3].add(jnp.moveaxis(g[..., None] * Fr, -1, 1))
     if gyro_bias:  # gyro = ω + b (body frame, constant): b = X[s, n_I:n_I+3] enters the rate rows linearly
         n_I = 6 if scale_fixed else 5
         g = weight[:, :, None] * seg["ww"][:, None, None]  # (S, K+1, 1)
@@ -160,19 +186,24 @@ def _continuity(end, p_next, d_next, continuity_weight):
     return continuity_weight * jnp.concatenate([d_next["wcq"] * gap, d_next["wc"] * (end[4:] - p_next[3:])])
 
 
-def _model(y, data, *, scale_fixed, method, substeps, use_rates, gyro_bias=False, use_orientations=True):
+def _model(
+    y, data, *, scale_fixed, method, substeps, use_rates, gyro_bias=False, use_orientations=True, gyro_rotation=False
+):  # fmt: skip
     """Residual vector ``r`` (segments' data rows, then join rows) and its dense Jacobian ``∂r/∂y``.
 
     ``y = (θ, [b], p_0, ..., p_{S-1})``: inertia parameters θ (5 or 6), with
-    ``gyro_bias`` a constant body-frame gyro bias ``b`` (3, rad/s), then 6 per segment.
+    ``gyro_bias`` a constant body-frame gyro bias ``b`` (3, rad/s), with
+    ``gyro_rotation`` the gyro-to-body rotation vector ``ρ`` (3, rad), then 6 per segment.
     """
     seg = data["seg"]
     S = seg["dt"].shape[0]
-    n_theta = (6 if scale_fixed else 5) + (3 if gyro_bias else 0)  # the shared block
+    n_theta = (6 if scale_fixed else 5) + (3 if gyro_bias else 0) + (3 if gyro_rotation else 0)  # shared block
     theta, P = _unpack(y, n_theta, S)
     X = jnp.concatenate([jnp.broadcast_to(theta, (S, n_theta)), P], -1)  # x_s = (θ, p_s)
     kw = dict(n_theta=n_theta, scale_fixed=scale_fixed, method=method, substeps=substeps, use_rates=use_rates)
-    r_seg, ends, J_seg, J_end = _segments(X, seg, **kw, gyro_bias=gyro_bias, use_orientations=use_orientations)
+    r_seg, ends, J_seg, J_end = _segments(
+        X, seg, **kw, gyro_bias=gyro_bias, use_orientations=use_orientations, gyro_rotation=gyro_rotation
+    )
     m = r_seg.shape[1]
     # robust (IRLS) weights per sample and sensor block, rw (S, blocks, K+1): rows scaled by √w
     sw = jnp.sqrt(seg["rw"])

@@ -88,6 +88,7 @@ def prepare(
     check_gyro_frame=True,
     gyro_bias=False,
     body_torques=None,
+    gyro_rotation=False,
 ) -> Problem:
     """Validate recordings and pack them for :func:`rbjax.fit_inertia` (arguments as there).
 
@@ -116,6 +117,14 @@ def prepare(
         gyro_bias = bool(gyro_bias)
     else:
         raise TypeError(f"fit_inertia: gyro_bias must be True or False, got {type(gyro_bias).__name__}")
+    if not isinstance(gyro_rotation, (bool, np.bool_)):
+        raise TypeError(f"fit_inertia: gyro_rotation must be True or False, got {type(gyro_rotation).__name__}")
+    gyro_rotation = bool(gyro_rotation)
+    if gyro_rotation and not (use_rates and use_q):
+        raise ValueError(
+            "fit_inertia: gyro_rotation=True needs body_rates and orientations: without orientations a "
+            "rotated gyro frame is just another body frame (the inertia is fitted in the gyro's frame)"
+        )
     if gyro_bias and not use_rates:
         raise ValueError("fit_inertia: gyro_bias=True needs body_rates (there is no gyro to be biased)")
 
@@ -136,7 +145,7 @@ def prepare(
     if S < 1 or (T - 1) // S < 2:
         raise ValueError(f"fit_inertia: segments={segments} needs at least 2 intervals each; T = {T}")
     n_theta = 5 if torque_free else 6
-    n_params = n_theta + (3 if gyro_bias else 0) + 6 * S
+    n_params = n_theta + (3 if gyro_bias else 0) + (3 if gyro_rotation else 0) + 6 * S
     n_data = 3 * T * (int(use_q) + int(use_rates))
     if n_data <= n_params + 1:
         raise ValueError(
@@ -201,6 +210,8 @@ def prepare(
         theta0 = _np_params_from_inertia(I0)[(1 if torque_free else 0) :]
         if gyro_bias:
             theta0 = np.concatenate([theta0, np.zeros(3)])  # the bias starts at zero
+        if gyro_rotation:
+            theta0 = np.concatenate([theta0, np.zeros(3)])  # and the gyro frame at the body frame
         w_start = rates[n][starts]
         y0s.append(np.concatenate([theta0, np.column_stack([np.zeros((S, 3)), w_start]).reshape(-1)]))
         first = (np.arange(S) == 0).astype(np.float64)
@@ -256,6 +267,7 @@ def prepare(
             use_rates=use_rates,
             gyro_bias=gyro_bias,
             use_orientations=use_q,
+            gyro_rotation=gyro_rotation,
         ),
         batched=batched,
         segments=S,

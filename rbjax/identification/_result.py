@@ -55,6 +55,12 @@ class FitResult:
             gyro = ω + b) with ``fit_inertia(..., gyro_bias=True)``; zeros otherwise.
         gyro_bias_std: ``(3,)`` its one-sigma uncertainty (rad/s, same
             covariance as ``moment_std``); NaN without ``gyro_bias=True``.
+        gyro_rotation: ``(4,)`` fitted quaternion ``[w, x, y, z]`` of the fixed
+            rotation ``R_g`` that maps gyro-frame vectors to body-frame ones
+            (the body frame being the frame of the recorded orientations;
+            gyro = ``R_gᵀ ω + b``) with ``gyro_rotation=True``; the identity otherwise.
+        gyro_rotation_std: ``(3,)`` one-sigma uncertainty of its rotation
+            vector ``log R_g`` (rad, body frame); NaN without ``gyro_rotation=True``.
         robust_weights: ``(T, 2)`` final robust-loss weights of each sample's
             orientation (column 0) and gyro (column 1) residuals, in [0, 1];
             1 with ``loss="squared"`` and for a sensor not given.
@@ -84,6 +90,8 @@ class FitResult:
     residual_ratio: Float[Array, "*N"] = field(core_ndim=0)
     gyro_bias: Float[Array, "*N 3"] = field(core_ndim=1)
     gyro_bias_std: Float[Array, "*N 3"] = field(core_ndim=1)
+    gyro_rotation: Float[Array, "*N 4"] = field(core_ndim=1)
+    gyro_rotation_std: Float[Array, "*N 3"] = field(core_ndim=1)
     robust_weights: Float[Array, "*N T 2"] = field(core_ndim=2)
     outliers: Bool[Array, "*N T"] = field(core_ndim=1)
     scale_fixed: bool = static_field(default=False)
@@ -107,6 +115,7 @@ def summarise(
     gyro_bias,
     use_orientations=True,
     outlier_weight=0.0,
+    gyro_rotation=False,
 ):
     """FitResult fields of one recording from the solver's final ``y``, residuals ``r`` and Jacobian ``J``.
 
@@ -141,11 +150,17 @@ def summarise(
     _, axes = jnp.linalg.eigh(I)
     axes = axes * jnp.sign(jnp.linalg.det(axes))
     n_I = 6 if scale_fixed else 5
-    _, P = _unpack(y, n_I + (3 if gyro_bias else 0), S)
+    n_R = n_I + (3 if gyro_bias else 0)
+    _, P = _unpack(y, n_R + (3 if gyro_rotation else 0), S)
+    nan3 = jnp.full(3, jnp.nan, y.dtype)
     if gyro_bias:
         bias, bias_std = y[n_I : n_I + 3], jnp.sqrt(jnp.diagonal(cov)[n_I : n_I + 3])
     else:
-        bias, bias_std = jnp.zeros(3, y.dtype), jnp.full(3, jnp.nan, y.dtype)
+        bias, bias_std = jnp.zeros(3, y.dtype), nan3
+    if gyro_rotation:
+        rot, rot_std = quat_exp(y[n_R : n_R + 3]), jnp.sqrt(jnp.diagonal(cov)[n_R : n_R + 3])
+    else:
+        rot, rot_std = jnp.zeros(4, y.dtype).at[0].set(1), nan3
     n_kept = 3 * jnp.sum(kept, (0, 2))  # per sensor block
     rms = jnp.sqrt(jnp.sum(r_kept**2 / seg["rw"][..., None], (0, 2, 3)) / n_kept)  # undo √w: σ units
     nan = jnp.full((), jnp.nan, r.dtype)
@@ -173,4 +188,6 @@ def summarise(
         residual_ratio=ratio,
         gyro_bias=bias,
         gyro_bias_std=bias_std,
+        gyro_rotation=rot,
+        gyro_rotation_std=rot_std,
     )
