@@ -46,6 +46,7 @@ def check_options(
     substeps,
     loss="squared",
     loss_scale=3.0,
+    acceleration_std=None,
 ) -> None:
     """Validate :func:`rbjax.fit_inertia`'s scalar options before anything is traced."""
     if orientation_std is not None:
@@ -62,6 +63,8 @@ def check_options(
             f"fit_inertia: loss must be 'squared', 'huber' or 'cauchy', got {loss!r}; "
             "'huber' or 'cauchy' down-weight glitches"
         )
+    if acceleration_std is not None:
+        _positive_finite("acceleration_std", acceleration_std, "give the accelerometer noise std in m/s², or omit it")
     _positive_finite("loss_scale", loss_scale, "it is the robust loss's threshold in noise σ; the default is 3")
     if segments is not None:
         _positive_int("segments", segments, "or omit it for the default")

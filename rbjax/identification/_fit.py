@@ -63,7 +63,7 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
     model = functools.partial(_model, **opts)
     res_fn = _with_dense_jacobian(model)
     solver = _LevenbergMarquardt(rtol, atol)
-    keep = ("scale_fixed", "use_rates", "gyro_bias", "use_orientations", "gyro_rotation")
+    keep = ("scale_fixed", "use_rates", "gyro_bias", "use_orientations", "gyro_rotation", "use_accel")
 
     def solve(y0, data):
         sol = optx.least_squares(res_fn, solver, y0, data, max_steps=max_steps, throw=False)
@@ -113,6 +113,8 @@ def fit_inertia(
     check_gyro_frame: bool = True,
     gyro_bias: bool = False,
     gyro_rotation: bool = False,
+    accelerations: Float[ArrayLike, "*N T 3"] | None = None,
+    acceleration_std: float | None = None,
     loss: str = "squared",
     loss_scale: float = 3.0,
 ) -> FitResult:
@@ -193,6 +195,13 @@ def fit_inertia(
             ``gyro_rotation_std`` (rad). Start: the identity, so the rotation
             should be small (≲ 0.3 rad); the world-frame gyro check
             (``check_gyro_frame``) runs on the unrotated gyro.
+        accelerations: optional ``(T, 3)`` / ``(N, T, 3)`` accelerometer readings
+            (body frame, m/s²) of an IMU at ``r`` from the centre of mass, in
+            free flight (gravity is not sensed; torque-free only):
+            ``a = ω̇ × r + ω × (ω × r) + b_a`` with ``ω̇ = -I⁻¹ (ω × I ω)`` from
+            the model. Fits the lever arm ``r`` (m) and the bias ``b_a`` (m/s²),
+            reported as ``FitResult.lever_arm``, ``accelerometer_bias`` and their σ.
+        acceleration_std: its noise std (m/s²); default estimated from second differences.
         loss: ``"squared"`` (least squares, the default), ``"huber"`` or
             ``"cauchy"``: a robust loss on each sample's residual 3-vector per
             sensor (``|r|`` in units of that sensor's σ), minimised by
@@ -233,6 +242,7 @@ def fit_inertia(
         substeps=substeps,
         loss=loss,
         loss_scale=loss_scale,
+        acceleration_std=acceleration_std,
     )
     prob = prepare(
         times,
@@ -251,6 +261,8 @@ def fit_inertia(
         gyro_bias=gyro_bias,
         body_torques=body_torques,
         gyro_rotation=gyro_rotation,
+        accelerations=accelerations,
+        acceleration_std=None if acceleration_std is None else float(acceleration_std),
     )
     data = dict(prob.data, loss_scale=np.full(prob.y0.shape[0], float(loss_scale), prob.y0.dtype))
     out = _fit_batch_jit(jax.default_backend())(
@@ -273,9 +285,9 @@ def _sample_weights(prob, rw: np.ndarray, outlier_weight: float):
     rw = rw if prob.batched else rw[None]
     idx, valid = prob.sample_index[prob.sample_valid], prob.sample_valid
     T = int(idx.max()) + 1
-    W = np.ones((rw.shape[0], T, 2), rw.dtype)
+    W = np.ones((rw.shape[0], T, 3), rw.dtype)
     for b, name in enumerate(prob.sensors):
-        W[:, idx, ("orientation", "gyro").index(name)] = rw[:, :, b, :][:, valid]
+        W[:, idx, ("orientation", "gyro", "accelerometer").index(name)] = rw[:, :, b, :][:, valid]
     outliers = np.any(W < outlier_weight, -1)
     if not prob.batched:
         W, outliers = W[0], outliers[0]

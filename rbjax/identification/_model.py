@@ -78,6 +78,7 @@ def _segments(
     gyro_bias=False,
     use_orientations=True,
     gyro_rotation=False,
+    use_accel=False,
 ):
     """Data residuals ``(S, m)`` and end states ``(q, ω_body)`` ``(S, 7)`` of all segments, and
     their derivatives ``(S, m, n)``, ``(S, 7, n)`` in each segment's ``x_s = X[s]`` (``n = n_θ + 6``).
@@ -162,6 +163,26 @@ def _segments(
         r_w = r_w + g * X[:, None, n_I : n_I + 3]
         eye = jnp.eye(3, dtype=X.dtype)
         dr_w = dr_w.at[:, n_I : n_I + 3].add(jnp.einsum("skc,bc->sbkc", g * jnp.ones(3, X.dtype), eye))
+    if use_accel:  # free flight: a = ω̇ × r + ω × (ω × r) + b_a (body frame), ω̇ = -I⁻¹ (ω × I ω)
+        n_I = 6 if scale_fixed else 5
+        n_A = n_I + (3 if gyro_bias else 0) + (3 if gyro_rotation else 0)
+        g = weight[:, :, None] * seg["wa"][:, None, None]  # (S, K+1, 1)
+        th, ra, ba = X[0, :n_I], X[0, n_A : n_A + 3], X[0, n_A + 3 : n_A + 6]
+
+        def accel(th, w, ra, ba):
+            I = _inertia(th, scale_fixed)
+            wd = -jnp.linalg.solve(I, jnp.cross(w, I @ w))
+            return jnp.cross(wd, ra) + jnp.cross(w, jnp.cross(w, ra)) + ba
+
+        each = lambda f: jax.vmap(jax.vmap(f))(w)  # noqa: E731
+        a_pred = each(lambda w: accel(th, w, ra, ba))
+        Fth, Fw, Fr, Fb = each(lambda w: jax.jacfwd(accel, argnums=(0, 1, 2, 3))(th, w, ra, ba))
+        a_meas = jnp.concatenate([seg["a_first"][:, None], seg["a_meas"]], 1)
+        r_a = g * (a_pred - a_meas)
+        dr_a = g[:, None] * jnp.einsum("skij,snkj->snki", Fw, dw)
+        dr_a = dr_a.at[:, :n_I].add(jnp.moveaxis(g[..., None] * Fth, -1, 1))
+        dr_a = dr_a.at[:, n_A : n_A + 3].add(jnp.moveaxis(g[..., None] * Fr, -1, 1))
+        dr_a = dr_a.at[:, n_A + 3 : n_A + 6].add(jnp.moveaxis(g[..., None] * Fb, -1, 1))
     rows, drows = [], []
     if use_orientations:
         rows.append(r_q.reshape(S, -1))
@@ -169,6 +190,9 @@ def _segments(
     if use_rates:
         rows.append(r_w.reshape(S, -1))
         drows.append(dr_w.reshape(S, n, -1))
+    if use_accel:
+        rows.append(r_a.reshape(S, -1))
+        drows.append(dr_a.reshape(S, n, -1))
     end = jnp.concatenate([s_end.orientation, w[:, -1]], -1)  # padding (dt = 0) keeps the end
     d_end = jnp.concatenate([ds_end.orientation, dw[:, :, -1]], -1)
     return (
@@ -187,8 +211,18 @@ def _continuity(end, p_next, d_next, continuity_weight):
 
 
 def _model(
-    y, data, *, scale_fixed, method, substeps, use_rates, gyro_bias=False, use_orientations=True, gyro_rotation=False
-):  # fmt: skip
+    y,
+    data,
+    *,
+    scale_fixed,
+    method,
+    substeps,
+    use_rates,
+    gyro_bias=False,
+    use_orientations=True,
+    gyro_rotation=False,
+    use_accel=False,
+):
     """Residual vector ``r`` (segments' data rows, then join rows) and its dense Jacobian ``∂r/∂y``.
 
     ``y = (θ, [b], p_0, ..., p_{S-1})``: inertia parameters θ (5 or 6), with
@@ -197,12 +231,18 @@ def _model(
     """
     seg = data["seg"]
     S = seg["dt"].shape[0]
-    n_theta = (6 if scale_fixed else 5) + (3 if gyro_bias else 0) + (3 if gyro_rotation else 0)  # shared block
+    n_theta = (6 if scale_fixed else 5) + 3 * gyro_bias + 3 * gyro_rotation + 6 * use_accel  # shared block
     theta, P = _unpack(y, n_theta, S)
     X = jnp.concatenate([jnp.broadcast_to(theta, (S, n_theta)), P], -1)  # x_s = (θ, p_s)
     kw = dict(n_theta=n_theta, scale_fixed=scale_fixed, method=method, substeps=substeps, use_rates=use_rates)
     r_seg, ends, J_seg, J_end = _segments(
-        X, seg, **kw, gyro_bias=gyro_bias, use_orientations=use_orientations, gyro_rotation=gyro_rotation
+        X,
+        seg,
+        **kw,
+        gyro_bias=gyro_bias,
+        use_orientations=use_orientations,
+        gyro_rotation=gyro_rotation,
+        use_accel=use_accel,
     )
     m = r_seg.shape[1]
     # robust (IRLS) weights per sample and sensor block, rw (S, blocks, K+1): rows scaled by √w

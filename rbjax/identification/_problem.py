@@ -24,6 +24,7 @@ from ._linear import (
     _initial_inertia,
     _momentum_system,
     _np_params_from_inertia,
+    _skew,
 )
 from ._rotations_np import _np_increments, _np_qmat, _rate_estimate
 
@@ -89,6 +90,8 @@ def prepare(
     gyro_bias=False,
     body_torques=None,
     gyro_rotation=False,
+    accelerations=None,
+    acceleration_std=None,
 ) -> Problem:
     """Validate recordings and pack them for :func:`rbjax.fit_inertia` (arguments as there).
 
@@ -125,6 +128,22 @@ def prepare(
             "fit_inertia: gyro_rotation=True needs body_rates and orientations: without orientations a "
             "rotated gyro frame is just another body frame (the inertia is fitted in the gyro's frame)"
         )
+    use_accel = accelerations is not None
+    if use_accel:
+        acc = np.asarray(accelerations)
+        if acc.shape not in (lead + (3,), (T, 3)):
+            raise ValueError(
+                f"fit_inertia: accelerations must have shape {lead + (3,)} (body frame, m/s²), got {acc.shape}"
+            )
+        if not np.all(np.isfinite(acc)):
+            raise ValueError("fit_inertia: accelerations contain non-finite values")
+        acc = np.broadcast_to(acc, lead + (3,)).astype(np.float64)
+        acc = acc if batched else acc[None]
+        if not torque_free:
+            raise ValueError(
+                "fit_inertia: accelerations= are modelled for free flight only (ω̇ from the torque-free "
+                "Euler equations); omit torques=/body_torques= or accelerations="
+            )
     if gyro_bias and not use_rates:
         raise ValueError("fit_inertia: gyro_bias=True needs body_rates (there is no gyro to be biased)")
 
@@ -145,8 +164,8 @@ def prepare(
     if S < 1 or (T - 1) // S < 2:
         raise ValueError(f"fit_inertia: segments={segments} needs at least 2 intervals each; T = {T}")
     n_theta = 5 if torque_free else 6
-    n_params = n_theta + (3 if gyro_bias else 0) + (3 if gyro_rotation else 0) + 6 * S
-    n_data = 3 * T * (int(use_q) + int(use_rates))
+    n_params = n_theta + 3 * gyro_bias + 3 * gyro_rotation + 6 * use_accel + 6 * S
+    n_data = 3 * T * (int(use_q) + int(use_rates) + int(use_accel))
     if n_data <= n_params + 1:
         raise ValueError(
             f"fit_inertia: {T} samples give {n_data} residuals, too few for {n_params} parameters "
@@ -212,6 +231,14 @@ def prepare(
             theta0 = np.concatenate([theta0, np.zeros(3)])  # the bias starts at zero
         if gyro_rotation:
             theta0 = np.concatenate([theta0, np.zeros(3)])  # and the gyro frame at the body frame
+        if use_accel:
+            # lever arm and bias from linear least squares: a = ([ω̇]× + [ω]×²) r + b_a with the
+            # start inertia's ω̇ = -I⁻¹ (ω × I ω), linear in (r, b_a)
+            wn = rates[n]
+            wd = -np.linalg.solve(I0, np.cross(wn, wn @ I0.T).T).T
+            Wx = _skew(wn)
+            A = np.concatenate([_skew(wd) + Wx @ Wx, np.broadcast_to(np.eye(3), (T, 3, 3))], -1).reshape(-1, 6)
+            theta0 = np.concatenate([theta0, np.linalg.lstsq(A, acc[n].reshape(-1), rcond=None)[0]])
         w_start = rates[n][starts]
         y0s.append(np.concatenate([theta0, np.column_stack([np.zeros((S, 3)), w_start]).reshape(-1)]))
         first = (np.arange(S) == 0).astype(np.float64)
@@ -236,10 +263,17 @@ def prepare(
             wcq=wcq,
             delta_free=ones if use_q else 1.0 - first,
             # robust-loss weights per sensor block and sample (1: squared loss; IRLS updates them)
-            rw=np.ones((S, int(use_q) + int(use_rates), K + 1)),
+            rw=np.ones((S, int(use_q) + int(use_rates) + int(use_accel), K + 1)),
             ww=ones / sw[n] if use_rates else ones,
             wc=ones * ((1 / sw[n]) if use_rates else seg_dur / sq[n]),
         )
+        if use_accel:
+            sa = (
+                acceleration_std if acceleration_std is not None else max(_mad_sigma(np.diff(acc[n], 2, axis=0)), 1e-12)
+            )
+            seg["a_first"] = np.broadcast_to(acc[n][0], (S, 3))
+            seg["a_meas"] = acc[n][idx_c + 1]
+            seg["wa"] = ones / float(sa)
         if tau_n is not None:
             seg["t_samples"], seg["tau"] = t[samp] - t[0], tau_n[samp]
         if taub_n is not None:
@@ -268,10 +302,13 @@ def prepare(
             gyro_bias=gyro_bias,
             use_orientations=use_q,
             gyro_rotation=gyro_rotation,
+            use_accel=use_accel,
         ),
         batched=batched,
         segments=S,
         sample_index=np.concatenate([np.zeros((S, 1), int), idx_c + 1], 1),
         sample_valid=np.concatenate([(np.arange(S) == 0)[:, None], mask], 1),
-        sensors=(("orientation",) if use_q else ()) + (("gyro",) if use_rates else ()),
+        sensors=(("orientation",) if use_q else ())
+        + (("gyro",) if use_rates else ())
+        + (("accelerometer",) if use_accel else ()),
     )

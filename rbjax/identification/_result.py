@@ -61,8 +61,16 @@ class FitResult:
             gyro = ``R_gᵀ ω + b``) with ``gyro_rotation=True``; the identity otherwise.
         gyro_rotation_std: ``(3,)`` one-sigma uncertainty of its rotation
             vector ``log R_g`` (rad, body frame); NaN without ``gyro_rotation=True``.
-        robust_weights: ``(T, 2)`` final robust-loss weights of each sample's
-            orientation (column 0) and gyro (column 1) residuals, in [0, 1];
+        lever_arm: ``(3,)`` fitted position ``r`` of the accelerometer from the
+            centre of mass (body frame, m) with ``accelerations=``; NaN otherwise.
+        lever_arm_std: ``(3,)`` its one-sigma uncertainty (m); NaN without accelerations.
+        accelerometer_bias: ``(3,)`` fitted constant accelerometer bias (body
+            frame, m/s²); NaN without accelerations.
+        accelerometer_bias_std: ``(3,)`` its one-sigma uncertainty (m/s²).
+        acceleration_rms: RMS accelerometer residual (m/s²); NaN without accelerations.
+        robust_weights: ``(T, 3)`` final robust-loss weights of each sample's
+            orientation (column 0), gyro (column 1) and accelerometer (column 2)
+            residuals, in [0, 1];
             1 with ``loss="squared"`` and for a sensor not given.
         outliers: ``(T,)`` bool: samples whose residual is beyond ``2 loss_scale`` σ
             (robust weight below 0.5 for Huber, 0.2 for Cauchy): the glitches
@@ -92,7 +100,12 @@ class FitResult:
     gyro_bias_std: Float[Array, "*N 3"] = field(core_ndim=1)
     gyro_rotation: Float[Array, "*N 4"] = field(core_ndim=1)
     gyro_rotation_std: Float[Array, "*N 3"] = field(core_ndim=1)
-    robust_weights: Float[Array, "*N T 2"] = field(core_ndim=2)
+    lever_arm: Float[Array, "*N 3"] = field(core_ndim=1)
+    lever_arm_std: Float[Array, "*N 3"] = field(core_ndim=1)
+    accelerometer_bias: Float[Array, "*N 3"] = field(core_ndim=1)
+    accelerometer_bias_std: Float[Array, "*N 3"] = field(core_ndim=1)
+    acceleration_rms: Float[Array, "*N"] = field(core_ndim=0)
+    robust_weights: Float[Array, "*N T 3"] = field(core_ndim=2)
     outliers: Bool[Array, "*N T"] = field(core_ndim=1)
     scale_fixed: bool = static_field(default=False)
     segments: int = static_field(default=1)
@@ -116,6 +129,7 @@ def summarise(
     use_orientations=True,
     outlier_weight=0.0,
     gyro_rotation=False,
+    use_accel=False,
 ):
     """FitResult fields of one recording from the solver's final ``y``, residuals ``r`` and Jacobian ``J``.
 
@@ -126,7 +140,7 @@ def summarise(
     seg = data["seg"]
     S, K = seg["dt"].shape
     p = y.shape[0]
-    n_blocks = int(use_orientations) + int(use_rates)
+    n_blocks = int(use_orientations) + int(use_rates) + int(use_accel)
     n_rows = S * (3 + 3 * K) * n_blocks  # data rows, incl. zero padding
     n_cont = r.shape[0] - n_rows
     # continuity residuals act as constraints: they remove degrees of freedom, add no data
@@ -151,7 +165,13 @@ def summarise(
     axes = axes * jnp.sign(jnp.linalg.det(axes))
     n_I = 6 if scale_fixed else 5
     n_R = n_I + (3 if gyro_bias else 0)
-    _, P = _unpack(y, n_R + (3 if gyro_rotation else 0), S)
+    n_A = n_R + (3 if gyro_rotation else 0)
+    _, P = _unpack(y, n_A + (6 if use_accel else 0), S)
+    if use_accel:
+        a_std = jnp.sqrt(jnp.diagonal(cov)[n_A : n_A + 6])
+        lever, lever_std, a_bias, a_bias_std = y[n_A : n_A + 3], a_std[:3], y[n_A + 3 : n_A + 6], a_std[3:]
+    else:
+        lever = lever_std = a_bias = a_bias_std = jnp.full(3, jnp.nan, y.dtype)
     nan3 = jnp.full(3, jnp.nan, y.dtype)
     if gyro_bias:
         bias, bias_std = y[n_I : n_I + 3], jnp.sqrt(jnp.diagonal(cov)[n_I : n_I + 3])
@@ -165,7 +185,8 @@ def summarise(
     rms = jnp.sqrt(jnp.sum(r_kept**2 / seg["rw"][..., None], (0, 2, 3)) / n_kept)  # undo √w: σ units
     nan = jnp.full((), jnp.nan, r.dtype)
     q_rms = rms[0] / seg["wq"][0] if use_orientations else nan
-    w_rms = rms[-1] / seg["ww"][0] if use_rates else nan
+    w_rms = rms[int(use_orientations)] / seg["ww"][0] if use_rates else nan
+    a_rms = rms[-1] / seg["wa"][0] if use_accel else nan
     # honest failure: the triangle margin I1 + I2 - I3 = 2 λ_min(Σ) near zero, or residuals
     # far above the noise model
     on_boundary = (moments[0] + moments[1] - moments[2]) < _BOUNDARY_RTOL * jnp.sum(moments)
@@ -190,4 +211,9 @@ def summarise(
         gyro_bias_std=bias_std,
         gyro_rotation=rot,
         gyro_rotation_std=rot_std,
+        lever_arm=lever,
+        lever_arm_std=lever_std,
+        accelerometer_bias=a_bias,
+        accelerometer_bias_std=a_bias_std,
+        acceleration_rms=a_rms,
     )
