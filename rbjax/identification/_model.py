@@ -18,6 +18,7 @@ from .._inertia_param import inertia_from_params
 from .._math import quat_conjugate, quat_exp, quat_log, quat_multiply, quat_rotate
 from .._pytree import new_unchecked
 from .._state import Forces, State, _apply
+from ._sensors import accelerometer_reading, gyro_reading
 
 # Layout: S segments of K sample intervals (padding intervals have dt = 0 and
 # mask 0). Segment s has local parameters p_s = (δ_s, ω_s) (6) and shares the
@@ -148,12 +149,9 @@ def _segments(
         g = weight[:, :, None] * seg["ww"][:, None, None]  # (S, K+1, 1)
         rho = X[0, n_R : n_R + 3]
 
-        def to_gyro(rho, w):
-            return quat_rotate(quat_conjugate(quat_exp(rho)), w)
-
-        wg = jax.vmap(jax.vmap(lambda w: to_gyro(rho, w)))(w)
-        Fw = jax.vmap(jax.vmap(lambda w: jax.jacfwd(to_gyro, argnums=1)(rho, w)))(w)  # (S, K+1, 3, 3)
-        Fr = jax.vmap(jax.vmap(lambda w: jax.jacfwd(to_gyro, argnums=0)(rho, w)))(w)
+        wg = jax.vmap(jax.vmap(lambda w: gyro_reading(rho, w)))(w)
+        Fw = jax.vmap(jax.vmap(lambda w: jax.jacfwd(gyro_reading, argnums=1)(rho, w)))(w)  # (S, K+1, 3, 3)
+        Fr = jax.vmap(jax.vmap(lambda w: jax.jacfwd(gyro_reading, argnums=0)(rho, w)))(w)
         r_w = g * (wg - w_meas)
         dr_w = g[:, None] * jnp.einsum("skij,snkj->snki", Fw, dw)
         dr_w = dr_w.at[:, n_R : n_R + 3].add(jnp.moveaxis(g[..., None] * Fr, -1, 1))
@@ -170,9 +168,7 @@ def _segments(
         th, ra, ba = X[0, :n_I], X[0, n_A : n_A + 3], X[0, n_A + 3 : n_A + 6]
 
         def accel(th, w, ra, ba):
-            I = _inertia(th, scale_fixed)
-            wd = -jnp.linalg.solve(I, jnp.cross(w, I @ w))
-            return jnp.cross(wd, ra) + jnp.cross(w, jnp.cross(w, ra)) + ba
+            return accelerometer_reading(_inertia(th, scale_fixed), w, ra, ba)
 
         each = lambda f: jax.vmap(jax.vmap(f))(w)  # noqa: E731
         a_pred = each(lambda w: accel(th, w, ra, ba))
