@@ -35,11 +35,6 @@ from ._body import (
     sphere as sphere,
 )
 from ._dynamics import derivative as derivative
-
-# --- differentiable trajectories and inertia fitting ---
-from ._fit import FitResult as FitResult
-from ._fit import fit_inertia as fit_inertia
-from ._fit import fit_inertia_linear as fit_inertia_linear
 from ._inertia_param import (
     inertia_from_params as inertia_from_params,
 )
@@ -49,6 +44,11 @@ from ._inertia_param import (
 from ._inertia_param import (
     second_moment as second_moment,
 )
+
+# --- differentiable trajectories and inertia fitting ---
+from .identification import FitResult as FitResult
+from .identification import fit_inertia as fit_inertia
+from .identification import fit_inertia_linear as fit_inertia_linear
 
 # isort: split
 # --- multiple shooting and truncated gradients (fit2) ---

@@ -18,7 +18,7 @@ rugged. Two standard remedies, both built on :func:`rbjax.step` /
 
 :func:`rbjax.fit_inertia` shoots the same way, with the step functions of
 :func:`rbjax.step`, but carries forward sensitivities through its own scan
-(:mod:`rbjax._fit_model`): its solver needs the Jacobian, not just the states.
+(:mod:`rbjax.identification._model`): its solver needs the Jacobian, not just the states.
 """
 
 from __future__ import annotations

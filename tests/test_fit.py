@@ -11,7 +11,7 @@ import reference
 from reference import imu_noise, reference_rotation, to_body
 
 import rbjax as rb
-from rbjax import _fit, _fit_data, _fit_model
+from rbjax.identification import _checks, _fit, _model, _problem
 
 # a generic asymmetric body with off-diagonal products of inertia (unit-trace shape below)
 I_TRUE = np.array([[1.0, 0.1, -0.05], [0.1, 2.0, 0.08], [-0.05, 0.08, 2.6]])
@@ -85,11 +85,16 @@ def test_known_torques_give_absolute_inertia():
 
 # one segment (no joins) compiles its own ~20 s program: with --runslow
 @pytest.mark.parametrize(
-    ("segments", "gyro_bias"),
-    # the bias case compiles its own ~11 s program; the quick suite's bias fit test covers it too
-    [pytest.param(1, False, marks=pytest.mark.slow), (3, False), pytest.param(3, True, marks=pytest.mark.slow)],
+    ("segments", "gyro_bias", "gyro_rotation"),
+    # the bias and rotation cases compile their own ~11 s programs; the quick suite's fits cover them too
+    [
+        pytest.param(1, False, False, marks=pytest.mark.slow),
+        (3, False, False),
+        pytest.param(3, True, False, marks=pytest.mark.slow),
+        pytest.param(3, True, True, marks=pytest.mark.slow),
+    ],
 )
-def test_model_jacobian_matches_autodiff(segments, gyro_bias):
+def test_model_jacobian_matches_autodiff(segments, gyro_bias, gyro_rotation):
     # The solver's Jacobian is assembled by hand: sensitivities carried through the
     # scan per segment, chained through the joins. Against JAX's own forward mode
     # through the residuals, with torques, gyro, irregular times and padded segments.
@@ -97,12 +102,12 @@ def test_model_jacobian_matches_autodiff(segments, gyro_bias):
     t = np.cumsum(np.r_[0.0, np.random.default_rng(3).uniform(0.01, 0.03, 61)])  # 62 samples
     q, wb = _record(t, torque=_torque)
     tau = np.stack([_torque(ti, None, None) for ti in t])
-    prob = _fit_data.prepare(
+    prob = _problem.prepare(
         t, q, wb, tau, initial_inertia=None, method="rk4", segments=segments, substeps=None,
         orientation_std=1e-3, rate_std=1e-2, continuity_weight=1000.0, excitation_tol=1e-3,
-        gyro_bias=gyro_bias,
+        gyro_bias=gyro_bias, gyro_rotation=gyro_rotation,
     )  # fmt: skip
-    model = jax.jit(lambda y, d: _fit_model._model(y, d, **prob.static))
+    model = jax.jit(lambda y, d: _model._model(y, d, **prob.static))
     data = jax.tree.map(lambda a: a[0], prob.data)
     y = prob.y0[0] + np.random.default_rng(4).normal(0, 0.05, prob.y0.shape[1])  # off the optimum
     assert data["seg"]["mask"].min() == 0  # 61 intervals / 3 segments: padding exercised
@@ -145,11 +150,11 @@ def test_batch_members_report_their_own_iterations():
     assert np.all(np.asarray(batch.converged))
     for k, q in enumerate(qs):
         single = rb.fit_inertia(T_FAST, q, segments=2)
-        # both stop by the relative-reduction test (ftol = rtol = 1e-8): the step left
-        # is at most sqrt(ftol (n - p)) ≈ 0.004 σ long (n - p ≈ 1200), so the two stops
-        # agree to 0.01 σ (measured 0.001 σ)
+        # both stop by the reduction test: the step left reduces ½χ² by at most
+        # sigma_tol² = 0.01, i.e. is at most √2 · 0.1 σ long, so the two stops agree to
+        # 2 · 0.14 σ < 0.3 σ
         diff = np.abs(np.asarray(batch.principal_moments[k]) - np.asarray(single.principal_moments))
-        np.testing.assert_array_less(diff, 0.01 * np.asarray(single.moment_std))
+        np.testing.assert_array_less(diff, 0.3 * np.asarray(single.moment_std))
 
 
 def test_similar_lengths_share_one_compiled_program():
@@ -271,7 +276,7 @@ def test_world_frame_gyro_is_detected():
         with pytest.raises(ValueError, match=r"world-frame.*rb.quat_rotate\(rb.quat_conjugate\(q\), w\)"):
             rb.fit_inertia(T_FAST, q, body_rates=w)
     # the body-frame gyro passes the check: no raise, before fitting
-    _fit_data.prepare(
+    _problem.prepare(
         T_FAST, q, to_body(q, w_world), None, initial_inertia=None, method="rk4", segments=None,
         substeps=None, orientation_std=None, rate_std=None, continuity_weight=1000.0, excitation_tol=1e-3,
     )  # fmt: skip
@@ -287,12 +292,12 @@ def test_gyro_frame_check_misfits():
     # recording with almost no rotation (frames nearly agree) raises for neither
     q, w_world = reference_rotation(I_TRUE, np.array([1.0, 0, 0, 0]), W0, T_FAST)
     wb = to_body(q, w_world)
-    _fit_data._gyro_frame_check(T_FAST, q, wb, 4)
+    _checks._gyro_frame_check(T_FAST, q, wb, 4)
     with pytest.raises(ValueError, match="world-frame"):
-        _fit_data._gyro_frame_check(T_FAST, q, w_world, 4)
+        _checks._gyro_frame_check(T_FAST, q, w_world, 4)
     q_slow, w_slow = reference_rotation(I_TRUE, np.array([1.0, 0, 0, 0]), 1e-3 * W0, T_FAST)
     rng = np.random.default_rng(7)
-    _fit_data._gyro_frame_check(T_FAST, q_slow, w_slow + rng.normal(0, 1e-2, w_slow.shape), 4)
+    _checks._gyro_frame_check(T_FAST, q_slow, w_slow + rng.normal(0, 1e-2, w_slow.shape), 4)
 
 
 def test_orientation_glitches_do_not_claim_convergence():
@@ -338,3 +343,217 @@ def test_gyro_bias_is_fitted_as_a_nuisance_parameter():
         rb.fit_inertia(T_FAST, qn, gyro_bias=True)
     with pytest.raises(TypeError, match="gyro_bias must be True or False"):
         rb.fit_inertia(T_FAST, qn, body_rates=wn, gyro_bias=1)
+
+
+def _body_torque(t):
+    return np.array([0.3 * np.sin(3 * t), 0.2 * np.cos(2 * t), 0.25 * np.sin(t + 0.5)])
+
+
+def test_gyro_only_fits_the_shape_from_euler_equations():
+    # no orientations: I ω̇ + ω × I ω = 0 fixes I / tr I from the body rates alone
+    q, wb = _record(T_FAST)
+    clean = rb.fit_inertia(T_FAST, body_rates=wb)
+    # clean float64 rates, rk4 at ~0.015 rad per step: model error ~1e-8 (as for orientations)
+    assert _rel(clean.inertia, I_BAR) < 1e-6 and bool(clean.converged)
+    wn = wb + np.random.default_rng(0).normal(0, 0.01, wb.shape)
+    res = rb.fit_inertia(T_FAST, None, body_rates=wn)
+    assert bool(res.converged) and not res.scale_fixed
+    # 0.01 rad/s on ~3 rad/s for 400 samples: measured 0.8% on this draw (σ of the moments ~1e-3)
+    assert _rel(res.inertia, I_BAR) < 0.02
+    z = np.abs(np.asarray(res.principal_moments) - np.linalg.eigvalsh(I_BAR)) / np.asarray(res.moment_std)
+    assert np.all(z < 4), z  # one draw, 3 moments
+    np.testing.assert_allclose(res.rate_rms, 0.01, rtol=0.1)  # the residuals recover the noise level
+    assert np.isnan(float(res.orientation_rms))
+    # the world frame is the body frame at times[0]: segment 0's rotation is pinned
+    np.testing.assert_array_equal(np.asarray(res.initial_orientation), [1.0, 0.0, 0.0, 0.0])
+
+
+def test_thrown_object_gyro_only():
+    # the issue's case: 1 s @ 400 Hz, |ω| ≈ 10 rad/s, gyro noise 2e-3 rad/s, no orientations; goal
+    # error ≤ 0.5% (measured 1e-4 on three draws). 401 samples: the compiled program of the test above
+    t = np.linspace(0.0, 1.0, 401)
+    q, wb = _record(t, w0=np.array([1.0, 9.8, 1.3]))
+    res = rb.fit_inertia(t, body_rates=wb + np.random.default_rng(1).normal(0, 2e-3, wb.shape))
+    assert bool(res.converged)
+    assert _rel(res.inertia, I_BAR) < 0.005
+    z = np.abs(np.asarray(res.principal_moments) - np.linalg.eigvalsh(I_BAR)) / np.asarray(res.moment_std)
+    assert np.all(z < 4), z
+
+
+def test_body_torques_fix_the_scale_with_and_without_orientations():
+    # a reaction-wheel-like body-frame torque (the DOP853 reference applies R(q) τ_b in the world)
+    q, w = reference_rotation(
+        I_TRUE, np.array([1.0, 0, 0, 0]), W0, T_FAST, torque_world=lambda t, q, w: reference.qrot(q, _body_torque(t))
+    )
+    wb = to_body(q, w)
+    tau_b = np.stack([_body_torque(t) for t in T_FAST])
+    qn, wn = imu_noise(q, wb, np.random.default_rng(2), sq=1e-4, sw=1e-3)
+    # absolute inertia within 1% (measured 0.19% gyro only, 0.05% with orientations); the torque
+    # is linear between samples to O(dt²) ≈ 1e-5
+    res = rb.fit_inertia(T_FAST, body_rates=wn, body_torques=tau_b)
+    assert res.scale_fixed and bool(res.converged)
+    assert _rel(res.inertia, I_TRUE) < 0.01
+    res = rb.fit_inertia(T_FAST, qn, body_rates=wn, body_torques=tau_b)
+    assert res.scale_fixed and bool(res.converged)
+    assert _rel(res.inertia, I_TRUE) < 0.01
+
+
+def test_gyro_only_bad_inputs_name_the_remedy():
+    t = T_FAST[:50]
+    q, wb = _record(t)
+    with pytest.raises(ValueError, match="give orientations, body_rates or both"):
+        rb.fit_inertia(t)
+    with pytest.raises(ValueError, match="torques= are world-frame.*body_torques="):
+        rb.fit_inertia(t, body_rates=wb, torques=np.ones((50, 3)))
+    with pytest.raises(ValueError, match="not both"):
+        rb.fit_inertia(t, q, body_rates=wb, torques=np.ones((50, 3)), body_torques=np.ones((50, 3)))
+    with pytest.raises(ValueError, match="body_torques are all zero.*omit body_torques="):
+        rb.fit_inertia(t, body_rates=wb, body_torques=np.zeros((50, 3)))
+    with pytest.raises(ValueError, match=r"body_rates must have shape \(T, 3\) or \(N, T, 3\)"):
+        rb.fit_inertia(t, body_rates=wb[:-1])
+
+
+def _glitched(q):
+    """``q`` with the issue's three 1-rad orientation glitches (about x, y, z) at samples 60, 190, 330."""
+    q = q.copy()
+    for i, axis in zip((60, 190, 330), np.eye(3), strict=True):
+        q[i] = reference.qmul(q[i], np.r_[np.cos(0.5), np.sin(0.5) * axis])
+    return q
+
+
+def test_robust_loss_sets_glitches_aside_and_names_them():
+    # the issue's goal: three 1-rad glitches in 2 s @ 200 Hz (1e-3 rad noise), error within 2x of
+    # the same fit without glitches. Measured: squared 3.4e-2 (not converged); Huber 4.5e-4 against
+    # 4.6e-4 clean; Cauchy with the gyro 5.6e-4 against 4.7e-4
+    q, wb = _record(T_FAST)
+    qn, wn = imu_noise(q, wb, np.random.default_rng(0))
+    clean = rb.fit_inertia(T_FAST, qn)
+    err_clean = _rel(clean.inertia, I_BAR)
+    res = rb.fit_inertia(T_FAST, _glitched(qn), loss="huber")
+    assert bool(res.converged)
+    assert _rel(res.inertia, I_BAR) < 2 * err_clean
+    np.testing.assert_array_equal(np.flatnonzero(np.asarray(res.outliers)), [60, 190, 330])
+    # a 1-rad glitch is ~1000 σ: Huber's weight c/|r| ≈ 3e-3 (gyro column: no gyro, weight 1)
+    w = np.asarray(res.robust_weights)
+    assert np.all(w[[60, 190, 330], 0] < 0.01) and np.all(w[:, 1] == 1)
+    # the glitches are left out of the residual statistics: ratio ≈ 1, rms ≈ the noise
+    assert float(res.residual_ratio) < 1.2
+    np.testing.assert_allclose(res.orientation_rms, 1e-3, rtol=0.1)
+    res = rb.fit_inertia(T_FAST, _glitched(qn), body_rates=wn, loss="cauchy")
+    err_clean = _rel(rb.fit_inertia(T_FAST, qn, body_rates=wn).inertia, I_BAR)
+    assert bool(res.converged) and _rel(res.inertia, I_BAR) < 2 * err_clean
+    np.testing.assert_array_equal(np.flatnonzero(np.asarray(res.outliers)), [60, 190, 330])
+
+
+def test_robust_loss_on_clean_data_keeps_sigma_calibrated():
+    # Gaussian residual 3-vectors beyond c = 3 σ are 3% of samples, and Huber weighs them only
+    # c/|r| ≈ 0.9: the weighted covariance must match least squares' (measured ratio 0.994), whose
+    # calibration the other tests check; and no sample may be called an outlier (|r| > 6 σ: p ≈ 1e-7)
+    q, wb = _record(T_FAST)
+    qn, _ = imu_noise(q, wb, np.random.default_rng(0))
+    ls = rb.fit_inertia(T_FAST, qn)
+    hub = rb.fit_inertia(T_FAST, qn, loss="huber")
+    np.testing.assert_allclose(np.asarray(hub.moment_std), np.asarray(ls.moment_std), rtol=0.03)
+    z = np.abs(np.asarray(hub.principal_moments) - np.linalg.eigvalsh(I_BAR)) / np.asarray(hub.moment_std)
+    assert np.all(z < 4), z
+    assert not np.any(np.asarray(hub.outliers)) and not np.any(np.asarray(ls.outliers))
+    assert np.all(np.asarray(ls.robust_weights) == 1)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "exc", "match"),
+    [
+        (dict(loss="l1"), ValueError, "loss must be 'squared', 'huber' or 'cauchy'"),
+        (dict(loss=None), ValueError, "loss must be 'squared', 'huber' or 'cauchy'"),
+        (dict(loss="huber", loss_scale=0.0), ValueError, "loss_scale must be finite and > 0"),
+        (dict(loss="huber", loss_scale="3"), TypeError, "loss_scale must be a real number"),
+    ],
+)
+def test_bad_robust_options_raise(kwargs, exc, match):
+    q, wb = _record(T_FAST[:50])
+    with pytest.raises(exc, match=match):
+        rb.fit_inertia(T_FAST[:50], q, body_rates=wb, **kwargs)
+
+
+@pytest.mark.slow
+def test_short_random_tumbles_converge_with_calibrated_sigma():
+    # the issue's case: random 1 s @ 200 Hz tumbles, 1e-3 rad + 0.01 rad/s noise, converged only
+    # 72-90% of the time (the solver crept along the flat valleys of near-spherical bodies). Goal
+    # ≥ 98% converged, ≥ 95% of the moments within 3σ. On the 100-draw study
+    # (benchmarks/fit_convergence.py) 99% / 98%; here 40 draws of the same generator, one batch.
+    # Binomial spread at 40 draws is ~2% on each rate, so the bounds are one failure fewer than
+    # the goal allows: ≥ 39/40 converged and ≥ 93% within 3σ
+    rng = np.random.default_rng(0)
+    t = np.linspace(0.0, 1.0, 201)
+    Is, qs, ws = [], [], []
+    while len(Is) < 40:
+        d = rng.uniform(1.0, 3.0, 3)
+        if d.min() + np.sort(d)[1] <= d.max():
+            continue
+        q, wb = _record(t, I=np.diag(d), w0=rng.normal(0, 1, 3) + np.array([0, 3.0, 0]))
+        qn, wn = imu_noise(q, wb, rng)
+        Is.append(np.diag(d) / d.sum())
+        qs.append(qn)
+        ws.append(wn)
+    res = rb.fit_inertia(t, np.stack(qs), body_rates=np.stack(ws))
+    conv = np.asarray(res.converged)
+    assert conv.sum() >= 39, np.flatnonzero(~conv)
+    truth = np.stack([np.linalg.eigvalsh(I) for I in Is])
+    z = np.abs(np.asarray(res.principal_moments) - truth) / np.asarray(res.moment_std)
+    assert np.mean(z[conv] < 3) >= 0.93, np.sort(z[conv].ravel())[-10:]
+
+
+def test_gyro_rotation_is_fitted_as_a_nuisance_parameter():
+    # a gyro mounted 0.07 rad off the frame of the recorded orientations: reading R_gᵀ ω_body.
+    # Measured on this draw: error 2.2e-2 and residual ratio 7.4 without the option (not
+    # converged), 4.2e-4 with it (4.7e-4 unrotated); rotation back within 1.5 σ (σ ≈ 2.5e-4 rad)
+    q, wb = _record(T_FAST)
+    qn, wn = imu_noise(q, wb, np.random.default_rng(0))
+    rho = np.array([0.03, -0.05, 0.04])
+    angle = np.linalg.norm(rho)
+    q_g = np.r_[np.cos(angle / 2), np.sin(angle / 2) * rho / angle]
+    w_gyro = np.stack([reference.qrot(q_g * np.array([1, -1, -1, -1]), v) for v in wn])
+    err_clean = _rel(rb.fit_inertia(T_FAST, qn, body_rates=wn).inertia, I_BAR)
+    res = rb.fit_inertia(T_FAST, qn, body_rates=w_gyro, gyro_rotation=True)
+    assert bool(res.converged)
+    assert _rel(res.inertia, I_BAR) < 1.5 * err_clean
+    # the fitted rotation against the true one, as a rotation vector (rad), in its σ
+    q_fit = np.asarray(res.gyro_rotation)
+    d = reference.qmul(q_g * np.array([1, -1, -1, -1]), q_fit)
+    z = np.abs(2 * d[1:] * np.sign(d[0])) / np.asarray(res.gyro_rotation_std)
+    assert np.all(z < 4), z
+    assert np.all(np.asarray(res.gyro_rotation_std) < 1e-3)
+    with pytest.raises(ValueError, match="gyro_rotation=True needs body_rates and orientations"):
+        rb.fit_inertia(T_FAST, body_rates=w_gyro, gyro_rotation=True)
+    with pytest.raises(TypeError, match="gyro_rotation must be True or False"):
+        rb.fit_inertia(T_FAST, qn, body_rates=w_gyro, gyro_rotation="yes")
+
+
+def test_accelerometer_lever_arm_from_free_flight():
+    # the issue's goal: r within 1 mm for |r| ≈ 5 cm, |ω| ≈ 10 rad/s, 0.05 m/s² noise, 1 s @ 200 Hz.
+    # Readings from the DOP853 body rates with ω̇ from Euler's equations in closed form
+    # (free flight: gravity not sensed), plus a constant bias. Measured: |r error| 0.19 mm
+    # (σ 0.06-0.5 mm), inertia error 1.9e-4
+    t = np.linspace(0.0, 1.0, 201)
+    q, wb = _record(t, w0=np.array([1.0, 9.8, 1.3]))
+    wd = -np.linalg.solve(I_TRUE, np.cross(wb, wb @ I_TRUE.T).T).T
+    r = np.array([0.03, -0.04, 0.02])
+    bias = np.array([0.1, -0.05, 0.02])
+    rng = np.random.default_rng(0)
+    acc = np.cross(wd, r) + np.cross(wb, np.cross(wb, r)) + bias + rng.normal(0, 0.05, wb.shape)
+    res = rb.fit_inertia(t, body_rates=wb + rng.normal(0, 0.01, wb.shape), accelerations=acc)
+    assert bool(res.converged)
+    assert np.max(np.abs(np.asarray(res.lever_arm) - r)) < 1e-3
+    z = np.abs(np.asarray(res.lever_arm) - r) / np.asarray(res.lever_arm_std)
+    assert np.all(z < 4), z
+    zb = np.abs(np.asarray(res.accelerometer_bias) - bias) / np.asarray(res.accelerometer_bias_std)
+    assert np.all(zb < 4), zb
+    np.testing.assert_allclose(res.acceleration_rms, 0.05, rtol=0.15)  # recovers the noise level
+    assert _rel(res.inertia, I_BAR) < 0.01
+    assert np.all(np.isnan(np.asarray(rb.fit_inertia(t, body_rates=wb).lever_arm)))  # off by default
+    with pytest.raises(ValueError, match="accelerations must have shape"):
+        rb.fit_inertia(t, body_rates=wb, accelerations=acc[:-1])
+    with pytest.raises(ValueError, match="free flight only"):
+        rb.fit_inertia(t, body_rates=wb, accelerations=acc, body_torques=np.ones((201, 3)))
+    with pytest.raises(ValueError, match="acceleration_std must be finite and > 0"):
+        rb.fit_inertia(t, body_rates=wb, accelerations=acc, acceleration_std=-1.0)

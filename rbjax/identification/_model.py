@@ -1,7 +1,7 @@
 """The traced model of inertia fitting: residuals and their dense Jacobian.
 
 One recording (``vmap``-ped for batches) cut into ``S`` multiple-shooting
-segments; see :mod:`rbjax._fit` for the residuals and the solver.
+segments; see :mod:`._fit` for the residuals and the solver.
 """
 
 from __future__ import annotations
@@ -12,12 +12,13 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from . import _methods
-from ._body import Body, inverse_3x3
-from ._inertia_param import inertia_from_params
-from ._math import quat_conjugate, quat_exp, quat_log, quat_multiply, quat_rotate
-from ._pytree import new_unchecked
-from ._state import Forces, State, _apply
+from .. import _methods
+from .._body import Body, inverse_3x3
+from .._inertia_param import inertia_from_params
+from .._math import quat_conjugate, quat_exp, quat_log, quat_multiply, quat_rotate
+from .._pytree import new_unchecked
+from .._state import Forces, State, _apply
+from ._sensors import accelerometer_reading, gyro_reading
 
 # Layout: S segments of K sample intervals (padding intervals have dt = 0 and
 # mask 0). Segment s has local parameters p_s = (δ_s, ω_s) (6) and shares the
@@ -41,7 +42,8 @@ def _unpack(y: Array, n_theta: int, S: int):
 def _start(x, d, *, n_theta, scale_fixed):
     """Start state of one segment from ``x = (θ, δ_s, ω_s)``: ``q = q_start ⊗ exp(δ_s)``, ``L = R I ω_s``."""
     I = _inertia(x[:n_theta], scale_fixed)
-    delta, w0 = x[n_theta : n_theta + 3], x[n_theta + 3 :]
+    # delta_free = 0 pins segment 0's rotation where no orientation data fix the world frame
+    delta, w0 = d["delta_free"] * x[n_theta : n_theta + 3], x[n_theta + 3 :]
     q0 = quat_multiply(d["q_start"], quat_exp(delta))
     one = jnp.ones((), I.dtype)
     body = new_unchecked(Body, mass=one, inertia=I, _inverse=inverse_3x3(I))
@@ -65,7 +67,20 @@ def _pushforward(f, x, tx):
     return jax.vmap(lambda v: jax.jvp(f, (x,), (v,)), out_axes=(None, 0))(tx)
 
 
-def _segments(X, seg, *, n_theta, scale_fixed, method, substeps, use_rates, gyro_bias=False):
+def _segments(
+    X,
+    seg,
+    *,
+    n_theta,
+    scale_fixed,
+    method,
+    substeps,
+    use_rates,
+    gyro_bias=False,
+    use_orientations=True,
+    gyro_rotation=False,
+    use_accel=False,
+):
     """Data residuals ``(S, m)`` and end states ``(q, ω_body)`` ``(S, 7)`` of all segments, and
     their derivatives ``(S, m, n)``, ``(S, 7, n)`` in each segment's ``x_s = X[s]`` (``n = n_θ + 6``).
 
@@ -87,10 +102,18 @@ def _segments(X, seg, *, n_theta, scale_fixed, method, substeps, use_rates, gyro
     s0, ds0 = jax.vmap(lambda x, d: _pushforward(lambda x: start(x, d), x, basis))(X, seg)
 
     def forces(d):
-        if "tau" not in d:
-            return lambda st, t: Forces()
-        ts, tau = d["t_samples"], d["tau"]
-        return lambda st, t: Forces(torque=jnp.stack([jnp.interp(t, ts, tau[:, i]) for i in range(3)]))
+        if "tau" in d:  # world frame
+            ts, tau = d["t_samples"], d["tau"]
+            return lambda st, t: Forces(torque=jnp.stack([jnp.interp(t, ts, tau[:, i]) for i in range(3)]))
+        if "tau_b" in d:  # body frame: turned into the world by the simulated attitude
+            ts, tau_b = d["t_samples"], d["tau_b"]
+
+            def body(st, t):
+                tb = jnp.stack([jnp.interp(t, ts, tau_b[:, i]) for i in range(3)])
+                return Forces(torque=quat_rotate(st.orientation, tb))
+
+            return body
+        return lambda st, t: Forces()
 
     def advance(s, ds, t, dt, d):
         return _pushforward(lambda s: step_fn(s, forces(d), t, dt), s, ds)
@@ -121,16 +144,51 @@ def _segments(X, seg, *, n_theta, scale_fixed, method, substeps, use_rates, gyro
     over_samples = jax.vmap(sample, in_axes=(0, 0, 0, 0, 0, None), out_axes=(0, 1))  # tangents (n, K+1, ...)
     (r_q, r_w, w), (dr_q, dr_w, dw) = jax.vmap(over_samples)(s_all, ds_all, q_meas, w_meas, weight, seg)
     S, n = X.shape
+    if gyro_rotation:  # gyro = R_gᵀ ω (+ b): R_g = exp(ρ) maps gyro-frame vectors to body-frame ones
+        n_R = (6 if scale_fixed else 5) + (3 if gyro_bias else 0)
+        g = weight[:, :, None] * seg["ww"][:, None, None]  # (S, K+1, 1)
+        rho = X[0, n_R : n_R + 3]
+
+        wg = jax.vmap(jax.vmap(lambda w: gyro_reading(rho, w)))(w)
+        Fw = jax.vmap(jax.vmap(lambda w: jax.jacfwd(gyro_reading, argnums=1)(rho, w)))(w)  # (S, K+1, 3, 3)
+        Fr = jax.vmap(jax.vmap(lambda w: jax.jacfwd(gyro_reading, argnums=0)(rho, w)))(w)
+        r_w = g * (wg - w_meas)
+        dr_w = g[:, None] * jnp.einsum("skij,snkj->snki", Fw, dw)
+        dr_w = dr_w.at[:, n_R : n_R + 3].add(jnp.moveaxis(g[..., None] * Fr, -1, 1))
     if gyro_bias:  # gyro = ω + b (body frame, constant): b = X[s, n_I:n_I+3] enters the rate rows linearly
         n_I = 6 if scale_fixed else 5
         g = weight[:, :, None] * seg["ww"][:, None, None]  # (S, K+1, 1)
         r_w = r_w + g * X[:, None, n_I : n_I + 3]
         eye = jnp.eye(3, dtype=X.dtype)
         dr_w = dr_w.at[:, n_I : n_I + 3].add(jnp.einsum("skc,bc->sbkc", g * jnp.ones(3, X.dtype), eye))
-    rows, drows = [r_q.reshape(S, -1)], [dr_q.reshape(S, n, -1)]
+    if use_accel:  # free flight: a = ω̇ × r + ω × (ω × r) + b_a (body frame), ω̇ = -I⁻¹ (ω × I ω)
+        n_I = 6 if scale_fixed else 5
+        n_A = n_I + (3 if gyro_bias else 0) + (3 if gyro_rotation else 0)
+        g = weight[:, :, None] * seg["wa"][:, None, None]  # (S, K+1, 1)
+        th, ra, ba = X[0, :n_I], X[0, n_A : n_A + 3], X[0, n_A + 3 : n_A + 6]
+
+        def accel(th, w, ra, ba):
+            return accelerometer_reading(_inertia(th, scale_fixed), w, ra, ba)
+
+        each = lambda f: jax.vmap(jax.vmap(f))(w)  # noqa: E731
+        a_pred = each(lambda w: accel(th, w, ra, ba))
+        Fth, Fw, Fr, Fb = each(lambda w: jax.jacfwd(accel, argnums=(0, 1, 2, 3))(th, w, ra, ba))
+        a_meas = jnp.concatenate([seg["a_first"][:, None], seg["a_meas"]], 1)
+        r_a = g * (a_pred - a_meas)
+        dr_a = g[:, None] * jnp.einsum("skij,snkj->snki", Fw, dw)
+        dr_a = dr_a.at[:, :n_I].add(jnp.moveaxis(g[..., None] * Fth, -1, 1))
+        dr_a = dr_a.at[:, n_A : n_A + 3].add(jnp.moveaxis(g[..., None] * Fr, -1, 1))
+        dr_a = dr_a.at[:, n_A + 3 : n_A + 6].add(jnp.moveaxis(g[..., None] * Fb, -1, 1))
+    rows, drows = [], []
+    if use_orientations:
+        rows.append(r_q.reshape(S, -1))
+        drows.append(dr_q.reshape(S, n, -1))
     if use_rates:
         rows.append(r_w.reshape(S, -1))
         drows.append(dr_w.reshape(S, n, -1))
+    if use_accel:
+        rows.append(r_a.reshape(S, -1))
+        drows.append(dr_a.reshape(S, n, -1))
     end = jnp.concatenate([s_end.orientation, w[:, -1]], -1)  # padding (dt = 0) keeps the end
     d_end = jnp.concatenate([ds_end.orientation, dw[:, :, -1]], -1)
     return (
@@ -145,23 +203,49 @@ def _continuity(end, p_next, d_next, continuity_weight):
     """Join residuals (6,): orientation gap (rad) and rate gap, weighted."""
     q_next = quat_multiply(d_next["q_start"], quat_exp(p_next[:3]))
     gap = quat_log(quat_multiply(quat_conjugate(end[:4]), q_next))
-    return continuity_weight * jnp.concatenate([d_next["wq"] * gap, d_next["wc"] * (end[4:] - p_next[3:])])
+    return continuity_weight * jnp.concatenate([d_next["wcq"] * gap, d_next["wc"] * (end[4:] - p_next[3:])])
 
 
-def _model(y, data, *, scale_fixed, method, substeps, use_rates, gyro_bias=False):
+def _model(
+    y,
+    data,
+    *,
+    scale_fixed,
+    method,
+    substeps,
+    use_rates,
+    gyro_bias=False,
+    use_orientations=True,
+    gyro_rotation=False,
+    use_accel=False,
+):
     """Residual vector ``r`` (segments' data rows, then join rows) and its dense Jacobian ``∂r/∂y``.
 
     ``y = (θ, [b], p_0, ..., p_{S-1})``: inertia parameters θ (5 or 6), with
-    ``gyro_bias`` a constant body-frame gyro bias ``b`` (3, rad/s), then 6 per segment.
+    ``gyro_bias`` a constant body-frame gyro bias ``b`` (3, rad/s), with
+    ``gyro_rotation`` the gyro-to-body rotation vector ``ρ`` (3, rad), then 6 per segment.
     """
     seg = data["seg"]
     S = seg["dt"].shape[0]
-    n_theta = (6 if scale_fixed else 5) + (3 if gyro_bias else 0)  # the shared block
+    n_theta = (6 if scale_fixed else 5) + 3 * gyro_bias + 3 * gyro_rotation + 6 * use_accel  # shared block
     theta, P = _unpack(y, n_theta, S)
     X = jnp.concatenate([jnp.broadcast_to(theta, (S, n_theta)), P], -1)  # x_s = (θ, p_s)
     kw = dict(n_theta=n_theta, scale_fixed=scale_fixed, method=method, substeps=substeps, use_rates=use_rates)
-    r_seg, ends, J_seg, J_end = _segments(X, seg, **kw, gyro_bias=gyro_bias)
+    r_seg, ends, J_seg, J_end = _segments(
+        X,
+        seg,
+        **kw,
+        gyro_bias=gyro_bias,
+        use_orientations=use_orientations,
+        gyro_rotation=gyro_rotation,
+        use_accel=use_accel,
+    )
     m = r_seg.shape[1]
+    # robust (IRLS) weights per sample and sensor block, rw (S, blocks, K+1): rows scaled by √w
+    sw = jnp.sqrt(seg["rw"])
+    B, K1 = sw.shape[1:]
+    r_seg = (r_seg.reshape(S, B, K1, 3) * sw[..., None]).reshape(S, m)
+    J_seg = (J_seg.reshape(S, B, K1, 3, -1) * sw[..., None, None]).reshape(S, m, -1)
     if S == 1:  # single shooting: no joins
         return r_seg.reshape(-1), J_seg.reshape(m, -1)
     c = functools.partial(_continuity, continuity_weight=data["continuity_weight"])  # traced: no recompile

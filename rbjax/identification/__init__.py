@@ -1,0 +1,23 @@
+"""Inertia identification from recorded rotational motion (:func:`fit_inertia`).
+
+One concept per private module, so the simulator's core stays small:
+
+* :mod:`._checks`: data and option checks, before tracing;
+* :mod:`._linear`: the linear least-squares start and the identifiability check;
+* :mod:`._rotations_np`: NumPy quaternion helpers;
+* :mod:`._problem`: noise levels, segment defaults, recordings packed into segments;
+* :mod:`._sensors`: sensor models (gyro frame, accelerometer lever arm);
+* :mod:`._robust`: robust losses by iteratively reweighted least squares;
+* :mod:`._model`: the multiple-shooting residual model and its Jacobian (traced);
+* :mod:`._solver`: Levenberg–Marquardt (optimistix) with MINPACK's stop;
+* :mod:`._result`: :class:`FitResult`, the covariance and the diagnostics;
+* :mod:`._fit`: the entry point :func:`fit_inertia`.
+
+The public names are re-exported by :mod:`rbjax`.
+"""
+
+from ._fit import fit_inertia as fit_inertia
+from ._linear import fit_inertia_linear as fit_inertia_linear
+from ._result import FitResult as FitResult
+
+__all__ = ["FitResult", "fit_inertia", "fit_inertia_linear"]

@@ -1,0 +1,186 @@
+"""Checks of :func:`rbjax.fit_inertia`'s data and options, before anything is traced.
+
+Every failure is a ``TypeError``/``ValueError`` in rbjax's words, naming the
+argument and the remedy.
+"""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+
+from .._state import quat_tolerance
+from ._rotations_np import _CONJ, _np_qlog, _np_qmul
+
+
+def _positive_finite(name: str, value, remedy: str) -> float:
+    """``value`` as a float, or ``TypeError``/``ValueError`` naming ``name`` and the remedy."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        if not (isinstance(value, (np.ndarray, jax.Array)) and np.ndim(value) == 0):
+            raise TypeError(f"fit_inertia: {name} must be a real number, got {type(value).__name__}; {remedy}")
+    v = float(value)
+    if not (np.isfinite(v) and v > 0):
+        raise ValueError(f"fit_inertia: {name} must be finite and > 0, got {v!r}; {remedy}")
+    return v
+
+
+def _positive_int(name: str, value, remedy: str) -> int:
+    """``value`` as an int ≥ 1 (not a bool), or ``TypeError``/``ValueError`` naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"fit_inertia: {name} must be an int >= 1, got {type(value).__name__} {value!r}; {remedy}")
+    if value < 1:
+        raise ValueError(f"fit_inertia: {name} must be an int >= 1, got {value}; {remedy}")
+    return int(value)
+
+
+def check_options(
+    *,
+    orientation_std,
+    rate_std,
+    continuity_weight,
+    excitation_tol,
+    rtol,
+    atol,
+    max_steps,
+    segments,
+    substeps,
+    loss="squared",
+    loss_scale=3.0,
+    acceleration_std=None,
+) -> None:
+    """Validate :func:`rbjax.fit_inertia`'s scalar options before anything is traced."""
+    if orientation_std is not None:
+        _positive_finite("orientation_std", orientation_std, "give the orientation noise std in rad, or omit it")
+    if rate_std is not None:
+        _positive_finite("rate_std", rate_std, "give the gyro noise std in rad/s, or omit it")
+    _positive_finite("continuity_weight", continuity_weight, "the default 1000 suits most recordings")
+    _positive_finite("excitation_tol", excitation_tol, "the default is 1e-3")
+    _positive_finite("rtol", rtol, "the default is 1e-8")
+    _positive_finite("atol", atol, "the default is 1e-8")
+    _positive_int("max_steps", max_steps, "the default is 200")
+    if not isinstance(loss, str) or loss not in ("squared", "huber", "cauchy"):
+        raise ValueError(
+            f"fit_inertia: loss must be 'squared', 'huber' or 'cauchy', got {loss!r}; "
+            "'huber' or 'cauchy' down-weight glitches"
+        )
+    if acceleration_std is not None:
+        _positive_finite("acceleration_std", acceleration_std, "give the accelerometer noise std in m/s², or omit it")
+    _positive_finite("loss_scale", loss_scale, "it is the robust loss's threshold in noise σ; the default is 3")
+    if segments is not None:
+        _positive_int("segments", segments, "or omit it for the default")
+    if substeps is not None:
+        _positive_int("substeps", substeps, "or omit it for the default")
+
+
+def _gyro_frame_check(times: np.ndarray, q: np.ndarray, w: np.ndarray, k: int, ratio: float = 3.0) -> None:
+    """Raise ``ValueError`` when gyro rates ``w (T, 3)`` look world-frame rather than body-frame.
+
+    Over windows of ``k`` samples the orientations ``q (T, 4)`` give the mean
+    body-frame rate ``log(q_i⁻¹ ⊗ q_{i+k}) / Δt`` and the world-frame one
+    ``log(q_{i+k} ⊗ q_i⁻¹) / Δt`` (rad/s); each is compared with the gyro's
+    trapezoid mean over the window. Only if the world-frame rate fits more than
+    ``ratio`` times better (median residual norms) is the gyro taken for
+    world-frame; where the two frames barely differ (little rotation) neither
+    fits better and nothing is raised.
+    """
+    T = q.shape[0]
+    if T <= k:
+        return
+    dt = (times[k:] - times[:-k])[:, None]
+    w_body = _np_qlog(_np_qmul(q[:-k] * _CONJ, q[k:])) / dt
+    w_world = _np_qlog(_np_qmul(q[k:], q[:-k] * _CONJ)) / dt
+    cum = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * np.diff(times)[:, None] * (w[1:] + w[:-1]), 0)])
+    w_mean = (cum[k:] - cum[:-k]) / dt
+    r_body = np.median(np.linalg.norm(w_mean - w_body, axis=-1))
+    r_world = np.median(np.linalg.norm(w_mean - w_world, axis=-1))
+    if r_body > ratio * r_world:
+        raise ValueError(
+            "fit_inertia: body_rates look like world-frame angular velocities: they match the rate "
+            f"implied by the orientations in the world frame (median misfit {r_world:.3g} rad/s) far "
+            f"better than in the body frame ({r_body:.3g} rad/s). Pass body-frame rates R(q)ᵀ ω, e.g. "
+            "rb.quat_rotate(rb.quat_conjugate(q), w), or check_gyro_frame=False to skip this check"
+        )
+
+
+def _check_inputs(times, orientations, body_rates, torques, body_torques=None):
+    """Checked NumPy copies ``(t, q, ω, τ, τ_b)``; ``q`` is None for a gyro-only recording.
+
+    The batch shape ``(N,)`` or ``()`` comes from ``orientations``, or from
+    ``body_rates`` without them; the other arrays may be ``(T, 3)`` (shared).
+    """
+    t = np.asarray(times, dtype=np.float64)
+    if t.ndim != 1:
+        raise ValueError(f"fit_inertia: times must be 1-D (T,), got shape {t.shape}")
+    if orientations is None:
+        if body_rates is None:
+            raise ValueError(
+                "fit_inertia: give orientations, body_rates or both; a gyro-only fit needs "
+                "body_rates (body frame, rad/s) with orientations=None"
+            )
+        if torques is not None:
+            raise ValueError(
+                "fit_inertia: torques= are world-frame and need orientations to be used; for a "
+                "gyro-only fit pass the known torques in the body frame as body_torques="
+            )
+        w = np.asarray(body_rates)
+        if w.ndim not in (2, 3) or w.shape[-2:] != (t.shape[0], 3):
+            raise ValueError(
+                f"fit_inertia: body_rates must have shape (T, 3) or (N, T, 3) with T = len(times) = "
+                f"{t.shape[0]}, got {w.shape}"
+            )
+        lead = w.shape[:-1]
+        q = None
+    else:
+        q = np.asarray(orientations)
+        if q.ndim not in (2, 3) or q.shape[-2:] != (t.shape[0], 4):
+            raise ValueError(
+                f"fit_inertia: orientations must have shape (T, 4) or (N, T, 4) with T = len(times) = "
+                f"{t.shape[0]}, got {q.shape}"
+            )
+        lead = q.shape[:-1]
+    if torques is not None and body_torques is not None:
+        raise ValueError(
+            "fit_inertia: give torques= (world frame) or body_torques= (body frame), not both; "
+            "add them in one frame first"
+        )
+    if not np.all(np.isfinite(t)):
+        i = int(np.flatnonzero(~np.isfinite(t))[0])
+        raise ValueError(
+            f"fit_inertia: times must be finite and strictly increasing (seconds, one per sample); "
+            f"times[{i}] = {t[i]}; drop the samples without a valid time"
+        )
+    if np.any(np.diff(t) <= 0):
+        bad = np.flatnonzero(~(np.diff(t) > 0))
+        raise ValueError(
+            f"fit_inertia: times must be finite and strictly increasing (seconds, one per sample); "
+            f"first bad interval at index {bad[0] if bad.size else '?'}; sort the samples and drop "
+            "duplicates and NaNs"
+        )
+    if q is not None:
+        if not np.all(np.isfinite(q)):
+            raise ValueError("fit_inertia: orientations contain non-finite values")
+        err = np.abs(np.linalg.norm(q.astype(np.float64), axis=-1) - 1)
+        tol = quat_tolerance(q.dtype)
+        if np.any(err > tol):
+            raise ValueError(
+                f"fit_inertia: orientations must be unit quaternions [w, x, y, z]; max |‖q‖ - 1| = "
+                f"{err.max():.3g} exceeds the tolerance {tol:.3g} (normalise them first)"
+            )
+    out = []
+    for name, a in (("body_rates", body_rates), ("torques", torques), ("body_torques", body_torques)):
+        if a is None:
+            out.append(None)
+            continue
+        a = np.asarray(a)
+        if a.shape not in (lead + (3,), (t.shape[0], 3)):
+            raise ValueError(f"fit_inertia: {name} must have shape {lead + (3,)}, got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"fit_inertia: {name} contain non-finite values")
+        out.append(np.broadcast_to(a, lead + (3,)))
+    for name, a in (("torques", out[1]), ("body_torques", out[2])):
+        if a is not None and not np.any(a):
+            raise ValueError(
+                f"fit_inertia: {name} are all zero, which cannot fix the inertia's scale (it acts like "
+                f"torque-free data); omit {name}= for a shape-only fit (normalised to tr I = 1)"
+            )
+    return t, q, out[0], out[1], out[2]

@@ -1,0 +1,195 @@
+"""The linear least-squares start and the identifiability check.
+
+Conservation of angular momentum, ``R_i I ω_i - L_0 = ∫_{t0}^{t_i} τ dt``
+(world frame), is linear in ``(I, L_0)`` and needs no differentiated data; its
+normal matrix also tells which inertia directions the data cannot determine.
+:func:`fit_inertia_linear` is the textbook baseline (differentiated gyro).
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+from jaxtyping import Float
+
+from .._typing import ArrayLike
+from ._rotations_np import _np_qmat
+
+_ENTRIES = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
+
+
+def _regressor(w: np.ndarray) -> np.ndarray:
+    """``A(ω)`` ``(..., 3, 6)`` with ``I ω = A(ω) [Ixx, Iyy, Izz, Ixy, Ixz, Iyz]``."""
+    wx, wy, wz = w[..., 0], w[..., 1], w[..., 2]
+    z = np.zeros_like(wx)
+    return np.stack(
+        [
+            np.stack([wx, z, z, wy, wz, z], -1),
+            np.stack([z, wy, z, wx, z, wz], -1),
+            np.stack([z, z, wz, z, wx, wy], -1),
+        ],
+        -2,
+    )
+
+
+def _entries_to_matrix(x: np.ndarray) -> np.ndarray:
+    xx, yy, zz, xy, xz, yz = (x[..., i] for i in range(6))
+    return np.stack([np.stack([xx, xy, xz], -1), np.stack([xy, yy, yz], -1), np.stack([xz, yz, zz], -1)], -2)
+
+
+def _momentum_system(times, q, w, tau):
+    """Normal matrix ``MᵀM`` and ``Mᵀb`` of ``R_i A(ω_i) x_I - L_0 = H_i`` (one recording).
+
+    ``H_i = ∫_{t0}^{t_i} τ dt`` by the trapezoid rule (zero without torques).
+    The ``I`` columns are scaled by the RMS rate so both blocks are O(1).
+    """
+    R = _np_qmat(q)
+    scale = np.sqrt(np.mean(np.sum(w * w, -1))) + 1e-300
+    M = np.concatenate([R @ _regressor(w) / scale, -np.broadcast_to(np.eye(3), R.shape)], -1)
+    M = M.reshape(-1, 9)
+    if tau is None:
+        b = np.zeros(M.shape[0])
+    else:
+        dt = np.diff(times)[:, None]
+        H = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * dt * (tau[1:] + tau[:-1]), 0)])
+        b = H.reshape(-1)
+    return M.T @ M, M.T @ b, scale
+
+
+def _skew(w: np.ndarray) -> np.ndarray:
+    """``[ω]×`` ``(..., 3, 3)``: ``[ω]× v = ω × v``."""
+    wx, wy, wz = w[..., 0], w[..., 1], w[..., 2]
+    z = np.zeros_like(wx)
+    return np.stack([np.stack([z, -wz, wy], -1), np.stack([wz, z, -wx], -1), np.stack([-wy, wx, z], -1)], -2)
+
+
+def _cumtrapz(times: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """``∫_{t0}^{t_i} f dt`` by the trapezoid rule along axis 0 (zero at ``t0``)."""
+    dt = np.diff(times).reshape((-1,) + (1,) * (f.ndim - 1))
+    return np.concatenate([np.zeros_like(f[:1]), np.cumsum(0.5 * dt * (f[1:] + f[:-1]), 0)])
+
+
+def _body_momentum_system(times, w, tau_b):
+    """Normal matrix and right side of the body-frame integral form (gyro only, one recording).
+
+    Euler's equations ``I ω̇ + ω × I ω = τ_b`` integrated from ``t0``:
+    ``I ω(t_i) + ∫_{t0}^{t_i} ω × I ω dt - l_0 = ∫_{t0}^{t_i} τ_b dt`` with
+    ``l_0 = I ω(t0)`` a free unknown, linear in ``(I, l_0)`` and, unlike the
+    differentiated form of :func:`fit_inertia_linear`, free of ``ω̇``. Rows
+    ``[A(ω_i) + ∫[ω]× A(ω) dt, -1]`` (the ``I`` columns scaled by the RMS rate).
+    """
+    scale = np.sqrt(np.mean(np.sum(w * w, -1))) + 1e-300
+    A = _regressor(w)
+    C = _cumtrapz(times, _skew(w) @ A)
+    M = np.concatenate([(A + C) / scale, -np.broadcast_to(np.eye(3), (w.shape[0], 3, 3))], -1).reshape(-1, 9)
+    b = np.zeros(M.shape[0]) if tau_b is None else _cumtrapz(times, tau_b).reshape(-1)
+    return M.T @ M, M.T @ b, scale
+
+
+def _identifiability(MtM: np.ndarray, tol: float, torque_free: bool) -> None:
+    """Raise ``ValueError`` naming the inertia directions the data cannot determine."""
+    evals, evecs = np.linalg.eigh(MtM)
+    sv = np.sqrt(np.maximum(evals, 0) / evals[-1])
+    # torque-free the true (I, L) is an exact null vector; with torques it is only as far
+    # from null as the torque impulse is large against L, so it is the scale, checked by
+    # the fit's uncertainty rather than here: one weak direction is allowed either way
+    allowed = 1
+    weak = sv < tol
+    if weak.sum() <= allowed:
+        return
+    null = evecs[:6, weak]  # I-parts of the (near-)null vectors
+    u, s, _ = np.linalg.svd(null, full_matrices=False)
+    basis = u[:, s > 1e-6 * s.max()]
+    # a readable basis: reduced row echelon form of the span (entries that move together)
+    terms = []
+    for v in _rref_columns(basis):
+        parts = [f"{c:+.2f}·{n}" for c, n in zip(v, _ENTRIES, strict=True) if abs(c) > 1e-3]
+        terms.append(" ".join(parts))
+    raise ValueError(
+        "fit_inertia: too little excitation to identify the inertia. Relative singular values of "
+        f"the linearised problem {np.array2string(sv, precision=2)} (threshold {tol:g}); the data "
+        "fit any inertia (body-frame entries) in the span of: ["
+        + "], [".join(terms)
+        + "]"
+        + (
+            " (one of these is the overall scale, never identifiable without torques)"
+            if torque_free
+            else " (one of these may be the overall scale, fixed only by the torques)"
+        )
+        + ". Record a tumble that excites all three axes (e.g. spin near, not on, a principal axis)."
+    )
+
+
+def _rref_columns(basis: np.ndarray) -> list[np.ndarray]:
+    A = basis.T.copy()
+    rows, cols = A.shape
+    r = 0
+    for c in range(cols):
+        if r == rows:
+            break
+        p = r + int(np.argmax(np.abs(A[r:, c])))
+        if abs(A[p, c]) < 1e-8:
+            continue
+        A[[r, p]] = A[[p, r]]
+        A[r] /= A[r, c]
+        for i in range(rows):
+            if i != r:
+                A[i] -= A[i, c] * A[r]
+        r += 1
+    return list(A[:r])
+
+
+def _np_params_from_inertia(I: np.ndarray) -> np.ndarray:
+    """NumPy twin of :func:`params_from_inertia` (no eager JAX compile per call)."""
+    L = np.linalg.cholesky(0.5 * np.trace(I) * np.eye(3) - I)
+    return np.array([np.log(L[0, 0]), np.log(L[1, 1]), np.log(L[2, 2]), L[1, 0], L[2, 0], L[2, 1]])
+
+
+def _initial_inertia(MtM, Mtb, scale, torque_free):
+    """Inertia from the momentum LLS, projected onto the physically consistent set."""
+    if torque_free:
+        x = np.linalg.eigh(MtM)[1][:, 0]
+    else:
+        x = np.linalg.lstsq(MtM, Mtb, rcond=None)[0]
+    I = _entries_to_matrix(x[:6] / scale)
+    if torque_free:
+        I = I / np.trace(I)  # the null vector's sign is arbitrary
+    sig_vals, sig_vecs = np.linalg.eigh(0.5 * np.trace(I) * np.eye(3) - I)
+    # Σ must be positive definite; clip at 1% of its mean eigenvalue
+    sig_vals = np.maximum(sig_vals, 0.01 * max(np.abs(sig_vals).mean(), 1e-300))
+    sigma = (sig_vecs * sig_vals) @ sig_vecs.T
+    return np.trace(sigma) * np.eye(3) - sigma
+
+
+def fit_inertia_linear(
+    times: Float[ArrayLike, " T"],
+    body_rates: Float[ArrayLike, "T 3"],
+    orientations: Float[ArrayLike, "T 4"] | None = None,
+    torques: Float[ArrayLike, "T 3"] | None = None,
+) -> Float[Array, "3 3"]:
+    """Baseline: linear least squares on Euler's equations with differentiated gyro rates.
+
+    ``I ω̇ + ω × I ω = τ_b`` (body frame) is linear in the six entries of ``I``;
+    ``ω̇`` comes from central differences of ``body_rates`` ``(T, 3)`` (rad/s).
+    Without ``torques`` the system is homogeneous and the smallest right
+    singular vector, normalised to ``tr I = 1``, is returned; with world-frame
+    ``torques`` ``(T, 3)`` (N m, needs ``orientations`` to rotate them into the
+    body frame) the absolute inertia (kg m²). Fast and simple, but
+    differentiating noisy rates amplifies the noise by ``1/dt``: use it as a
+    start or a check, :func:`fit_inertia` for accuracy. Not guaranteed
+    physically consistent. Returns ``(3, 3)``.
+    """
+    t = np.asarray(times, np.float64)
+    w = np.asarray(body_rates, np.float64)
+    wd = np.gradient(w, t, axis=0)
+    A = _regressor(wd) + np.cross(w[:, None, :], np.swapaxes(_regressor(w), -1, -2)).swapaxes(-1, -2)
+    A = A.reshape(-1, 6)
+    if torques is None:
+        x = np.linalg.svd(A, full_matrices=False)[2][-1]
+        I = _entries_to_matrix(x)
+        return jnp.asarray(I / np.trace(I))
+    R = _np_qmat(np.asarray(orientations, np.float64))
+    tau_b = np.einsum("tji,tj->ti", R, np.asarray(torques, np.float64))  # Rᵀ τ
+    x = np.linalg.lstsq(A, tau_b.reshape(-1), rcond=None)[0]
+    return jnp.asarray(_entries_to_matrix(x))

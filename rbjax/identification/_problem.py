@@ -1,0 +1,314 @@
+"""Recordings packed for the solver: noise levels, segment defaults, padded segments.
+
+NumPy only, before any tracing (eager ``jnp`` calls would compile once per new
+shape): :func:`prepare` checks the inputs (:mod:`._checks`) and identifiability,
+estimates noise levels from second differences, fits the linear start
+(:mod:`._linear`), chooses substeps and segments, and cuts the recordings into
+padded multiple-shooting segments for the traced model (:mod:`._model`).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import numpy as np
+
+from .. import _methods
+from .._body import Body
+from .._state import State
+from ._checks import _check_inputs, _gyro_frame_check
+from ._linear import (
+    _body_momentum_system,
+    _identifiability,
+    _initial_inertia,
+    _momentum_system,
+    _np_params_from_inertia,
+    _skew,
+)
+from ._rotations_np import _np_increments, _np_qmat, _rate_estimate
+
+
+def _mad_sigma(x: np.ndarray) -> np.ndarray:
+    """Noise std of white noise seen through a second difference (variance 6σ²), robustly."""
+    return 1.4826 * np.median(np.abs(x), axis=(-2, -1)) / np.sqrt(6.0)
+
+
+# Default numerics (see fit_inertia's docstring for the error budget)
+_MAX_STEP_ANGLE = 0.05  # rad turned per integrator step: rk4 error ~1e-9 rad per step at this size
+_SEGMENT_INTERVALS = 512  # target intervals per shooting segment (scan depth)
+
+
+def _next_pow2(x: float) -> int:
+    return 1 << max(0, int(np.ceil(np.log2(max(float(x), 1.0)))))
+
+
+def _bucket(k: int) -> int:
+    """Round ``k`` up onto a grid with at most 12.5% padding (multiples of 2^(⌊log2 k⌋-3))."""
+    g = 1 << max(0, int(np.floor(np.log2(max(k, 1)))) - 3)
+    return int(-(-k // g) * g)
+
+
+def _default_segments(n_intervals: int, total_angle: float) -> int:
+    """A power of two: about one segment per 512 intervals and per two turns (4π) of rotation.
+
+    Only the power of two depends on the data, so recordings of similar length and
+    motion share a compiled program; pass ``segments=`` to pin it.
+    """
+    want = max(n_intervals / _SEGMENT_INTERVALS, total_angle / (4 * np.pi))
+    return int(min(_next_pow2(want), max(1, n_intervals // 8)))
+
+
+class Problem(NamedTuple):
+    """Recordings packed for the solver: start ``y0 (N, p)``, segment data (leading ``N``), static options."""
+
+    y0: np.ndarray
+    data: dict
+    static: dict  # scale_fixed, method, substeps, use_rates: fixed per compiled program
+    batched: bool
+    segments: int
+    sample_index: np.ndarray  # (S, K+1) recording sample of each segment row
+    sample_valid: np.ndarray  # (S, K+1) the row is a real sample (not padding, not a repeat)
+    sensors: tuple  # the sensor blocks in row order, e.g. ("orientation", "gyro")
+
+
+def prepare(
+    times,
+    orientations,
+    body_rates,
+    torques,
+    *,
+    initial_inertia,
+    method,
+    segments,
+    substeps,
+    orientation_std,
+    rate_std,
+    continuity_weight,
+    excitation_tol,
+    check_gyro_frame=True,
+    gyro_bias=False,
+    body_torques=None,
+    gyro_rotation=False,
+    accelerations=None,
+    acceleration_std=None,
+) -> Problem:
+    """Validate recordings and pack them for :func:`rbjax.fit_inertia` (arguments as there).
+
+    NumPy only, before any tracing: checks inputs and identifiability, estimates
+    noise levels, fits the linear start, chooses substeps and segments, and cuts
+    the recordings into padded segments. Without orientations (gyro only) the
+    body frame at ``times[0]`` is taken as the world frame: every segment starts
+    from the identity times its fitted rotation, chained by the joins.
+    """
+    _methods.get(method, State)  # unknown method: ValueError now, not in the solver
+    t, q, wr, tau, tau_b = _check_inputs(times, orientations, body_rates, torques, body_torques)
+    use_q = q is not None
+    lead = (q if use_q else wr).shape[:-1]
+    batched = len(lead) == 2
+    add = (lambda a: a) if batched else (lambda a: None if a is None else a[None])
+    q, wr, tau, tau_b = add(q), add(wr), add(tau), add(tau_b)
+    main = q if q is not None else wr  # the recording that sets batch shape and dtype
+    assert main is not None  # _check_inputs: orientations or body_rates
+    N, T = main.shape[:2]
+    dtype = jax.dtypes.canonicalize_dtype(main.dtype)  # float64 input stays float32 without x64
+    if not np.issubdtype(dtype, np.floating):
+        dtype = jax.dtypes.canonicalize_dtype(np.float64)
+    torque_free = tau is None and tau_b is None
+    use_rates = wr is not None
+    if isinstance(gyro_bias, (bool, np.bool_)):
+        gyro_bias = bool(gyro_bias)
+    else:
+        raise TypeError(f"fit_inertia: gyro_bias must be True or False, got {type(gyro_bias).__name__}")
+    if not isinstance(gyro_rotation, (bool, np.bool_)):
+        raise TypeError(f"fit_inertia: gyro_rotation must be True or False, got {type(gyro_rotation).__name__}")
+    gyro_rotation = bool(gyro_rotation)
+    if gyro_rotation and not (use_rates and use_q):
+        raise ValueError(
+            "fit_inertia: gyro_rotation=True needs body_rates and orientations: without orientations a "
+            "rotated gyro frame is just another body frame (the inertia is fitted in the gyro's frame)"
+        )
+    use_accel = accelerations is not None
+    if use_accel:
+        acc = np.asarray(accelerations)
+        if acc.shape not in (lead + (3,), (T, 3)):
+            raise ValueError(
+                f"fit_inertia: accelerations must have shape {lead + (3,)} (body frame, m/s²), got {acc.shape}"
+            )
+        if not np.all(np.isfinite(acc)):
+            raise ValueError("fit_inertia: accelerations contain non-finite values")
+        acc = np.broadcast_to(acc, lead + (3,)).astype(np.float64)
+        acc = acc if batched else acc[None]
+        if not torque_free:
+            raise ValueError(
+                "fit_inertia: accelerations= are modelled for free flight only (ω̇ from the torque-free "
+                "Euler equations); omit torques=/body_torques= or accelerations="
+            )
+    if gyro_bias and not use_rates:
+        raise ValueError("fit_inertia: gyro_bias=True needs body_rates (there is no gyro to be biased)")
+
+    dts = np.diff(t)
+    if q is not None:
+        q = q.astype(np.float64)
+        inc = _np_increments(q)  # (N, T-1, 3)
+        angles = np.linalg.norm(inc, axis=-1)
+    else:
+        speed = np.linalg.norm(np.asarray(wr, np.float64), axis=-1)
+        angles = 0.5 * (speed[:, 1:] + speed[:, :-1]) * dts  # rad turned per interval (trapezoid)
+        q = np.broadcast_to(np.array([1.0, 0.0, 0.0, 0.0]), (N, T, 4))  # body frame at t0 = world
+    if substeps is None:  # a power of two, so similar recordings share a compiled program
+        substeps = _next_pow2(np.ceil(angles.max() / _MAX_STEP_ANGLE))
+    if segments is None:
+        segments = _default_segments(T - 1, angles.sum(-1).max())
+    S = int(segments)
+    if S < 1 or (T - 1) // S < 2:
+        raise ValueError(f"fit_inertia: segments={segments} needs at least 2 intervals each; T = {T}")
+    n_theta = 5 if torque_free else 6
+    n_params = n_theta + 3 * gyro_bias + 3 * gyro_rotation + 6 * use_accel + 6 * S
+    n_data = 3 * T * (int(use_q) + int(use_rates) + int(use_accel))
+    if n_data <= n_params + 1:
+        raise ValueError(
+            f"fit_inertia: {T} samples give {n_data} residuals, too few for {n_params} parameters "
+            f"({n_theta} inertia + 6 per segment × {S} segments); record more samples or use fewer segments"
+        )
+
+    # noise levels from second differences (robust MAD), floored so clean data stay finite
+    if not use_q:
+        sq = np.full(N, np.nan)
+    elif orientation_std is None:
+        sq = np.maximum(_mad_sigma(np.diff(inc, axis=-2)), 1e-12)
+    else:
+        sq = np.full(N, float(orientation_std))
+    if use_rates:
+        sw = (
+            np.full(N, float(rate_std))
+            if rate_std is not None
+            else np.maximum(_mad_sigma(np.diff(wr, 2, axis=-2)), 1e-12)
+        )
+    else:
+        sw = np.full(N, np.nan)
+
+    # rates for the linear start: the gyro, or orientation differences over ~0.1 rad
+    k = int(np.clip(np.ceil(0.1 / max(np.median(angles), 1e-12)), 1, max(1, (T - 1) // 4)))
+    if use_rates:
+        rates = np.asarray(wr, np.float64)
+        if check_gyro_frame and use_q:
+            for n in range(N):
+                _gyro_frame_check(t, q[n], rates[n], k)
+    else:
+        rates = _rate_estimate(t, q, k)
+
+    K = _bucket(-(-(T - 1) // S))  # intervals per segment, padded: shapes from a coarse grid
+    n_real = np.full(S, (T - 1) // S) + (np.arange(S) < (T - 1) % S)  # spread the real intervals evenly
+    starts = np.concatenate([[0], np.cumsum(n_real)[:-1]])
+    local = np.arange(K)[None, :]
+    mask = local < n_real[:, None]
+    idx_c = np.minimum(starts[:, None] + local, T - 2)  # interval index (padding repeats the last)
+    seg_dt = np.where(mask, dts[idx_c], 0.0)
+    seg_dur = seg_dt.sum(-1).mean()
+    samp = np.minimum(starts[:, None] + np.arange(K + 1)[None, :], T - 1)  # sample index per segment
+
+    y0s, datas = [], []
+    for n in range(N):
+        tau_n = None if tau is None else np.asarray(tau[n], np.float64)
+        taub_n = None if tau_b is None else np.asarray(tau_b[n], np.float64)
+        if use_q:
+            # world-frame torques for the momentum law: body ones rotated by the recorded attitude
+            tau_w = tau_n if taub_n is None else np.einsum("tij,tj->ti", _np_qmat(q[n]), taub_n)
+            MtM, Mtb, scale = _momentum_system(t, q[n], rates[n], tau_w)
+        else:
+            MtM, Mtb, scale = _body_momentum_system(t, rates[n], taub_n)
+        _identifiability(MtM, excitation_tol, torque_free)
+        if initial_inertia is None:
+            I0 = _initial_inertia(MtM, Mtb, scale, torque_free)
+        else:
+            I0 = np.asarray(initial_inertia, np.float64)
+            Body(1.0, I0)  # validates a user guess
+        if torque_free:  # the gauge log L00 = 0: rescale so that Σ_xx = 1, drop θ0
+            I0 = I0 / (0.5 * np.trace(I0) - I0[0, 0])
+        theta0 = _np_params_from_inertia(I0)[(1 if torque_free else 0) :]
+        if gyro_bias:
+            theta0 = np.concatenate([theta0, np.zeros(3)])  # the bias starts at zero
+        if gyro_rotation:
+            theta0 = np.concatenate([theta0, np.zeros(3)])  # and the gyro frame at the body frame
+        if use_accel:
+            # lever arm and bias from linear least squares: a = ([ω̇]× + [ω]×²) r + b_a with the
+            # start inertia's ω̇ = -I⁻¹ (ω × I ω), linear in (r, b_a)
+            wn = rates[n]
+            wd = -np.linalg.solve(I0, np.cross(wn, wn @ I0.T).T).T
+            Wx = _skew(wn)
+            A = np.concatenate([_skew(wd) + Wx @ Wx, np.broadcast_to(np.eye(3), (T, 3, 3))], -1).reshape(-1, 6)
+            theta0 = np.concatenate([theta0, np.linalg.lstsq(A, acc[n].reshape(-1), rcond=None)[0]])
+        w_start = rates[n][starts]
+        y0s.append(np.concatenate([theta0, np.column_stack([np.zeros((S, 3)), w_start]).reshape(-1)]))
+        first = (np.arange(S) == 0).astype(np.float64)
+        ones = np.ones(S)
+        if use_q:
+            wq, wcq = ones / sq[n], ones / sq[n]
+        else:
+            # no orientation data: the joins' orientation gaps only chain the segments (they matter
+            # with body torques); a gap g weighs like a rate error g / segment duration
+            wq, wcq = ones, ones / (sw[n] * seg_dur)
+        seg = dict(
+            q_start=q[n][starts],
+            q_first=np.broadcast_to(q[n][0], (S, 4)),
+            w_first=np.broadcast_to(rates[n][0], (S, 3)),
+            first=first,
+            q_meas=q[n][idx_c + 1],
+            w_meas=rates[n][idx_c + 1],
+            dt=seg_dt,
+            t0=t[starts] - t[0],
+            mask=mask.astype(np.float64),
+            wq=wq,
+            wcq=wcq,
+            delta_free=ones if use_q else 1.0 - first,
+            # robust-loss weights per sensor block and sample (1: squared loss; IRLS updates them)
+            rw=np.ones((S, int(use_q) + int(use_rates) + int(use_accel), K + 1)),
+            ww=ones / sw[n] if use_rates else ones,
+            wc=ones * ((1 / sw[n]) if use_rates else seg_dur / sq[n]),
+        )
+        if use_accel:
+            sa = (
+                acceleration_std if acceleration_std is not None else max(_mad_sigma(np.diff(acc[n], 2, axis=0)), 1e-12)
+            )
+            seg["a_first"] = np.broadcast_to(acc[n][0], (S, 3))
+            seg["a_meas"] = acc[n][idx_c + 1]
+            seg["wa"] = ones / float(sa)
+        if tau_n is not None:
+            seg["t_samples"], seg["tau"] = t[samp] - t[0], tau_n[samp]
+        if taub_n is not None:
+            seg["t_samples"], seg["tau_b"] = t[samp] - t[0], taub_n[samp]
+        # without orientations segment 0's rotation δ_0 is pinned (delta_free = 0): 3 parameters
+        # with a zero Jacobian column, not degrees of freedom of the fit
+        n_unused = 0.0 if use_q else 3.0
+        datas.append(
+            dict(
+                seg=seg,
+                n_data=np.float64(n_data),
+                n_unused=np.float64(n_unused),
+                continuity_weight=np.float64(continuity_weight),
+            )
+        )
+    # NumPy all the way into the jitted solver: eager jnp here would compile once per shape
+    data = jax.tree.map(lambda *a: np.stack(a).astype(dtype), *datas)
+    return Problem(
+        y0=np.stack(y0s).astype(dtype),
+        data=data,
+        static=dict(
+            scale_fixed=not torque_free,
+            method=method,
+            substeps=int(substeps),
+            use_rates=use_rates,
+            gyro_bias=gyro_bias,
+            use_orientations=use_q,
+            gyro_rotation=gyro_rotation,
+            use_accel=use_accel,
+        ),
+        batched=batched,
+        segments=S,
+        sample_index=np.concatenate([np.zeros((S, 1), int), idx_c + 1], 1),
+        sample_valid=np.concatenate([(np.arange(S) == 0)[:, None], mask], 1),
+        sensors=(("orientation",) if use_q else ())
+        + (("gyro",) if use_rates else ())
+        + (("accelerometer",) if use_accel else ()),
+    )
