@@ -156,7 +156,9 @@ def _fit(args: argparse.Namespace) -> int:
     if "gyro_rotation" in out:
         print("gyro to body rotation [w, x, y, z]: " + ", ".join(f"{v: .6f}" for v in out["gyro_rotation"]))
     if out.get("outliers"):
-        print(f"down-weighted samples (robust loss): {len(out['outliers'])}, times {out['outlier_times'][:10]}")
+        times = ", ".join(f"{rec['times'][i]:.4g}" for i in out["outliers"][:10])
+        more = " ..." if len(out["outliers"]) > 10 else ""
+        print(f"down-weighted samples (robust loss): {len(out['outliers'])}, at t = {times}{more} s")
     print(
         f"converged: {out['converged']} after {out['iterations']} iterations"
         f" (solver converged {out['solver_converged']}, on boundary {out['on_boundary']},"
@@ -188,15 +190,13 @@ def _fit_report(res) -> dict:
             out[name] = v
     # sensor models: only the fitted ones (a field that was not fitted is zeros / NaN)
     for k in ("gyro_bias", "lever_arm", "accelerometer_bias"):
-        std = getattr(res, k + "_std", None)
-        if std is not None and np.all(np.isfinite(np.asarray(std))):
+        std = getattr(res, k + "_std")
+        if np.all(np.isfinite(np.asarray(std))):
             out[k], out[k + "_std"] = np.asarray(getattr(res, k)).tolist(), np.asarray(std).tolist()
-    rot = getattr(res, "gyro_rotation", None)
-    if rot is not None and np.any(np.asarray(rot)[1:] != 0):
-        out["gyro_rotation"] = np.asarray(rot).tolist()
-    mask = getattr(res, "outliers", None)
-    if mask is not None:
-        out["outliers"] = np.flatnonzero(np.asarray(mask)).tolist()
+    if np.all(np.isfinite(np.asarray(res.gyro_rotation_std))):  # NaN unless gyro_rotation=True
+        out["gyro_rotation"] = np.asarray(res.gyro_rotation).tolist()
+        out["gyro_rotation_std_rad"] = np.asarray(res.gyro_rotation_std).tolist()
+    out["outliers"] = np.flatnonzero(np.asarray(res.outliers)).tolist()
     return out
 
 
