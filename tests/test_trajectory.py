@@ -284,7 +284,8 @@ def test_repr_summarises_shapes():
     # a fit result with a 4000-sample residual vector: shapes, not 4000 numbers
     fields = {f.name: jnp.zeros(4000 if f.name == "residuals" else 3) for f in dataclasses.fields(rb.FitResult)}
     text = repr(rb._pytree.new_unchecked(rb.FitResult, **fields))
-    assert "residuals=f64[4000]" in text and len(text) < 600
+    # ~22 characters per field (30 fields with the sensor models): far from 4000 numbers
+    assert "residuals=f64[4000]" in text and len(text) < 25 * len(fields)
 
 
 def test_batch_sharding_replicates_shared_leaves():
