@@ -47,10 +47,10 @@ error stays bounded (``O(h²)``) with no drift over any horizon -- in float64. I
 float32 the round-off of the orientation update (about ε₃₂ per step, and
 correlated from step to step because the state changes little in one step)
 adds an energy error that grows linearly with the number of steps, about
-1e-9 per step whatever ``dt``: measured (benchmarks/float32_drift.py, 100 boxes,
-|ω| ≈ 3.5 rad/s) 8.4e-5, 1.7e-4 and 4.2e-4 after 0.8, 1.6 and 4 x 10⁵ steps at
-dt = 0.01 (float64: bounded, ≤ 1.1e-4, the method's own ``O(h²)`` error) and
-8.9e-5 after 10⁵ steps at dt = 0.001 (float64: 1e-6). Bounding it needs a
+1.4e-9 per step whatever ``dt``: measured (benchmarks/float32_drift.py, 100 boxes,
+|ω| ≈ 3.5 rad/s) 1.1e-4, 2.3e-4 and 5.7e-4 after 0.8, 1.6 and 4 x 10⁵ steps at
+dt = 0.01 (float64: bounded, ≤ 2.1e-5, the method's own ``O(h²)`` error) and
+2.8e-4 after 10⁵ steps at dt = 0.001 (float64: 2.1e-7). Bounding it needs a
 compensated (two-word) orientation, which ``State`` does not carry; use float64
 for runs of more than ~10⁴ steps that need the energy better than ~1e-5. Particles get
 velocity Verlet. Cost: see ``benchmarks/integrator_cost.py`` (four rational
@@ -221,6 +221,6 @@ register(
             "torque-free: L exactly, |L|, |q|; symplectic: energy error bounded, no drift in float64 "
             "(float32: round-off drift ~1e-9 per step)"
         ),
-        cost=4.0,
+        cost=2.3,  # benchmarks/integrator_cost.py, N = 1e4 float32, 2026-12-01
     )
 )
