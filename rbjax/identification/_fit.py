@@ -27,9 +27,7 @@ import functools
 
 import jax
 import jax.numpy as jnp
-import lineax as lx
 import numpy as np
-import optimistix as optx
 from jaxtyping import Float
 
 from .._pytree import new_unchecked
@@ -38,8 +36,9 @@ from . import _robust
 from ._checks import check_options
 from ._model import _model
 from ._problem import prepare
+from ._queue import run_queue, stage_widths
 from ._result import FitResult, summarise
-from ._solver import _LevenbergMarquardt, _with_dense_jacobian
+from ._solver import LMMember, _LevenbergMarquardt, _with_dense_jacobian
 
 __all__ = ["fit_inertia"]
 
@@ -58,34 +57,67 @@ def _fit_batch_jit(backend: str):
 
 
 def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
-    """Fit ``N`` recordings (leading axes of ``y0``, ``data``); ``model_opts``: sorted ``(name, value)`` pairs."""
+    """Fit ``N`` recordings (leading axes of ``y0``, ``data``); ``model_opts``: sorted ``(name, value)`` pairs.
+
+    Each recording is one Levenberg–Marquardt solve (:class:`._solver.LMMember`),
+    repeated with new weights for a robust loss (IRLS, :mod:`._robust`). A batch
+    runs through a work queue (:mod:`._queue`): every recording stops on its own
+    instead of being stepped until the slowest one stops.
+    """
     opts = dict(model_opts)
-    model = functools.partial(_model, **opts)
-    res_fn = _with_dense_jacobian(model)
-    solver = _LevenbergMarquardt(rtol, atol)
-    keep = ("scale_fixed", "use_rates", "gyro_bias", "use_orientations", "gyro_rotation", "use_accel")
+    member = lambda tree, i: jax.tree.map(lambda a: a[i], tree)  # noqa: E731
+    lm = LMMember.make(
+        _with_dense_jacobian(functools.partial(_model, **opts)),
+        _LevenbergMarquardt(rtol, atol),
+        y0[0],
+        member(data, 0),
+        max_steps,
+    )
+    kw = {k: opts[k] for k in _SUMMARY_OPTS}
+    outlier_weight = _robust.outlier_weight(loss)
+    zero = jnp.zeros((), jnp.int32)
 
-    def solve(y0, data):
-        sol = optx.least_squares(res_fn, solver, y0, data, max_steps=max_steps, throw=False)
-        # residual and Jacobian at the accepted point, as the solver last linearised them:
-        # reusing them keeps a second copy of the simulation out of the compiled program
-        f_info = sol.state.f_info
-        r, J = f_info.residual, lx.materialise(f_info.jac).as_matrix()
-        return sol.value, r, J, sol.result == optx.RESULTS.successful, sol.stats["num_steps"]
+    def start(y, d, round=zero, total=zero):
+        return dict(lm.start(y, d), round=round, total=total)
 
-    def one(y0, data):
+    def retire(slot):
+        """``(again, next round's slot, FitResult fields)`` of a stopped solve."""
+        y, r, J, ok = lm.solution(slot)
+        d, total = slot["data"], slot["total"] + slot["steps"]
+        out = summarise(y, r, J, d, ok, total, **kw, outlier_weight=outlier_weight)
+        out["robust_weights"] = d["seg"]["rw"]
         if loss == "squared":
-            (y, r, J, ok, steps), used = solve(y0, data), data
-        else:
-            (y, r, J, ok, steps), used = _robust.irls(solve, y0, data, loss)
-        kw = {k: opts[k] for k in keep}
-        out = summarise(y, r, J, used, ok, steps, **kw, outlier_weight=_robust.outlier_weight(loss))
-        out["robust_weights"] = used["seg"]["rw"]
-        return out
+            return jnp.array(False), slot, out
+        rw = d["seg"]["rw"]
+        rw_new = _robust.weights(r, rw, loss, d["loss_scale"])
+        again = _robust.another_round(rw, rw_new, slot["round"])
+        restarted = start(y, {**d, "seg": {**d["seg"], "rw": rw_new}}, slot["round"] + 1, total)
+        return again, restarted, out
 
-    if unbatch:  # one recording: no vmap, whose batching of the solver's loops doubles tracing
-        return one(y0[0], jax.tree.map(lambda a: a[0], data))
-    return jax.vmap(one)(y0, data)
+    if not unbatch:
+        return run_queue(
+            y0.shape[0],
+            lambda i: start(y0[i], member(data, i)),
+            lm.advance,
+            lm.running,
+            retire,
+            widths=stage_widths(y0.shape[0]),
+            steps_per_round=_STEPS_PER_ROUND,
+        )
+    # one recording: no queue (and no vmap, whose batching of the solver's loops doubles tracing)
+
+    def body(c):
+        slot = jax.lax.while_loop(lm.running, lm.advance, c[1])
+        return retire(slot)
+
+    first = start(y0[0], member(data, 0))
+    out0 = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(lambda s: retire(s)[2], first))
+    return jax.lax.while_loop(lambda c: c[0], body, (jnp.array(True), first, out0))[2]
+
+
+_SUMMARY_OPTS = ("scale_fixed", "use_rates", "gyro_bias", "use_orientations", "gyro_rotation", "use_accel")
+# Levenberg–Marquardt steps per round of the queue between retiring and refilling slots
+_STEPS_PER_ROUND = 4
 
 
 # ----------------------------------------------------------------------------------------

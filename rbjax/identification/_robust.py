@@ -16,7 +16,6 @@ the rounds stop when no weight moves by more than ``_WEIGHT_TOL``.
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 
 LOSSES = ("squared", "huber", "cauchy")
@@ -44,28 +43,6 @@ def weights(r, rw_used, loss: str, c):
     return 1 / (1 + u**2)
 
 
-def irls(solve, y0, data, loss: str):
-    """``solve(y, data) -> (y, r, J, ok, steps)`` repeated with IRLS weights; returns the last solve and its data."""
-
-    def with_w(rw):
-        return {**data, "seg": {**data["seg"], "rw": rw}}
-
-    rw0 = data["seg"]["rw"]
-    shapes = jax.eval_shape(solve, y0, data)
-    zeros = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
-
-    def cond(c):
-        k, change = c[0], c[1]
-        return (k == 0) | ((change > _WEIGHT_TOL) & (k < _MAX_ROUNDS))
-
-    def body(c):
-        k, _, rw_next, _, out, steps = c
-        y = jnp.where(k == 0, y0, out[0])
-        new = solve(y, with_w(rw_next))
-        rw_new = weights(new[1], rw_next, loss, data["loss_scale"])
-        change = jnp.max(jnp.abs(rw_new - rw_next))
-        return k + 1, change, rw_new, rw_next, new, steps + new[4]
-
-    init = (jnp.zeros((), jnp.int32), jnp.array(jnp.inf, rw0.dtype), rw0, rw0, zeros, zeros[4])
-    _, _, _, rw_used, out, steps = jax.lax.while_loop(cond, body, init)
-    return (out[0], out[1], out[2], out[3], steps), with_w(rw_used)
+def another_round(rw_used, rw_new, round):
+    """Whether round ``round`` (0-based) is followed by another: a weight moved by more than ``_WEIGHT_TOL``."""
+    return (jnp.max(jnp.abs(rw_new - rw_used)) > _WEIGHT_TOL) & (round + 1 < _MAX_ROUNDS)

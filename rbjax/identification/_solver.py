@@ -14,12 +14,14 @@ import equinox as eqx
 import jax
 import jax.extend.core as jec
 import jax.numpy as jnp
+import lineax as lx
 import optimistix as optx
 from jax import Array
 
 # the stop also fires once a trial step's reductions are below σ_tol² of ½χ² per degree of
 # freedom, i.e. the step left moves the estimate by ≲ √2 · 0.1 σ (see _TrustRegion)
 _SIGMA_TOL = 0.1
+_EXPAND_RATIO = 0.75
 
 
 class _TrustRegionState(eqx.Module):
@@ -85,7 +87,7 @@ class _LevenbergMarquardt(optx.LevenbergMarquardt):
 
     def __init__(self, rtol: float, atol: float):
         super().__init__(rtol=rtol, atol=atol)
-        self.search = _TrustRegion(ftol=rtol, sigma_tol=_SIGMA_TOL)
+        self.search = _TrustRegion(ftol=rtol, sigma_tol=_SIGMA_TOL, high_cutoff=_EXPAND_RATIO)
 
     def terminate(self, fn, y, args, options, state, tags):
         terminate, result = super().terminate(fn, y, args, options, state, tags)
@@ -128,3 +130,63 @@ def _with_dense_jacobian(model):
         return r, J @ tangents[0]
 
     return g
+
+
+class LMMember:
+    """One member's Levenberg–Marquardt solve as a state machine for :func:`._queue.run_queue`.
+
+    ``init``/``step``/``terminate`` are optimistix's iterative-solver interface,
+    driven here exactly as ``optx.least_squares`` drives them (its
+    ``_iterate``), so the iterates are the same; but the loop belongs to the
+    caller, which may stop, move and restart members one by one.
+    """
+
+    def __init__(self, fn, solver, static_state, max_steps: int):
+        self.fn = fn  # closure-converted r(y, data) -> (r, None)
+        self.solver = solver
+        self.static_state = static_state  # the non-array part of the solver state (jaxprs), shared by all
+        self.max_steps = max_steps
+
+    @staticmethod
+    def make(res_fn, solver, y, data, max_steps):
+        """For residuals ``res_fn(y, data)`` and one member's example ``y``, ``data``."""
+        fn = eqx.filter_closure_convert(lambda y, d: (res_fn(y, d), None), y, data)
+        f_struct, aux_struct = fn.out_struct  # pyright: ignore[reportFunctionMemberAccess]
+        state = solver.init(fn, y, data, {}, f_struct, aux_struct, frozenset())
+        return LMMember(fn, solver, eqx.partition(state, eqx.is_array)[1], max_steps)
+
+    def start(self, y, data):
+        """A fresh solve from ``y``: ``dict(y, data, lm, steps, terminate, result)``."""
+        f_struct, aux_struct = self.fn.out_struct  # pyright: ignore[reportAttributeAccessIssue]
+        state = self.solver.init(self.fn, y, data, {}, f_struct, aux_struct, frozenset())
+        terminate, result = self._terminate(y, data, state)
+        lm = eqx.partition(state, eqx.is_array)[0]
+        return dict(y=y, data=data, lm=lm, steps=jnp.zeros((), jnp.int32), terminate=terminate, result=result)
+
+    def _terminate(self, y, data, state):
+        terminate, result = self.solver.terminate(self.fn, y, data, {}, state, frozenset())
+        return terminate, optx.RESULTS.where(_allfinite(y), result, optx.RESULTS.nonfinite)
+
+    def advance(self, slot):
+        state = eqx.combine(self.static_state, slot["lm"])
+        y, state, _ = self.solver.step(self.fn, slot["y"], slot["data"], {}, state, frozenset())
+        terminate, result = self._terminate(slot["y"], slot["data"], state)
+        lm = eqx.partition(state, eqx.is_array)[0]
+        return dict(slot, y=y, lm=lm, steps=slot["steps"] + 1, terminate=terminate, result=result)
+
+    def running(self, slot):
+        return ~slot["terminate"] & (slot["result"] == optx.RESULTS.successful) & (slot["steps"] < self.max_steps)
+
+    def solution(self, slot):
+        """``(y, r, J, ok)`` of a stopped member: the residual and Jacobian as last linearised.
+
+        Reusing them keeps a second copy of the simulation out of the compiled program.
+        """
+        f_info = eqx.combine(self.static_state, slot["lm"]).f_info
+        r, J = f_info.residual, lx.materialise(f_info.jac).as_matrix()
+        ok = slot["terminate"] & (slot["result"] == optx.RESULTS.successful)
+        return slot["y"], r, J, ok
+
+
+def _allfinite(y):
+    return jnp.all(jnp.isfinite(y))
