@@ -445,6 +445,26 @@ def test_robust_loss_sets_glitches_aside_and_names_them():
     np.testing.assert_array_equal(np.flatnonzero(np.asarray(res.outliers)), [60, 190, 330])
 
 
+@pytest.mark.slow
+def test_robust_batch_restarts_each_member_on_its_own():
+    # a batch runs through the work queue: a member whose IRLS weights still move gets another
+    # round while the others stop. Glitched and clean recordings together must give what each
+    # gives alone: the same outliers, moments within 0.3 σ (two stops of ≤ 0.14 σ each, as in
+    # test_batch_members_report_their_own_iterations)
+    q, wb = _record(T_FAST)
+    rng = np.random.default_rng(3)
+    recs = [imu_noise(q, wb, rng)[0] for _ in range(3)]
+    recs[1] = _glitched(recs[1])
+    batch = rb.fit_inertia(T_FAST, np.stack(recs), loss="huber")
+    for k, qk in enumerate(recs):
+        single = rb.fit_inertia(T_FAST, qk, loss="huber")
+        np.testing.assert_array_equal(np.asarray(batch.outliers[k]), np.asarray(single.outliers))
+        diff = np.abs(np.asarray(batch.principal_moments[k]) - np.asarray(single.principal_moments))
+        np.testing.assert_array_less(diff, 0.3 * np.asarray(single.moment_std))
+    np.testing.assert_array_equal(np.flatnonzero(np.asarray(batch.outliers[1])), [60, 190, 330])
+    assert not np.any(np.asarray(batch.outliers)[[0, 2]])
+
+
 def test_robust_loss_on_clean_data_keeps_sigma_calibrated():
     # Gaussian residual 3-vectors beyond c = 3 σ are 3% of samples, and Huber weighs them only
     # c/|r| ≈ 0.9: the weighted covariance must match least squares' (measured ratio 0.994), whose
