@@ -161,7 +161,8 @@ def fit_inertia(
             (each interval is its own ``dt``, split into ``substeps`` steps).
         orientations: ``(T, 4)`` unit quaternions ``[w, x, y, z]`` body to world,
             or ``(N, T, 4)`` for ``N`` recordings fitted together (one compiled
-            program, ``vmap`` over recordings). ``None`` for a gyro-only
+            program, a work queue in which each recording stops on its own:
+            :mod:`rbjax.identification._queue`). ``None`` for a gyro-only
             recording (then ``body_rates`` is required and sets the batch
             shape): the torque-free Euler equations ``I ω̇ + ω × I ω = 0``
             fix the shape of ``I`` from body rates alone, ``body_torques``
