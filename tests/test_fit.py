@@ -94,11 +94,13 @@ def test_known_torques_give_absolute_inertia():
         pytest.param(3, True, True, marks=pytest.mark.slow),
     ],
 )
-def test_model_jacobian_matches_autodiff(segments, gyro_bias, gyro_rotation):
+def test_model_jacobian_matches_autodiff(segments, gyro_bias, gyro_rotation, monkeypatch):
     # The solver's Jacobian is assembled by hand: sensitivities carried through the
-    # scan per segment, chained through the joins. Against JAX's own forward mode
-    # through the residuals, with torques, gyro, irregular times and padded segments.
-    # Both differentiate the same float64 arithmetic: agreement to rounding (1e-9).
+    # fit's own rk4 flow (structure of arrays, _flow.py) per segment, chained through
+    # the joins. Against JAX's forward mode through the residuals of the same model
+    # run on rbjax.step's "rk4" instead, with torques, gyro, irregular times and
+    # padded segments. Both are the same float64 arithmetic in a different order:
+    # residuals agree to rounding (1e-12 of their scale), Jacobians to 1e-9.
     t = np.cumsum(np.r_[0.0, np.random.default_rng(3).uniform(0.01, 0.03, 61)])  # 62 samples
     q, wb = _record(t, torque=_torque)
     tau = np.stack([_torque(ti, None, None) for ti in t])
@@ -111,8 +113,11 @@ def test_model_jacobian_matches_autodiff(segments, gyro_bias, gyro_rotation):
     data = jax.tree.map(lambda a: a[0], prob.data)
     y = prob.y0[0] + np.random.default_rng(4).normal(0, 0.05, prob.y0.shape[1])  # off the optimum
     assert data["seg"]["mask"].min() == 0  # 61 intervals / 3 segments: padding exercised
-    _, J = model(y, data)
-    J_ad = jax.jit(jax.jacfwd(lambda y: model(y, data)[0]))(y)
+    r, J = model(y, data)
+    monkeypatch.setattr(_model, "_FLOW_METHODS", frozenset())  # the model on rbjax.step
+    generic = jax.jit(lambda y, d: _model._model(y, d, **prob.static)[0])
+    np.testing.assert_allclose(r, generic(y, data), rtol=0, atol=1e-12 * np.abs(r).max())
+    J_ad = jax.jit(jax.jacfwd(lambda y: generic(y, data)))(y)
     np.testing.assert_allclose(J, J_ad, rtol=1e-9, atol=1e-9 * np.abs(J_ad).max())
 
 

@@ -13,7 +13,7 @@ body-frame angular velocity ``ω_s`` (nuisance parameters). The residuals are
   weighted ``continuity_weight`` times the data, so the segments join into one
   motion while each simulation stays short (well conditioned).
 
-Levenberg–Marquardt (optimistix, with MINPACK's relative-reduction stop)
+Levenberg–Marquardt (trust region, with MINPACK's relative-reduction stop: :mod:`._solver`)
 minimises their sum of squares with Jacobians by forward-mode differentiation
 through the integrator (:mod:`._model`). The start is a linear
 least-squares fit of the conservation law ``R_i I ω_i - L_0 = ∫τ dt`` (no
@@ -38,7 +38,7 @@ from ._model import _model
 from ._problem import prepare
 from ._queue import run_queue, stage_widths
 from ._result import FitResult, summarise
-from ._solver import LMMember, _LevenbergMarquardt, _with_dense_jacobian
+from ._solver import LMMember
 
 __all__ = ["fit_inertia"]
 
@@ -66,13 +66,7 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
     """
     opts = dict(model_opts)
     member = lambda tree, i: jax.tree.map(lambda a: a[i], tree)  # noqa: E731
-    lm = LMMember.make(
-        _with_dense_jacobian(functools.partial(_model, **opts)),
-        _LevenbergMarquardt(rtol, atol),
-        y0[0],
-        member(data, 0),
-        max_steps,
-    )
+    lm = LMMember(functools.partial(_model, **opts), rtol, atol, max_steps)
     kw = {k: opts[k] for k in _SUMMARY_OPTS}
     outlier_weight = _robust.outlier_weight(loss)
     zero = jnp.zeros((), jnp.int32)
@@ -81,29 +75,40 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
         return dict(lm.start(y, d), round=round, total=total)
 
     def retire(slot):
-        """``(again, next round's slot, FitResult fields)`` of a stopped solve."""
-        y, r, J, ok = lm.solution(slot)
-        d, total = slot["data"], slot["total"] + slot["steps"]
-        out = summarise(y, r, J, d, ok, total, **kw, outlier_weight=outlier_weight)
-        out["robust_weights"] = d["seg"]["rw"]
+        """``(again, next round's slot, solution)`` of a stopped solve."""
+        d, y, total = slot["data"], slot["y"], slot["total"] + slot["steps"]
+        rw = d["seg"]["rw"]
+        out = dict(y=y, converged=lm.converged(slot), iterations=total, rw=rw)
         if loss == "squared":
             return jnp.array(False), slot, out
-        rw = d["seg"]["rw"]
-        rw_new = _robust.weights(r, rw, loss, d["loss_scale"])
+        rw_new = _robust.weights(slot["r"], rw, loss, d["loss_scale"])
         again = _robust.another_round(rw, rw_new, slot["round"])
         restarted = start(y, {**d, "seg": {**d["seg"], "rw": rw_new}}, slot["round"] + 1, total)
         return again, restarted, out
 
+    def summary(sol, d):
+        """FitResult fields from the model re-evaluated at the solution (with its final weights).
+
+        Not from the solver's last evaluation: its slots keep ``JᵀJ``, not ``J``
+        (:class:`._solver.LMMember`), and the covariance is formed from ``J``'s SVD.
+        """
+        d = {**d, "seg": {**d["seg"], "rw": sol["rw"]}}
+        r, J = lm.model(sol["y"], d)
+        out = summarise(sol["y"], r, J, d, sol["converged"], sol["iterations"], **kw, outlier_weight=outlier_weight)
+        return dict(out, robust_weights=sol["rw"])
+
     if not unbatch:
-        return run_queue(
+        sols = run_queue(
             y0.shape[0],
             lambda i: start(y0[i], member(data, i)),
             lm.advance,
             lm.running,
             retire,
-            widths=stage_widths(y0.shape[0]),
+            widths=stage_widths(y0.shape[0], first=_SLOTS),
             steps_per_round=_STEPS_PER_ROUND,
         )
+        # in slices of the queue's width: the memory of one model evaluation per slice
+        return jax.lax.map(lambda a: summary(*a), (sols, data), batch_size=min(_SLOTS, y0.shape[0]))
     # one recording: no queue (and no vmap, whose batching of the solver's loops doubles tracing)
 
     def body(c):
@@ -112,12 +117,15 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
 
     first = start(y0[0], member(data, 0))
     out0 = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(lambda s: retire(s)[2], first))
-    return jax.lax.while_loop(lambda c: c[0], body, (jnp.array(True), first, out0))[2]
+    return summary(jax.lax.while_loop(lambda c: c[0], body, (jnp.array(True), first, out0))[2], member(data, 0))
 
 
 _SUMMARY_OPTS = ("scale_fixed", "use_rates", "gyro_bias", "use_orientations", "gyro_rotation", "use_accel")
 # Levenberg–Marquardt steps per round of the queue between retiring and refilling slots
 _STEPS_PER_ROUND = 4
+# the queue's width: per recording, the model of 64 slots of 1 s @ 200 Hz was 1.25-1.5x cheaper
+# than that of 128 (the flow's working set stays in cache), and narrower ones pay fixed costs
+_SLOTS = 64
 
 
 # ----------------------------------------------------------------------------------------

@@ -18,6 +18,7 @@ from .._inertia_param import inertia_from_params
 from .._math import quat_conjugate, quat_exp, quat_log, quat_multiply, quat_rotate
 from .._pytree import new_unchecked
 from .._state import Forces, State, _apply
+from ._flow import flow
 from ._sensors import accelerometer_reading, gyro_reading
 
 # Layout: S segments of K sample intervals (padding intervals have dt = 0 and
@@ -54,15 +55,20 @@ def _start(x, d, *, n_theta, scale_fixed):
     )
 
 
-def _sample(r, body, q_meas, w_meas, weight, d):
+def _observe(q, L, inv, o, c):
     """Weighted residuals of one sample (orientation (3,), rate (3,)) and the body rate ``ω = I⁻¹ Rᵀ L``.
 
-    ``r = (q, L)`` is the simulated attitude and world-frame angular momentum.
+    ``q``, ``L``: the simulated attitude and world-frame angular momentum;
+    ``inv``: body-frame ``I⁻¹``; ``o``: the sample (``q_meas``, ``w_meas``,
+    ``weight``); ``c``: the segment's inverse noise levels (``wq``, ``ww``).
     """
-    q, L = r
-    w = _apply(body.inverse_inertia, quat_rotate(quat_conjugate(q), L))
-    r_q = weight * d["wq"] * quat_log(quat_multiply(quat_conjugate(q), q_meas))
-    return r_q, weight * d["ww"] * (w - w_meas), w
+    w = _apply(inv, quat_rotate(quat_conjugate(q), L))
+    r_q = o["weight"] * c["wq"] * quat_log(quat_multiply(quat_conjugate(q), o["q_meas"]))
+    return r_q, o["weight"] * c["ww"] * (w - o["w_meas"]), w
+
+
+# methods whose fit model runs through :mod:`._flow` (the same map as rbjax.step's)
+_FLOW_METHODS = frozenset({"rk4"})
 
 
 def _pushforward(f, x, tx):
@@ -146,26 +152,44 @@ def _segments(
         carry, _ = jax.lax.scan(sub, carry, dts)
         return carry, carry[:2]
 
-    K = seg["dt"].shape[1]
-    dts = jnp.broadcast_to((seg["dt"] / substeps).T[:, None], (K, substeps, X.shape[0]))
     r0 = (s0.orientation, s0.angular_momentum)
     dr0 = (ds0.orientation, ds0.angular_momentum)
-    (r_end, _, _), (r_k, dr_k) = jax.lax.scan(row, (r0, dr0, seg["t0"]), dts)
+    inv, dinv = body.inverse_inertia, dbody.inverse_inertia
+    const = dict(wq=seg["wq"], ww=seg["ww"])
+    obs = dict(q_meas=seg["q_meas"], w_meas=seg["w_meas"], weight=seg["mask"])  # samples 1..K
 
-    # samples 0..K of every segment, segment axis first
-    cat = lambda a0, a: jnp.concatenate([a0[:, None], jnp.moveaxis(a, 0, 1)], 1)  # noqa: E731
-    r_all, dr_all = jax.tree.map(cat, r0, r_k), jax.tree.map(cat, dr0, dr_k)
-    q_meas = jnp.concatenate([seg["q_first"][:, None], seg["q_meas"]], 1)
+    def observe(r, dr, obs):  # every segment's observations of one sample, tangents (S, n, ...)
+        def one(r, dr, inv, dinv, obs, c):
+            look = lambda tr, ti: jax.jvp(lambda r, i: _observe(r[0], r[1], i, obs, c), (r, inv), (tr, ti))  # noqa: E731
+            return jax.vmap(look, out_axes=(None, 0))(dr, dinv)
+
+        return jax.vmap(one)(r, dr, inv, dinv, obs, const)
+
+    if method in _FLOW_METHODS:  # structure of arrays; a batch's recordings folded into the body axis
+        frame = "world" if "tau" in seg else "body" if "tau_b" in seg else None
+        args = dict(q=r0[0], L=r0[1], inv=inv, dq=dr0[0], dL=dr0[1], dinv=dinv, dt=seg["dt"], obs=obs, const=const)
+        if frame is not None:
+            args["tau"] = seg["tau" if frame == "world" else "tau_b"]
+        (q_end, dq_end), y, dy = flow(substeps, frame, _observe)(args)
+    else:
+        K = seg["dt"].shape[1]
+        dts = jnp.broadcast_to((seg["dt"] / substeps).T[:, None], (K, substeps, X.shape[0]))
+        (r_end, dr_end, _), (r_k, dr_k) = jax.lax.scan(row, (r0, dr0, seg["t0"]), dts)
+        q_end, dq_end = r_end[0], dr_end[0]
+        over_samples = jax.vmap(observe, in_axes=(0, 0, jax.tree.map(lambda _: 1, obs)), out_axes=(1, 2))
+        y, dy = over_samples(r_k, dr_k, obs)
+
+    # samples 0..K of every segment: the first sample, then those after each interval
+    first = dict(q_meas=seg["q_first"], w_meas=seg["w_first"], weight=seg["first"])
+    y0, dy0 = observe(r0, dr0, first)
+    (r_q, r_w, w), (dr_q, dr_w, dw) = jax.tree.map(
+        lambda a0, a, axis: jnp.concatenate([jnp.expand_dims(a0, axis), a], axis),
+        (y0, dy0),
+        (y, dy),
+        ((1,) * 3, (2,) * 3),
+    )
     w_meas = jnp.concatenate([seg["w_first"][:, None], seg["w_meas"]], 1)
     weight = jnp.concatenate([seg["first"][:, None], seg["mask"]], 1)
-
-    def sample(r, dr, body, dbody, qm, wm, wt, d):
-        push = lambda tr, tb: jax.jvp(lambda r, b: _sample(r, b, qm, wm, wt, d), (r, body), (tr, tb))  # noqa: E731
-        return jax.vmap(push, out_axes=(None, 0))(dr, dbody)
-
-    # tangents (n, K+1, ...)
-    over_samples = jax.vmap(sample, in_axes=(0, 0, None, None, 0, 0, 0, None), out_axes=(0, 1))
-    (r_q, r_w, w), (dr_q, dr_w, dw) = jax.vmap(over_samples)(r_all, dr_all, body, dbody, q_meas, w_meas, weight, seg)
     S, n = X.shape
     if gyro_rotation:  # gyro = R_gᵀ ω (+ b): R_g = exp(ρ) maps gyro-frame vectors to body-frame ones
         n_R = (6 if scale_fixed else 5) + (3 if gyro_bias else 0)
@@ -212,8 +236,8 @@ def _segments(
     if use_accel:
         rows.append(r_a.reshape(S, -1))
         drows.append(dr_a.reshape(S, n, -1))
-    end = jnp.concatenate([r_end[0], w[:, -1]], -1)  # padding (dt = 0) keeps the end
-    d_end = jnp.concatenate([dr_all[0][:, -1], dw[:, :, -1]], -1)
+    end = jnp.concatenate([q_end, w[:, -1]], -1)  # padding (dt = 0) keeps the end
+    d_end = jnp.concatenate([dq_end, dw[:, :, -1]], -1)
     return (
         jnp.concatenate(rows, -1),
         end,

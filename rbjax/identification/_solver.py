@@ -1,192 +1,149 @@
-"""Levenberg–Marquardt for the fit: optimistix with MINPACK's stop and a dense Jacobian.
+"""Levenberg–Marquardt on the model's dense Jacobian, one member at a time.
 
-optimistix (with lineax for the damped solves) supplies the trust-region
-Levenberg–Marquardt; this module adds MINPACK's relative-reduction stop and
-hands it the model's hand-assembled Jacobian (:mod:`._model`), so the
-integrator is traced once.
+The classical trust-region Levenberg–Marquardt (Moré 1978; Nocedal & Wright
+§10.3), written for a residual map that returns its Jacobian as a matrix
+(:mod:`._model`): at the accepted point ``y`` with residuals ``r`` and
+Jacobian ``J``, the trial step is
+
+    δ = -(JᵀJ + λ I)⁻¹ Jᵀ r,   λ = 1 / s,
+
+with ``s`` the step size. The trial point is accepted when the loss
+``½‖r‖²`` falls by at least ``0.01`` of the reduction the linear model
+predicts, ``−(½‖J δ + r‖² − ½‖r‖²)``; ``s`` grows 3.5x when the ratio is
+above ``_EXPAND_RATIO`` and shrinks 4x on a rejection.
+
+This is the map of optimistix's ``LevenbergMarquardt`` with
+``ClassicalTrustRegion`` (the previous implementation here). Written out, a
+step costs one ``JᵀJ`` and an ``n x n`` Cholesky factorisation: through
+lineax's linear operators the Jacobian was re-materialised from its
+linearisation and stacked with ``√λ I`` before every solve, and on the
+model of 64 recordings (1 s at 200 Hz) that was ~40% of a step.
+
+Stopping, on top of the accepted-step test (``|Δy| ≤ atol + rtol·|y|`` and
+``|Δr| ≤ atol + rtol·|r|``, max-norm): MINPACK's relative-reduction test
+(``lmder``'s ``ftol``): a trial step whose actual and predicted reductions of
+the loss are both at most ``tol`` of it (and ratio ≤ 2) means the model
+itself says nothing is left to gain. At the optimum of a noisy fit the
+actual change of a step is rounding noise far larger than the predicted one,
+so without it the ratio test rejects step after step while the radius
+shrinks; measured on 4 s @ 1 kHz the optimum was reached in 4–6 steps and
+followed by ~16 rejections. ``tol = max(rtol, 2 σ_tol² / (n − p))`` of the
+loss: ``rtol = 1e-8`` alone moves the parameters by ``√(1e-8 n)`` of their
+standard error, far stricter than short recordings warrant (for 1 s @ 200 Hz,
+n ≈ 1200, weakly determined near-spherical bodies crept along the flat
+valley for hundreds of steps; 30% of 100 random tumbles stopped at
+``max_steps = 100``). A step that reduces ``½χ²`` by less than
+``σ_tol² = 0.01`` (½ per degree of freedom when the weights fit) moves the
+estimate by less than ``√2 · 0.1`` standard errors; with it, 99–100% of those
+fits stopped within 200 steps, with 98–99% of the moments within 3σ
+(``benchmarks/fit_convergence.py``).
 """
 
 from __future__ import annotations
 
-import functools
-
-import equinox as eqx
 import jax
-import jax.extend.core as jec
 import jax.numpy as jnp
-import lineax as lx
-import optimistix as optx
-from jax import Array
 
-# the stop also fires once a trial step's reductions are below σ_tol² of ½χ² per degree of
-# freedom, i.e. the step left moves the estimate by ≲ √2 · 0.1 σ (see _TrustRegion)
 _SIGMA_TOL = 0.1
+# the trust region grows when the actual reduction is at least this fraction of the predicted
+# one: MINPACK's and Nocedal–Wright's 0.75 (optimistix's default 0.99 grows it far less often)
 _EXPAND_RATIO = 0.75
+_ACCEPT_RATIO = 0.01
+_GROW, _SHRINK = 3.5, 0.25
 
 
-class _TrustRegionState(eqx.Module):
-    step_size: Array
-    stalled: Array  # the last trial step passed the MINPACK ftol test
+def _damped_step(G, g, step_size):
+    """``δ = -(G + λI)⁻¹ g`` with ``G = JᵀJ``, ``g = Jᵀr``, ``λ = 1/s`` (``s`` below eps: a vanishing step).
 
-
-class _TrustRegion(optx.ClassicalTrustRegion):
-    """optimistix's trust-region search, plus MINPACK's relative-reduction stop.
-
-    The stock search only ever stops on an *accepted* step that is small in
-    both ``y`` and the residuals. At the optimum of a noisy fit the actual loss
-    change of a step is rounding noise far larger than the predicted one, so
-    the ratio test rejects step after step while the radius shrinks 4× each
-    time; measured on 4 s @ 1 kHz, the optimum was reached in 4–6 steps and
-    followed by ~16 rejections. MINPACK's ``lmder`` (Moré 1978) stops instead
-    when a trial step's actual and predicted reductions of the sum of squares
-    are both at most ``ftol`` of it (and ratio ≤ 2): the model itself says
-    nothing is left to gain. ``ftol = 1e-8`` moves the parameters by about
-    ``sqrt(1e-8 · n)`` of their standard error (δᵀJᵀJδ/s² = 2Δ·(n−p)/L),
-    i.e. 0.02 σ for n = 24 000 residuals.
-
-    On short recordings that is far stricter than the data warrant: for 1 s @
-    200 Hz (n ≈ 1200) ``ftol · L`` is 6e-6 of ``½χ²``, and on weakly determined
-    bodies (near-spherical, σ of the moments ~0.1-1) the solver crept along the
-    flat valley for hundreds of steps; measured on 100 random tumbles
-    (``benchmarks/fit_convergence.py``) 30% stopped at ``max_steps = 100``,
-    every one of them a near-spherical body. So the tolerance is also at least
-    ``2 sigma_tol² / (n - p)`` of the loss: a step that reduces ``½χ²`` by
-    less than ``sigma_tol²`` (≈ ``L / (n - p)`` is ½ per degree of freedom when
-    the weights fit) moves the estimate by less than ``√2 · sigma_tol``
-    standard errors. With ``sigma_tol = 0.1`` and 200 steps, 99-100% of those
-    fits stopped, with 98-99% of the moments within 3σ.
-
-    The step size is also kept in the parameters' dtype: the stock ``init``
-    starts from ``jnp.array(1.0)``, float64 whenever x64 is on, and the damping
-    ``1/step_size`` would promote a float32 Jacobian's damped system to float64,
-    which lineax rejects.
+    The normal equations with a Cholesky factorisation (``n x n``, ``n`` ≈
+    11–60). They square the condition number of ``J``, but the step only has
+    to be a descent direction inside the trust region, and ``λ`` bounds the
+    conditioning of ``G + λI`` where the step would be long.
     """
-
-    ftol: float = 1e-8
-    sigma_tol: float = 0.0
-
-    def init(self, y, f_info_struct):
-        dtype = jnp.result_type(*jax.tree.leaves(y))
-        return _TrustRegionState(jnp.ones((), dtype), jnp.array(False))
-
-    def step(self, first_step, y, y_eval, f_info, f_eval_info, state):
-        # the stock step reads only ``state.step_size``
-        step_size, accept, result, inner = super().step(first_step, y, y_eval, f_info, f_eval_info, state)
-        loss = f_info.as_min()
-        predicted = -self.predict_reduction(y_eval - y, f_info)
-        actual = loss - f_eval_info.as_min()
-        n = sum(jnp.size(r) for r in jax.tree.leaves(getattr(f_info, "residual", ())))  # Levenberg–Marquardt's
-        dof = max(n - y.size, 1)
-        tol = loss * max(self.ftol, 2 * self.sigma_tol**2 / dof)
-        stalled = ~first_step & (jnp.abs(actual) <= tol) & (predicted <= tol) & (actual <= 2 * predicted)
-        return step_size, accept, result, _TrustRegionState(inner.step_size, stalled)
-
-
-class _LevenbergMarquardt(optx.LevenbergMarquardt):
-    """optimistix's Levenberg–Marquardt that also stops when :class:`_TrustRegion` stalls."""
-
-    def __init__(self, rtol: float, atol: float):
-        super().__init__(rtol=rtol, atol=atol)
-        self.search = _TrustRegion(ftol=rtol, sigma_tol=_SIGMA_TOL, high_cutoff=_EXPAND_RATIO)
-
-    def terminate(self, fn, y, args, options, state, tags):
-        terminate, result = super().terminate(fn, y, args, options, state, tags)
-        return terminate | state.search_state.stalled, result
-
-
-def _with_dense_jacobian(model):
-    """``r(y, data)`` whose JVP in ``y`` is ``J @ ẏ`` with ``J`` from :func:`_model`.
-
-    Levenberg–Marquardt linearises, materialises and transposes the residual
-    map; through the integrator's scan each of those would be a separate
-    compiled copy of the simulation. Handing it a matrix formed by the
-    segment-local forward pass means one copy, no reverse pass through the
-    scan. Not differentiable in ``data``.
-    """
-
-    # optimistix shape-evaluates the residual (primal) and linearises it (JVP
-    # rule) under different trace contexts (abstract mesh unset / empty), so a
-    # jitted model would be traced twice (~0.5 s each, a third of the fit's
-    # compile time). The model is traced once here, shapes from the first call,
-    # and both paths replay its jaxpr; the primal is only ever shape-evaluated.
-    @functools.cache
-    def traced(avals):
-        closed, out = jax.make_jaxpr(model, return_shape=True)(*jax.tree.unflatten(avals[0], avals[1:]))
-        return jec.jaxpr_as_fun(closed), jax.tree.structure(out)
-
-    def residual_and_jacobian(y, data):
-        leaves, tree = jax.tree.flatten((y, data))
-        fn, out_tree = traced((tree, *(jax.ShapeDtypeStruct(a.shape, a.dtype) for a in leaves)))
-        return jax.tree.unflatten(out_tree, fn(*leaves))
-
-    @jax.custom_jvp
-    def g(y, data):
-        return residual_and_jacobian(y, data)[0]
-
-    @g.defjvp
-    def g_jvp(primals, tangents):
-        y, data = primals
-        r, J = residual_and_jacobian(y, data)
-        return r, J @ tangents[0]
-
-    return g
+    dtype = G.dtype
+    tiny = step_size <= jnp.finfo(dtype).eps
+    lam = jnp.where(tiny, jnp.finfo(dtype).max, 1 / jnp.where(tiny, 1, step_size))
+    c = jax.scipy.linalg.cho_factor(G + lam * jnp.eye(G.shape[0], dtype=dtype))
+    return -jax.scipy.linalg.cho_solve(c, g)
 
 
 class LMMember:
     """One member's Levenberg–Marquardt solve as a state machine for :func:`._queue.run_queue`.
 
-    ``init``/``step``/``terminate`` are optimistix's iterative-solver interface,
-    driven here exactly as ``optx.least_squares`` drives them (its
-    ``_iterate``), so the iterates are the same; but the loop belongs to the
-    caller, which may stop, move and restart members one by one.
+    ``model(y, data) -> (r, J)``: residuals ``(m,)`` and their Jacobian
+    ``(m, n)``. A slot is a dict of arrays: ``y`` (accepted), ``y_eval``
+    (trial), at ``y`` the residuals ``r``, ``G = JᵀJ`` and ``g = Jᵀr``,
+    ``step_size``, ``first``, ``steps``, ``terminate`` and ``ok`` (every
+    iterate finite). ``J`` itself is not kept: the step needs only ``G`` and
+    ``g``, and the slots of a batch are carried through loops and selected
+    every step, where an ``(m, n)`` matrix per member was most of the memory
+    traffic. The loop belongs to the caller, which may stop, move and restart
+    members one by one.
     """
 
-    def __init__(self, fn, solver, static_state, max_steps: int):
-        self.fn = fn  # closure-converted r(y, data) -> (r, None)
-        self.solver = solver
-        self.static_state = static_state  # the non-array part of the solver state (jaxprs), shared by all
-        self.max_steps = max_steps
-
-    @staticmethod
-    def make(res_fn, solver, y, data, max_steps):
-        """For residuals ``res_fn(y, data)`` and one member's example ``y``, ``data``."""
-        fn = eqx.filter_closure_convert(lambda y, d: (res_fn(y, d), None), y, data)
-        f_struct, aux_struct = fn.out_struct  # pyright: ignore[reportFunctionMemberAccess]
-        state = solver.init(fn, y, data, {}, f_struct, aux_struct, frozenset())
-        return LMMember(fn, solver, eqx.partition(state, eqx.is_array)[1], max_steps)
+    def __init__(self, model, rtol: float, atol: float, max_steps: int):
+        self.model, self.rtol, self.atol, self.max_steps = model, rtol, atol, max_steps
 
     def start(self, y, data):
-        """A fresh solve from ``y``: ``dict(y, data, lm, steps, terminate, result)``."""
-        f_struct, aux_struct = self.fn.out_struct  # pyright: ignore[reportAttributeAccessIssue]
-        state = self.solver.init(self.fn, y, data, {}, f_struct, aux_struct, frozenset())
-        terminate, result = self._terminate(y, data, state)
-        lm = eqx.partition(state, eqx.is_array)[0]
-        return dict(y=y, data=data, lm=lm, steps=jnp.zeros((), jnp.int32), terminate=terminate, result=result)
-
-    def _terminate(self, y, data, state):
-        terminate, result = self.solver.terminate(self.fn, y, data, {}, state, frozenset())
-        return terminate, optx.RESULTS.where(_allfinite(y), result, optx.RESULTS.nonfinite)
+        """A fresh solve from ``y``; ``r``, ``G`` and ``g`` are filled in by the first step."""
+        r = jax.eval_shape(self.model, y, data)[0]
+        n = y.shape[0]
+        return dict(
+            y=y,
+            y_eval=y,
+            data=data,
+            r=jnp.zeros(r.shape, r.dtype),
+            G=jnp.zeros((n, n), y.dtype),
+            g=jnp.zeros(n, y.dtype),
+            step_size=jnp.ones((), y.dtype),
+            first=jnp.array(True),
+            steps=jnp.zeros((), jnp.int32),
+            terminate=jnp.array(False),
+            ok=jnp.all(jnp.isfinite(y)),
+        )
 
     def advance(self, slot):
-        state = eqx.combine(self.static_state, slot["lm"])
-        y, state, _ = self.solver.step(self.fn, slot["y"], slot["data"], {}, state, frozenset())
-        terminate, result = self._terminate(slot["y"], slot["data"], state)
-        lm = eqx.partition(state, eqx.is_array)[0]
-        return dict(slot, y=y, lm=lm, steps=slot["steps"] + 1, terminate=terminate, result=result)
+        """Evaluate the trial point, accept or reject it, and propose the next one."""
+        y, y_eval, r, G, g, first = (slot[k] for k in ("y", "y_eval", "r", "G", "g", "first"))
+        r_e, J_e = self.model(y_eval, slot["data"])
+        loss, loss_e = 0.5 * jnp.sum(r * r), 0.5 * jnp.sum(r_e * r_e)
+        d = y_eval - y
+        predicted = 0.5 * d @ G @ d + d @ g  # ½‖J d + r‖² − ½‖r‖², the model's loss change: ≤ 0
+        change = loss_e - loss
+        accept = (change <= _ACCEPT_RATIO * predicted) | first
+        good = (change < _EXPAND_RATIO * predicted) & (predicted < 0) & ~first
+        step_size = slot["step_size"] * jnp.where(accept, jnp.where(good, _GROW, 1.0), _SHRINK).astype(y.dtype)
+
+        # MINPACK's relative-reduction stop (module docstring)
+        dof = max(r.size - y.size, 1)
+        tol = loss * max(self.rtol, 2 * _SIGMA_TOL**2 / dof)
+        stalled = ~first & (jnp.abs(change) <= tol) & (-predicted <= tol) & (-change <= -2 * predicted)
+        # the accepted-step test on y and on the residuals (max-norm)
+        small_y = jnp.max(jnp.abs(d) / (self.atol + self.rtol * jnp.abs(y_eval))) < 1
+        small_r = jnp.max(jnp.abs(r_e - r) / (self.atol + self.rtol * jnp.abs(r_e))) < 1
+        terminate = (accept & small_y & small_r) | stalled
+
+        y = jnp.where(accept, y_eval, y)
+        r = jnp.where(accept, r_e, r)
+        G, g = jnp.where(accept, J_e.T @ J_e, G), jnp.where(accept, J_e.T @ r_e, g)
+        y_next = y + _damped_step(G, g, step_size)
+        ok = slot["ok"] & jnp.all(jnp.isfinite(y_next)) & jnp.all(jnp.isfinite(r))
+        return dict(
+            slot,
+            y=y,
+            y_eval=y_next,
+            r=r,
+            G=G,
+            g=g,
+            step_size=step_size,
+            first=jnp.array(False),
+            steps=slot["steps"] + 1,
+            terminate=terminate,
+            ok=ok,
+        )
 
     def running(self, slot):
-        return ~slot["terminate"] & (slot["result"] == optx.RESULTS.successful) & (slot["steps"] < self.max_steps)
+        return ~slot["terminate"] & slot["ok"] & (slot["steps"] < self.max_steps)
 
-    def solution(self, slot):
-        """``(y, r, J, ok)`` of a stopped member: the residual and Jacobian as last linearised.
-
-        Reusing them keeps a second copy of the simulation out of the compiled program.
-        """
-        f_info = eqx.combine(self.static_state, slot["lm"]).f_info
-        r, J = f_info.residual, lx.materialise(f_info.jac).as_matrix()
-        ok = slot["terminate"] & (slot["result"] == optx.RESULTS.successful)
-        return slot["y"], r, J, ok
-
-
-def _allfinite(y):
-    return jnp.all(jnp.isfinite(y))
+    def converged(self, slot):
+        return slot["terminate"] & slot["ok"]
