@@ -175,7 +175,7 @@ def test_similar_lengths_share_one_compiled_program():
 
 def test_float32_clean_fit():
     # x64 is on in the test session: float32 data must stay float32 through the solver
-    # (optimistix's trust region used to start its step size in float64)
+    # (the trust region's step size once started in float64 and promoted the damped solve)
     q, _ = _record(T_FAST)
     res = rb.fit_inertia(T_FAST, q.astype(np.float32))
     assert res.inertia.dtype == np.float32 and bool(res.converged)

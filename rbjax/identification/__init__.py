@@ -9,7 +9,9 @@ One concept per private module, so the simulator's core stays small:
 * :mod:`._sensors`: sensor models (gyro frame, accelerometer lever arm);
 * :mod:`._robust`: robust losses by iteratively reweighted least squares;
 * :mod:`._model`: the multiple-shooting residual model and its Jacobian (traced);
-* :mod:`._solver`: Levenberg–Marquardt (optimistix) with MINPACK's stop;
+* :mod:`._flow`: the model's rk4 on ``(q, L)`` with tangents, in structure of arrays;
+* :mod:`._solver`: trust-region Levenberg–Marquardt with MINPACK's stop;
+* :mod:`._queue`: a batch of solves as a work queue, each member stopping on its own;
 * :mod:`._result`: :class:`FitResult`, the covariance and the diagnostics;
 * :mod:`._fit`: the entry point :func:`fit_inertia`.
 

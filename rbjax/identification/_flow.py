@@ -124,12 +124,17 @@ def _flow(args, *, substeps: int, torque_frame: str | None, observe):
 
     def interval(carry, x):
         h = x["dt"] / substeps
-        for j in range(substeps):
+
+        def sub(carry, j):  # sub-step j of the interval, with its tangents
             torque = None if torque_frame is None else functools.partial(_stage_torque, x, j, substeps, torque_frame)
             (q, L), (dq, dL) = carry
             step = functools.partial(_rk4, dt=h, torque=torque)
-            push = lambda tq, tL, ti: jax.jvp(step, (q, L, inv), (tq, tL, ti))  # noqa: E731,B023
-            carry = jax.vmap(push, out_axes=(None, 0))(dq, dL, dinv)
+            push = lambda tq, tL, ti: jax.jvp(step, (q, L, inv), (tq, tL, ti))  # noqa: E731
+            return jax.vmap(push, out_axes=(None, 0))(dq, dL, dinv), None
+
+        # a loop, not unrolled: the default substeps reach 32 on fast or glitched recordings
+        steps = jnp.arange(substeps, dtype=h.dtype)
+        carry = sub(carry, steps[0])[0] if substeps == 1 else jax.lax.scan(sub, carry, steps)[0]
         (q, L), (dq, dL) = carry
         look = functools.partial(seen, obs=x["obs"])
         tangents = lambda tq, tL, ti: jax.jvp(look, (q, L, inv), (tq, tL, ti))  # noqa: E731

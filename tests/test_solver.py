@@ -1,0 +1,52 @@
+"""The fit's Levenberg–Marquardt (identification/_solver.py) against MINPACK.
+
+An exponential-decay fit with noise, a classic nonlinear least-squares test:
+``y_i = a exp(-b t_i) + c``. scipy's ``least_squares(method="lm")`` (MINPACK's
+``lmder``) is the independent reference; both converge to the same minimiser,
+so they agree to the tolerance of the stop (``rtol = 1e-10`` on the
+parameters: 1e-8 relative is a safe margin).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.optimize import least_squares
+
+from rbjax.identification._solver import LMMember
+
+T = np.linspace(0.0, 4.0, 60)
+
+
+def _residuals(y, data):
+    return y[0] * jnp.exp(-y[1] * data["t"]) + y[2] - data["obs"]
+
+
+def _model(y, data):
+    return _residuals(y, data), jax.jacfwd(_residuals)(y, data)
+
+
+@pytest.mark.parametrize("start", [(1.0, 1.0, 0.0), (5.0, 0.1, 1.0)])
+def test_levenberg_marquardt_matches_minpack(start):
+    rng = np.random.default_rng(0)
+    data = dict(t=T, obs=2.5 * np.exp(-1.3 * T) + 0.4 + rng.normal(0, 0.01, T.size))
+    lm = LMMember(_model, rtol=1e-10, atol=1e-12, max_steps=200)
+    slot = lm.start(jnp.asarray(start), jax.tree.map(jnp.asarray, data))
+    slot = jax.jit(lambda s: jax.lax.while_loop(lm.running, lm.advance, s))(slot)
+    assert bool(lm.converged(slot)) and int(slot["steps"]) < 200
+    ref = least_squares(lambda y: np.asarray(_residuals(y, data)), start, method="lm", xtol=1e-14, ftol=1e-14)
+    np.testing.assert_allclose(slot["y"], ref.x, rtol=1e-8)
+    # the slot's Gram matrix and gradient are J's at the accepted point
+    r, J = _model(slot["y"], data)
+    np.testing.assert_allclose(slot["G"], J.T @ J, rtol=1e-12)
+    # Jᵀr ≈ 0 at the minimiser: compared on the scale of its terms (rounding of the sum)
+    np.testing.assert_allclose(slot["g"], J.T @ r, rtol=0, atol=1e-12 * float(np.linalg.norm(J) * np.linalg.norm(r)))
+
+
+def test_a_non_finite_start_stops_unconverged():
+    lm = LMMember(_model, rtol=1e-10, atol=1e-12, max_steps=50)
+    data = dict(t=jnp.asarray(T), obs=jnp.ones(T.size))
+    slot = lm.start(jnp.array([np.nan, 1.0, 0.0]), data)
+    assert not bool(lm.running(slot)) and not bool(lm.converged(slot))
