@@ -3,8 +3,10 @@
 An exponential-decay fit with noise, a classic nonlinear least-squares test:
 ``y_i = a exp(-b t_i) + c``. scipy's ``least_squares(method="lm")`` (MINPACK's
 ``lmder``) is the independent reference; both converge to the same minimiser,
-so they agree to the tolerance of the stop (``rtol = 1e-10`` on the
-parameters: 1e-8 relative is a safe margin).
+so they agree to the tolerance of rbjax's stop. That stop fires once the step
+left moves the estimate by under ~0.14 of its standard error (``_SIGMA_TOL``),
+here ~1e-4 of the parameters; agreement to 1e-6 (seen: 4e-8) shows both
+reached the same minimiser.
 """
 
 from __future__ import annotations
@@ -37,7 +39,7 @@ def test_levenberg_marquardt_matches_minpack(start):
     slot = jax.jit(lambda s: jax.lax.while_loop(lm.running, lm.advance, s))(slot)
     assert bool(lm.converged(slot)) and int(slot["steps"]) < 200
     ref = least_squares(lambda y: np.asarray(_residuals(y, data)), start, method="lm", xtol=1e-14, ftol=1e-14)
-    np.testing.assert_allclose(slot["y"], ref.x, rtol=1e-8)
+    np.testing.assert_allclose(slot["y"], ref.x, rtol=1e-6)
     # the slot's Gram matrix and gradient are J's at the accepted point
     r, J = _model(slot["y"], data)
     np.testing.assert_allclose(slot["G"], J.T @ J, rtol=1e-12)
