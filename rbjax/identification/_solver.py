@@ -74,21 +74,26 @@ class LMMember:
     ``(m, n)``. A slot is a dict of arrays: ``y`` (accepted), ``y_eval``
     (trial), at ``y`` the residuals ``r``, ``G = JᵀJ`` and ``g = Jᵀr``,
     ``step_size``, ``first``, ``steps``, ``terminate`` and ``ok`` (every
-    iterate finite). ``J`` itself is not kept: the step needs only ``G`` and
-    ``g``, and the slots of a batch are carried through loops and selected
-    every step, where an ``(m, n)`` matrix per member was most of the memory
-    traffic. The loop belongs to the caller, which may stop, move and restart
-    members one by one.
+    iterate finite). ``J`` itself is kept only with ``keep_jacobian`` (then
+    as ``J``, at ``y``): the step needs only ``G`` and ``g``, and the slots of
+    a batch are carried through loops and selected every step, where an
+    ``(m, n)`` matrix per member was most of the memory traffic. A single
+    solve keeps it so that its caller can form the covariance without
+    evaluating (and compiling) the model a second time. The loop belongs to
+    the caller, which may stop, move and restart members one by one.
     """
 
-    def __init__(self, model, rtol: float, atol: float, max_steps: int):
+    def __init__(self, model, rtol: float, atol: float, max_steps: int, keep_jacobian: bool = False):
         self.model, self.rtol, self.atol, self.max_steps = model, rtol, atol, max_steps
+        self.keep_jacobian = keep_jacobian
 
     def start(self, y, data):
         """A fresh solve from ``y``; ``r``, ``G`` and ``g`` are filled in by the first step."""
-        r = jax.eval_shape(self.model, y, data)[0]
+        r, J = jax.eval_shape(self.model, y, data)
         n = y.shape[0]
+        kept = {"J": jnp.zeros(J.shape, J.dtype)} if self.keep_jacobian else {}
         return dict(
+            **kept,
             y=y,
             y_eval=y,
             data=data,
@@ -126,10 +131,12 @@ class LMMember:
         y = jnp.where(accept, y_eval, y)
         r = jnp.where(accept, r_e, r)
         G, g = jnp.where(accept, J_e.T @ J_e, G), jnp.where(accept, J_e.T @ r_e, g)
+        kept = {"J": jnp.where(accept, J_e, slot["J"])} if self.keep_jacobian else {}
         y_next = y + _damped_step(G, g, step_size)
         ok = slot["ok"] & jnp.all(jnp.isfinite(y_next)) & jnp.all(jnp.isfinite(r))
         return dict(
             slot,
+            **kept,
             y=y,
             y_eval=y_next,
             r=r,
