@@ -385,6 +385,7 @@ def test_thrown_object_gyro_only():
     assert np.all(z < 4), z
 
 
+@pytest.mark.slow  # two ~10 s programs; the quick suite's gyro-only fits cover that path
 def test_body_torques_fix_the_scale_with_and_without_orientations():
     # a reaction-wheel-like body-frame torque (the DOP853 reference applies R(q) τ_b in the world)
     q, w = reference_rotation(
@@ -444,6 +445,12 @@ def test_robust_loss_sets_glitches_aside_and_names_them():
     # the glitches are left out of the residual statistics: ratio ≈ 1, rms ≈ the noise
     assert float(res.residual_ratio) < 1.2
     np.testing.assert_allclose(res.orientation_rms, 1e-3, rtol=0.1)
+
+
+@pytest.mark.slow  # two more ~10 s programs (with the gyro); the Huber case above is quick
+def test_cauchy_loss_with_the_gyro_sets_glitches_aside():
+    q, wb = _record(T_FAST)
+    qn, wn = imu_noise(q, wb, np.random.default_rng(0))
     res = rb.fit_inertia(T_FAST, _glitched(qn), body_rates=wn, loss="cauchy")
     err_clean = _rel(rb.fit_inertia(T_FAST, qn, body_rates=wn).inertia, I_BAR)
     assert bool(res.converged) and _rel(res.inertia, I_BAR) < 2 * err_clean
@@ -554,6 +561,7 @@ def test_gyro_rotation_is_fitted_as_a_nuisance_parameter():
         rb.fit_inertia(T_FAST, qn, body_rates=w_gyro, gyro_rotation="yes")
 
 
+@pytest.mark.slow  # two ~10 s programs (with and without the accelerometer)
 def test_accelerometer_lever_arm_from_free_flight():
     # the goal: r within 1 mm for |r| ≈ 5 cm, |ω| ≈ 10 rad/s, 0.05 m/s² noise, 1 s @ 200 Hz.
     # Readings from the DOP853 body rates with ω̇ from Euler's equations in closed form
@@ -576,6 +584,13 @@ def test_accelerometer_lever_arm_from_free_flight():
     np.testing.assert_allclose(res.acceleration_rms, 0.05, rtol=0.15)  # recovers the noise level
     assert _rel(res.inertia, I_BAR) < 0.01
     assert np.all(np.isnan(np.asarray(rb.fit_inertia(t, body_rates=wb).lever_arm)))  # off by default
+
+
+def test_accelerometer_bad_inputs_name_the_remedy():
+    # refused before tracing, so no fit is compiled
+    t = np.linspace(0.0, 1.0, 201)
+    _, wb = _record(t, w0=np.array([1.0, 9.8, 1.3]))
+    acc = np.zeros_like(wb)
     with pytest.raises(ValueError, match="accelerations must have shape"):
         rb.fit_inertia(t, body_rates=wb, accelerations=acc[:-1])
     with pytest.raises(ValueError, match="free flight only"):
