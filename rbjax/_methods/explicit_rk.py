@@ -10,8 +10,6 @@ with ``f`` the Newton–Euler right-hand side (:func:`rbjax.derivative`, world
 frame, SI units) and forces evaluated at every stage time. Only the fields an
 integrator changes are combined; zero tableau entries are skipped. Afterwards
 the quaternion is normalised (``MatrixState``: ``R`` re-orthonormalised).
-When the torque varies over the step the stage states are materialised (see
-:func:`rbjax._methods._common.materialise`).
 """
 
 from __future__ import annotations
@@ -25,7 +23,7 @@ from .._pytree import replace
 from .._simulate_support import constant_fields
 from .._state import MatrixState, ParticleState, State
 from . import Method, StepFn, register
-from ._common import materialise, project, torque_varies
+from ._common import project
 
 __all__ = ["explicit_rk", "register_tableau"]
 
@@ -69,12 +67,9 @@ def explicit_rk(a: Sequence[Sequence[float]], b: Sequence[float], c: Sequence[fl
     c = tuple(float(x) for x in c)
 
     def step(state, force_fn, t, dt):
-        # a varying torque makes every stage feed the next through L and ω: see materialise
-        stage = (lambda y: materialise(y, dt)) if torque_varies(force_fn, state, t) else (lambda y: y)
         ks = []
         for i in range(s):
             y = _combine(state, dt, a[i], ks[:i])
-            y = stage(y) if i > 0 else y
             ks.append(derivative(y, force_fn(y, t + c[i] * dt)))
         # lifted, so it holds in simulate's batch-last layout too
         return project(_combine(state, dt, b, ks))

@@ -7,8 +7,7 @@ at each stage. Afterwards the quaternion is normalised (``MatrixState``: ``R``
 re-orthonormalised).
 
 The classical tableau through the explicit Runge–Kutta driver
-(:mod:`rbjax._methods.explicit_rk`), which also materialises the stages when
-the torque varies over the step.
+(:mod:`rbjax._methods.explicit_rk`).
 
 Order 4. Conserves nothing exactly: energy and ``|L|`` drift slowly (``O(h⁴)``
 per unit time) and the drift accumulates over long horizons. Cost ≈ 4 force

@@ -33,7 +33,7 @@ from .._math import _over, cross, quat_conjugate, quat_multiply, quat_rotate
 from .._pytree import replace
 from .._state import Forces, MatrixState, State, _apply
 from . import Method, register
-from ._common import materialise, project, torque_varies, via_state
+from ._common import project, via_state
 from .explicit_rk import _combine
 
 __all__ = ["rk4_body"]
@@ -67,12 +67,10 @@ def _body_derivative(s: State, f: Forces) -> State:
 def rk4_body(state: State, force_fn, t, dt) -> State:
     """One RK4 step of the body-frame equations (see the module docstring); batch-level."""
     world = lift(_to_world)
-    stage = (lambda y: materialise(y, dt)) if torque_varies(force_fn, state, t) else (lambda y: y)
     y0 = lift(_to_body)(state)
     ks = []
     for i in range(4):
         y = _combine(y0, dt, _A[i], ks[:i])
-        y = stage(y) if i > 0 else y
         ks.append(lift(_body_derivative)(y, force_fn(world(y), t + _C[i] * dt)))
     return world(project(_combine(y0, dt, _B, ks)))
 
