@@ -24,6 +24,7 @@ from __future__ import annotations
 import functools
 from typing import Any
 
+import jax
 import jax.numpy as jnp
 
 from ._batching import lift
@@ -77,6 +78,8 @@ def _rates(s: Any, f: Forces, kind: str) -> dict[str, Any]:
     }
     if isinstance(s, State):
         w = omega_of(s, kind)
+        if f.torque is not None:
+            w = jax.lax.optimization_barrier(w)  # see rbjax._dynamics: scalar code otherwise
         out["orientation"] = 0.5 * _pure_quat_multiply(w, s.orientation)
         out["angular_momentum"] = f.torque
         return out
