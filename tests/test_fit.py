@@ -89,7 +89,8 @@ def test_known_torques_give_absolute_inertia():
     # the bias and rotation cases compile their own ~11 s programs; the quick suite's fits cover them too
     [
         pytest.param(1, False, False, marks=pytest.mark.slow),
-        (3, False, False),
+        # ~25 s of compile for both paths; tests/test_flow.py checks the flow's tangents in the quick suite
+        pytest.param(3, False, False, marks=pytest.mark.slow),
         pytest.param(3, True, False, marks=pytest.mark.slow),
         pytest.param(3, True, True, marks=pytest.mark.slow),
     ],

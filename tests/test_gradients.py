@@ -32,16 +32,16 @@ HEAVY = [pytest.param(m, marks=pytest.mark.slow) if m.startswith("implicit") els
 def _quick_only(quick):
     """``HEAVY``, with every method not in ``quick`` behind ``--runslow`` too.
 
-    Each explicit case compiles jacfwd and jacrev of its scan (12-26 s on 2 cores). The quick
-    suite covers every explicit step once across the two tests below: finite differences for
-    a first-order step and the recommended splitting, finiteness at degenerate states for the
-    Runge-Kutta family and the symplectic Euler. ``--runslow`` runs every pair.
+    Each explicit case compiles jacfwd and jacrev of its scan (12-36 s on 2 cores). The quick
+    suite runs finite differences for euler and finiteness at degenerate states for rk4 and the
+    symplectic Euler (tests/test_integrators.py checks splitting's and implicit_midpoint's inertia
+    gradients against finite differences too); ``--runslow`` runs every pair.
     """
     return [m if not isinstance(m, str) or m in quick else pytest.param(m, marks=pytest.mark.slow) for m in HEAVY]
 
 
-FD_METHODS = _quick_only({"euler", "splitting"})
-DEGENERATE_METHODS = _quick_only({"rk4", "rk4_body", "semi_implicit_euler"})
+FD_METHODS = _quick_only({"euler"})
+DEGENERATE_METHODS = _quick_only({"rk4", "semi_implicit_euler"})
 # checkpointing wraps whichever step it is given in the same segment loop: the quick suite
 # checks it with rk4, --runslow with every method
 CHECKPOINT = [m if m == "rk4" else pytest.param(m, marks=pytest.mark.slow) for m in METHODS]

@@ -269,6 +269,7 @@ SHARDING_CHECK = textwrap.dedent(
 )
 
 
+@pytest.mark.slow  # a fresh process with 8 host devices (~17 s)
 def test_sharded_simulate_keeps_sharding_and_results():
     # 8 host devices need XLA_FLAGS before JAX starts, hence a fresh process. Every output leaf
     # must stay split over the 8 devices on its body axis (axis 1, behind time) for both mesh

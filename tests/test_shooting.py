@@ -54,6 +54,7 @@ def _loss(traj):
     return jnp.sum(traj.orientation[-1] * jnp.array([0.3, -1.0, 0.5, 2.0], traj.orientation.dtype))
 
 
+@pytest.mark.slow  # reverse mode through every segment (~20 s)
 def test_truncated_gradient_is_sum_of_independent_segment_gradients():
     steps, k = 120, 40
     state = rb.State.create(rb.Body(1.0, I_T), angular_velocity=W_SEP)

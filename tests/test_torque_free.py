@@ -165,6 +165,7 @@ _GRAD_CASES = {
 }
 
 
+@pytest.mark.slow  # compiles jacfwd and jacrev of the exact solution (~35 s on 2 cores)
 @pytest.mark.parametrize("name", list(_GRAD_CASES))
 def test_gradient_wrt_initial_rate_matches_finite_differences(name):
     inertia, wb = _GRAD_CASES[name]
@@ -181,6 +182,7 @@ def test_gradient_wrt_initial_rate_matches_finite_differences(name):
     np.testing.assert_allclose(jac_rev, jac, rtol=0, atol=1e-12)
 
 
+@pytest.mark.slow  # jacfwd through eigh and the elliptic functions (~20 s)
 def test_gradient_wrt_inertia():
     # through eigh (distinct moments): forward AD vs central differences of a symmetric
     # perturbation, 1e-8 absolute (truncation h^2 t^3 with h = 1e-5)

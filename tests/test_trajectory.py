@@ -330,6 +330,7 @@ def _by_hand(traj, idx):
     return out
 
 
+@pytest.mark.slow  # 25 random shapes, each compiled (~20 s); the explicit indexing tests are quick
 @settings(max_examples=25, deadline=None)
 @given(_trajectories(), st.data())
 def test_indexing_matches_slicing_the_arrays(case, data):
