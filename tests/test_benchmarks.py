@@ -64,6 +64,7 @@ def test_work_precision_full_run_covers_every_method():
     assert set(_work_precision().default_methods(quick=False)) == set(rb.methods(rb.State))
 
 
+@pytest.mark.slow  # the three benchmarks' quick modes run as subprocesses (~45 s together)
 def test_work_precision_quick_output(quick_runs):
 
     out, _ = quick_runs
@@ -97,6 +98,7 @@ def test_work_precision_quick_output(quick_runs):
             assert peer[0][1] * 10 < peer[-1][1], f"{name}: diffrax errors {peer}"
 
 
+@pytest.mark.slow  # the three benchmarks' quick modes run as subprocesses (~45 s together)
 def test_throughput_quick_output(quick_runs):
     out, _ = quick_runs
     data = json.loads((out / "throughput.json").read_text())
@@ -120,6 +122,7 @@ def test_throughput_quick_output(quick_runs):
         assert list(data["goals"]["euler_vs_limit"]) == ["float32 N=10000"]
 
 
+@pytest.mark.slow  # the three benchmarks' quick modes run as subprocesses (~45 s together)
 def test_memory_quick_output(quick_runs):
     out, _ = quick_runs
     rows = json.loads((out / "memory.json").read_text())

@@ -42,9 +42,10 @@ def _quick_only(quick):
 
 FD_METHODS = _quick_only({"euler"})
 DEGENERATE_METHODS = _quick_only({"rk4", "semi_implicit_euler"})
-# checkpointing wraps whichever step it is given in the same segment loop: the quick suite
-# checks it with rk4, --runslow with every method
-CHECKPOINT = [m if m == "rk4" else pytest.param(m, marks=pytest.mark.slow) for m in METHODS]
+# checkpointing wraps whichever step it is given in the same segment loop. Its gradient check runs
+# reverse mode twice per method (~20 s each): with --runslow, for every method; the quick suite
+# checks the option's forward pass in test_checkpoint_with_save_every_and_bad_values
+CHECKPOINT = [pytest.param(m, marks=pytest.mark.slow) for m in METHODS]
 STEPS = 12
 
 

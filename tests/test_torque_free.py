@@ -194,6 +194,7 @@ def test_gradient_wrt_inertia():
     np.testing.assert_allclose(d, fd, rtol=0, atol=1e-8)
 
 
+@pytest.mark.slow  # 100 single-body programs and a vmapped one (~24 s)
 def test_batch_equals_single_bodies():
     rng = np.random.default_rng(3)
     n = 100

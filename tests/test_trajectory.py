@@ -355,6 +355,7 @@ def test_indexing_matches_slicing_the_arrays(case, data):
         np.testing.assert_array_equal(np.broadcast_to(leaf, want[name].shape), want[name])
 
 
+@pytest.mark.slow  # 20 random shapes, each compiled (~20 s); the explicit concatenation tests are quick
 @settings(max_examples=20, deadline=None)
 @given(_trajectories(), st.integers(1, 3))
 def test_concatenate_matches_concatenating_the_arrays(case, more_steps):
