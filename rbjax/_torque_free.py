@@ -72,7 +72,7 @@ from . import _elliptic as ell
 from ._batching import lift
 from ._math import matrix_to_quat, quat_conjugate, quat_exp, quat_multiply, quat_rotate
 from ._pytree import new_unchecked
-from ._quantities import _omega_world, to_matrix_state, to_state
+from ._quantities import to_matrix_state, to_state
 from ._state import MatrixState, RigidStateT, State
 from ._trajectory import stack_frames
 from ._typing import ArrayLike
@@ -104,15 +104,19 @@ def _z_quat(psi: Array) -> Array:
     return jnp.stack([jnp.cos(psi / 2), z, z, jnp.sin(psi / 2)])
 
 
-def _setup(s: State) -> dict[str, Array]:
-    """Per-body constants of the motion (one body)."""
-    dtype = s.position.dtype
-    q0, L = s.orientation, s.angular_momentum
-    moments, axes = s.body.principal()
-    m_p = quat_rotate(quat_conjugate(q0), L) @ axes  # principal-frame momentum
+def _setup(moments: Array, axes: Array, q0: Array, L: Array) -> dict[str, Array]:
+    """Per-body constants of the motion (one body) from principal ``moments`` (3,), ascending,
+    ``axes`` (3, 3) as columns (body frame), ``q0`` (4,) and world ``L`` (3,)."""
+    dtype = q0.dtype
+    m_body = quat_rotate(quat_conjugate(q0), L)
+    m_p = m_body @ axes  # principal-frame momentum
     M2 = jnp.sum(m_p * m_p)
     I1, I2, I3 = moments[0], moments[1], moments[2]
     steady = (M2 == 0) | (I3 <= I1)
+    # the steady branch's body ω, and the same with the inertia held fixed (see _orientation_at)
+    omega_body = axes @ (m_p / moments)
+    frozen = jax.lax.stop_gradient(axes), jax.lax.stop_gradient(moments)
+    omega_body_fixed_inertia = frozen[0] @ ((m_body @ frozen[0]) / frozen[1])
     # keep the general branch finite (values and gradients) where it is not used
     moments = jnp.where(steady, jnp.asarray([1.0, 2.0, 3.0], dtype), moments)
     m_p = jnp.where(steady, jnp.asarray([0.0, 0.0, 1.0], dtype), m_p)
@@ -196,7 +200,8 @@ def _setup(s: State) -> dict[str, Array]:
         psi_rate_eq=psi_rate_eq,
         pre=quat_multiply(quat_multiply(q0, p), quat_conjugate(_b_quat(u0))),
         post=quat_conjugate(p),
-        omega=_omega_world(s),
+        omega_body=omega_body,
+        omega_body_fixed_inertia=omega_body_fixed_inertia,
         q0=q0,
         n=n,
         m_par=m_par,
@@ -257,13 +262,78 @@ def _orientation_at(c: dict[str, Array], t: Array) -> Array:
     dpsi = jnp.where(c["eq"], c["psi_rate_eq"] * t, c["rate"] * t + c["coef"] * (P - c["P0"]) / lam_safe)
 
     q = quat_multiply(quat_multiply(c["pre"], _z_quat(dpsi)), quat_multiply(_b_quat(u), c["post"]))
-    q_steady = quat_multiply(quat_exp(c["omega"] * t), c["q0"])
+    # a sphere (or L = 0) spins steadily: q(t) = exp(ω t) ⊗ q0 (world ω). Perturbing its
+    # inertia adds H' = ½ mᵀ d(I⁻¹) m to a Hamiltonian |m|²/(2I) that commutes with
+    # everything, so to first order the body turns on by t·dω_b (body frame):
+    # dq = q(t) ⊗ (0, ½ t dω_b), dω_b = d(I⁻¹) m₀. The second factor below is
+    # 1 by value and carries exactly that derivative.
+    w_b, w_b0 = c["omega_body"], c["omega_body_fixed_inertia"]
+    q_steady = quat_multiply(quat_exp(quat_rotate(c["q0"], w_b0) * t), c["q0"])
+    turn = 0.5 * t * (w_b - w_b0)  # zero by value
+    q_steady = quat_multiply(q_steady, jnp.concatenate([jnp.ones_like(turn[:1]), turn]))
     return jnp.where(c["steady"], q_steady, q)
 
 
-def _one_body(s: State, ts: Array) -> Array:
-    consts = _setup(s)
+def _orientations(moments: Array, axes: Array, q0: Array, L: Array, ts: Array) -> Array:
+    """Orientations ``(T, 4)`` of one body at times ``ts`` (T,), from its principal frame."""
+    consts = _setup(moments, axes, q0, L)
     return jax.vmap(lambda t: _orientation_at(consts, t))(ts)
+
+
+# pairs of principal axes (i, j): when d_i = d_j, a tangent dM_ij splits them along
+# (c_i ± c_j)/√2, so it is the tangent (+dM_ij, -dM_ij) of the moments in the frame
+# whose columns i, j are (c_i + c_j)/√2 and (c_j - c_i)/√2 (det +1 still)
+_PAIRS = ((0, 1), (0, 2), (1, 2))
+
+
+@jax.custom_jvp
+def _attitudes(inertia: Array, q0: Array, L: Array, ts: Array) -> Array:
+    """Orientations ``(T, 4)`` of one body of body-frame ``inertia`` (3, 3) at times ``ts``.
+
+    Differentiable with respect to the inertia everywhere (see the JVP rule
+    below): ``eigh``'s own derivative is NaN at repeated moments, and a
+    derivative through a fixed eigenframe misses the perturbations that split
+    equal moments.
+    """
+    moments, axes = jnp.linalg.eigh(inertia)
+    return _orientations(moments, axes * jnp.sign(jnp.linalg.det(axes)), q0, L, ts)
+
+
+@_attitudes.defjvp
+def _attitudes_jvp(primals, tangents):
+    """Tangent of the exact motion, written through the principal frame.
+
+    With ``I = P₀ diag(d₀) P₀ᵀ`` and ``dM = P₀ᵀ dI P₀``: the moments move by
+    ``diag(dM)`` (Hellmann–Feynman), the axes by ``P₀ A``, ``A_ij = dM_ij /
+    (d_j - d_i)``, where the moments differ. Where ``d_i = d_j`` the axes are
+    not determined, but the motion is a smooth function of ``I``, so its
+    derivative is linear in ``dI`` and the part ``dM_ij (E_ij + E_ji)`` is
+    taken as the moment tangent ``(+dM_ij, -dM_ij)`` in the frame rotated by
+    45° in the ``(i, j)`` plane, an eigenframe too (see ``_PAIRS``).
+    """
+    inertia, q0, L, ts = primals
+    dI, dq0, dL, dts = tangents
+    d0, P0 = jnp.linalg.eigh(inertia)
+    P0 = P0 * jnp.sign(jnp.linalg.det(P0))
+    dM = P0.T @ dI @ P0
+    gap = d0[None, :] - d0[:, None]
+    tiny = jnp.abs(gap) <= 64 * jnp.finfo(d0.dtype).eps * jnp.max(jnp.abs(d0))
+    A = jnp.where(tiny, 0.0, dM / jnp.where(tiny, 1.0, gap))
+    out, dout = jax.jvp(_orientations, (d0, P0, q0, L, ts), (jnp.diagonal(dM), P0 @ A, dq0, dL, dts))
+    root_half = jnp.sqrt(jnp.asarray(0.5, d0.dtype))
+    for i, j in _PAIRS:
+        ci, cj = P0[:, i], P0[:, j]
+        turned = P0.at[:, i].set(root_half * (ci + cj)).at[:, j].set(root_half * (cj - ci))
+        frame = jnp.where(tiny[i, j], turned, P0)
+        beta = jnp.where(tiny[i, j], dM[i, j], 0.0)
+        dd = jnp.zeros_like(d0).at[i].set(beta).at[j].set(-beta)
+        _, extra = jax.jvp(lambda d, frame=frame: _orientations(d, frame, q0, L, ts), (d0,), (dd,))
+        dout = dout + extra
+    return out, dout
+
+
+def _one_body(s: State, ts: Array) -> Array:
+    return _attitudes(s.body.inertia, s.orientation, s.angular_momentum, ts)
 
 
 @jax.jit
@@ -305,10 +375,15 @@ def torque_free(state: RigidStateT, t: Float[ArrayLike, "*T"]) -> RigidStateT:
         of ``rbjax._torque_free``. Frames as in :class:`State`: world ``x, v,
         L``; ``q`` body to world.
 
-    ``jit``, ``vmap`` and ``grad`` (with respect to ``t``, the initial state and,
-    where its principal axes are differentiable, the inertia) work through it;
-    gradients are finite for spheres, symmetric bodies, pure spins and
-    ``L = 0``. Cost is independent of ``t``: a fixed 12-step AGM / Landen
+    ``jit``, ``vmap`` and ``grad`` (with respect to ``t``, the initial state and
+    the inertia) work through it; gradients are finite for pure spins and
+    ``L = 0``, and right for spheres and symmetric bodies too, where the
+    principal axes are not determined by the inertia: the inertia's tangent is
+    taken through the principal frame by perturbation theory, and a tangent
+    that splits two equal moments through the frame turned by 45° between
+    them (see ``_attitudes_jvp``); a sphere's by the first-order turn
+    ``dq = q(t) ⊗ (0, ½ t d(I⁻¹) m₀)``. Under differentiation this costs up to
+    four evaluations of the closed form per body. Cost is independent of ``t``: a fixed 12-step AGM / Landen
     recurrence and 12 Carlson duplication steps per sample.
 
     Accuracy (float64). Against scipy's DOP853 at ``rtol = atol = 2.2e-14`` the

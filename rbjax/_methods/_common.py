@@ -12,11 +12,11 @@ from jax import Array
 from jax.extend.core import Literal
 
 from .._batching import lift
-from .._math import _dot3, _kick3, cross, matrix_to_quat, orthonormalize, quat_normalize
+from .._math import _dot3, _kick3, cross, matrix_to_quat, orthonormalize, quat_multiply, quat_normalize
 from .._pytree import replace
 from .._quantities import to_matrix_state, to_state
 from .._simulate_support import constant_fields
-from .._state import Forces, MatrixState, State, _apply
+from .._state import Forces, MatrixState, State
 
 
 def kick(s: State, f: Forces, h) -> State:
@@ -36,27 +36,32 @@ def solve3(A: Array, b: Array) -> Array:
     return (c0 * b[0] + c1 * b[1] + c2 * b[2]) / det
 
 
-def principal_frame(inertia: Array) -> tuple[Array, Array]:
-    """Principal moments ``d`` (3,), ascending, and the quaternion ``p`` of the axes.
+def principal_frame(inertia: Array) -> tuple[Array, Array, Array]:
+    """Principal moments ``d`` (3,), ascending, the quaternion ``p`` of the axes,
+    and ``w`` (3, 3), the carrier of the perturbations that split equal moments.
 
     ``I = P diag(d) Pᵀ`` with ``P`` (columns = principal axes in the body frame,
     ``det P = +1``) the rotation of ``p``.
 
     Values come from ``eigh`` of ``stop_gradient(I)``: ``eigh``'s own gradient
     is NaN at repeated moments (spheres, axisymmetric bodies). Gradients come
-    from first-order perturbation theory instead, written so that they are
-    correct wherever the moments are distinct and finite everywhere:
+    from first-order perturbation theory instead, with ``M = P₀ᵀ I P₀`` (its
+    value is ``diag(d)``, its tangent ``P₀ᵀ dI P₀``):
 
-    * ``d = diag(P₀ᵀ I P₀)`` (value: the eigenvalues; derivative
-      ``dd_i = (P₀ᵀ dI P₀)_ii``, Hellmann–Feynman);
-    * ``P = P₀ (1 + A)`` with ``A_ij = (P₀ᵀ I P₀)_ij / (d_j - d_i)`` for ``i ≠ j``:
-      value ``P₀`` (``A``'s value is 0 since ``P₀ᵀ I P₀`` is diagonal), derivative
-      ``P₀ dA``, the standard eigenvector derivative. ``1 + A`` is ``exp(A)`` to
-      first order, which is all a first derivative sees (second derivatives
-      w.r.t. the inertia are not exact).
-    * Where ``|d_i - d_j|`` is within round-off of zero the frame is not
-      determined by ``I`` and the dynamics do not depend on which one is
-      picked, so ``A_ij = 0`` (double ``where``: no 0/0 ever evaluated).
+    * ``d = diag(M)`` (derivative ``dd_i = dM_ii``, Hellmann–Feynman);
+    * ``P = P₀ (1 + A)`` with ``A_ij = M_ij / (d_j - d_i)`` for ``i ≠ j``:
+      value ``P₀``, derivative ``P₀ dA``, the standard eigenvector derivative
+      (``1 + A`` is ``exp(A)`` to first order, which is all a first derivative
+      sees: second derivatives w.r.t. the inertia are not exact).
+    * Where ``|d_i - d_j|`` is within round-off of zero the axes are not
+      determined by ``I``: ``A_ij = 0`` (double ``where``: no 0/0 is ever
+      evaluated), and the off-diagonal tangent ``dM_ij``, which splits the two
+      equal moments along axes the perturbation chooses, goes into ``w``
+      instead. ``w`` is zero by value; its tangent is that part of the body's
+      inverse inertia in the principal frame, ``d(M⁻¹)_ij = -dM_ij / (d_i d_j)``,
+      which a method adds to its flow with :func:`degenerate_flow`. Without it
+      the derivative of a sphere's or a symmetric top's motion along such a
+      perturbation would be missing, not merely inexact.
 
     Cost: one ``eigh`` per body. The result depends only on the body, so when
     this runs inside ``simulate``'s scan XLA's while-loop invariant code motion
@@ -74,12 +79,35 @@ def principal_frame(inertia: Array) -> tuple[Array, Array]:
     tiny = jnp.abs(gap) <= 64 * eps * jnp.max(jnp.abs(d0))
     A = jnp.where(tiny, 0.0, M / jnp.where(tiny, 1.0, gap))
     P = P0 + P0 @ A
-    return d, matrix_to_quat(P)
+    e0 = 1 / d0
+    split = tiny & ~jnp.eye(3, dtype=bool)
+    w = jnp.where(split, -(M - jax.lax.stop_gradient(M)) * (e0[:, None] * e0[None, :]), 0.0)
+    return d, matrix_to_quat(P), w
 
 
-def inverse_inertia_apply(s: State, v: Array) -> Array:
-    """``I_L⁻¹ v`` (body frame)."""
-    return _apply(s.body.inverse_inertia, v)
+@jax.custom_jvp
+def degenerate_flow(qp: Array, m: Array, w: Array, h: Array) -> tuple[Array, Array]:
+    """The flow over ``h`` of ``H_w = ½ mᵀ w m`` for the ``w`` of :func:`principal_frame`: the identity.
+
+    ``qp`` is the principal-frame-to-world quaternion (4,), ``m`` the momentum
+    in the principal frame (3,). ``w``'s value is zero, so the flow is the
+    identity and costs nothing unless differentiated; its derivative is the
+    first-order flow of ``H_w``: the body turns at ``ω = dw m`` (principal
+    frame), so ``d qp = ½ h qp ⊗ (0, dw m)`` and ``dm = h m × (dw m)``
+    (``ṁ = m × ω``).
+    """
+    del w, h
+    return qp, m
+
+
+@degenerate_flow.defjvp
+def _degenerate_flow_jvp(primals, tangents):
+    qp, m, _, h = primals
+    dqp, dm, dw, _ = tangents
+    om = h * (dw @ m)
+    zero = jnp.zeros_like(om[:1])
+    dqp = dqp + 0.5 * quat_multiply(qp, jnp.concatenate([zero, om]))
+    return (qp, m), (dqp, dm + cross(m, om))
 
 
 def batch(kernel):

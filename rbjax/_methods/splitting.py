@@ -59,8 +59,16 @@ Choose it for long or stiff (fast-spinning, anisotropic) runs, Dzhanibekov
 flips, and anything where energy must not drift.
 
 The principal frame is computed from the body by :func:`._common.principal_frame`
-(``eigh`` outside the differentiated path, gradients by perturbation theory,
-finite for spheres and symmetric tops; hoisted out of ``simulate``'s loop).
+(``eigh`` outside the differentiated path, hoisted out of ``simulate``'s loop).
+Gradients with respect to the inertia come from perturbation theory. Where two
+moments are equal the split depends on axes the inertia does not determine,
+and a perturbation that splits them is carried by ``w`` (zero by value) through
+the flow of ``H_w = ½ mᵀ w m``, taken as two half-steps around the middle turn
+(:func:`._common.degenerate_flow`: the identity unless differentiated). For a
+sphere or a symmetric top the split is the exact flow, and the derivative is
+then the exact flow's derivative to the method's ``O(h²)``: no single derivative
+of the split itself exists there, since which axis is "middle" changes with the
+sign of the perturbation.
 """
 
 from __future__ import annotations
@@ -72,8 +80,8 @@ from .._batching import lift
 from .._math import _dot3, _kick3, quat_conjugate, quat_multiply, quat_normalize, quat_rotate
 from .._pytree import replace
 from .._state import MatrixState, ParticleState, State
-from . import Method, register
-from ._common import kick, principal_frame, via_state
+from ._common import degenerate_flow, kick, principal_frame, via_state
+from ._registry import Method, register
 
 # (principal axis, fraction of h) of the symmetric composition H₃(h/2) H₁(h) H₃(h/2)
 _SEQUENCE = ((2, 0.5), (0, 1.0), (2, 0.5))
@@ -128,7 +136,7 @@ def _turn_about_momentum(L, e2, h):
 
 def free_rotor(q, L, inertia, h):
     """Orientation after the split free-rotor flow of time ``h`` (world ``L`` unchanged)."""
-    d, p = principal_frame(inertia)
+    d, p, w = principal_frame(inertia)
     e = 1 / d  # loop-invariant: hoisted out of simulate's scan with the principal frame
     k = jnp.stack([e[0] - e[1], e[1] * 0, e[2] - e[1]])  # k[1] unused: H₂ is inside H_L
     qp = quat_multiply(q, p)  # principal frame -> world
@@ -138,7 +146,11 @@ def free_rotor(q, L, inertia, h):
     # its consumers (3ⁿ times the work: 125 ms instead of ~1 ms per step of 10⁴
     # bodies with five sub-steps).
     for axis, frac in _SEQUENCE:
+        if axis == 0:  # the middle turn: H_w's half-flows around it keep the composition symmetric
+            qp, m = degenerate_flow(qp, m, w, h / 2)
         qp, m = jax.lax.optimization_barrier(_rotate_about(qp, m, k, axis, frac * h))
+        if axis == 0:
+            qp, m = degenerate_flow(qp, m, w, h / 2)
     # H_L commutes with H₁ and H₃, so its two half-steps are one full turn
     qp = quat_multiply(_turn_about_momentum(L, e[1], h), qp)
     return quat_normalize(quat_multiply(qp, quat_conjugate(p)))
