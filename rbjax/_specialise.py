@@ -32,7 +32,7 @@ from ._math import _dot3, _matmul3, _over, _pure_quat_multiply, cross, quat_norm
 from ._methods._common import project
 from ._pytree import replace
 from ._quantities import _omega_world
-from ._state import Forces, MatrixState, State, _apply
+from ._state import Forces, State, _apply
 
 __all__ = ["KINDS", "explicit_step"]
 
@@ -138,7 +138,3 @@ _EXPLICIT = {"euler": euler, "rk4": rk4}
 def explicit_step(method: str) -> Any:
     """The specialised step of ``method`` (``"euler"``, ``"rk4"``) or ``None``."""
     return _EXPLICIT.get(method)
-
-
-# MatrixState shares the algebra; listed for the dispatcher.
-SUPPORTED_STATES = (State, MatrixState)

@@ -61,7 +61,7 @@ import jax.numpy as jnp
 
 from .._pytree import replace
 from .._simulate_support import constant_fields
-from . import Method, StepFn, available, register
+from ._registry import Method, StepFn, available, register
 
 __all__ = ["COEFFICIENTS", "compose", "palindrome"]
 

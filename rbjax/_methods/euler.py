@@ -23,7 +23,7 @@ from .._math import _kick3, _matmul3, _pure_quat_multiply, cross, orthonormalize
 from .._pytree import replace
 from .._quantities import _omega_world
 from .._state import Forces, MatrixState, ParticleState, State, _apply
-from . import Method, register
+from ._registry import Method, register
 
 
 def _translate(x, v, m, f: Forces, dt):

@@ -24,8 +24,8 @@ from .._dynamics import derivative
 from .._pytree import replace
 from .._simulate_support import constant_fields
 from .._state import MatrixState, ParticleState, State
-from . import Method, StepFn, register
 from ._common import materialise, project, torque_varies
+from ._registry import Method, StepFn, register
 
 __all__ = ["explicit_rk", "register_tableau"]
 

@@ -23,8 +23,8 @@ from __future__ import annotations
 from .._math import _kick3, _matmul3, cross, quat_conjugate, quat_exp, quat_multiply, quat_normalize, quat_rotate, skew
 from .._pytree import replace
 from .._state import Forces, MatrixState, State, _apply
-from . import Method, register
 from ._common import batch, solve3, via_state
+from ._registry import Method, register
 
 
 def implicit_gyroscopic_state(s: State, f: Forces, dt) -> State:

@@ -55,8 +55,8 @@ from .._batching import lift
 from .._math import _dot3, _matmul3, cross, quat_conjugate, quat_multiply, quat_normalize, quat_rotate, skew
 from .._pytree import replace
 from .._state import MatrixState, State, _apply
-from . import Method, register
 from ._common import kick, solve3, via_state
+from ._registry import Method, register
 
 # Newton iterations before the differentiated one. From Π_½ = Π₀ the residual
 # is squared each iteration once it is small. Measured (50 random axes per

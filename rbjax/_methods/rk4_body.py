@@ -32,8 +32,8 @@ from .._batching import lift
 from .._math import _over, cross, quat_conjugate, quat_multiply, quat_rotate
 from .._pytree import replace
 from .._state import Forces, MatrixState, State, _apply
-from . import Method, register
 from ._common import project, via_state
+from ._registry import Method, register
 from .explicit_rk import _combine
 
 __all__ = ["rk4_body"]

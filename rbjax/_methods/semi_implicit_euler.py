@@ -37,8 +37,8 @@ from .._math import (
 )
 from .._pytree import replace
 from .._state import Forces, MatrixState, ParticleState, State, _apply
-from . import Method, register
 from ._common import batch, kick
+from ._registry import Method, register
 
 
 def semi_implicit_state(s: State, f: Forces, dt) -> State:
