@@ -22,7 +22,6 @@ import hashlib
 import json
 import os
 import re
-import tempfile
 import warnings
 from pathlib import Path
 from typing import Any
@@ -30,8 +29,8 @@ from typing import Any
 import jax
 import numpy as np
 
-from ._io import _check_expect, _metadata, _read_npz, _rebuild, _to_jax, _write_npz
 from ._io_check import check_arrays
+from ._npz import check_expect, metadata, read_npz, rebuild, to_jax, write_atomic, write_npz
 from ._pytree import is_rbjax_dataclass
 
 __all__ = ["ChunkWriter", "chunk_files", "load_chunks", "fingerprint", "read_run", "RUN_FILE"]
@@ -97,15 +96,7 @@ def read_run(directory: Path) -> dict[str, Any] | None:
 
 
 def _write_json(path: Path, obj: dict[str, Any]) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(obj, f, indent=1)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_atomic(path, lambda f: f.write(json.dumps(obj, indent=1).encode()))
 
 
 # the chunk metadata that must agree across a directory
@@ -154,12 +145,12 @@ def load_chunks(directory: Path, expect: Any, allow_incomplete: bool) -> Any:
         )
     run = read_run(directory)
     files = chunk_files(directory)
-    read = [_read_npz(f) for f in files]
+    read = [read_npz(f) for f in files]
     metas = [m for m, _ in read]
     parts = [a for _, a in read]
     for m, a, f in zip(metas, parts, files, strict=True):
         check_arrays(m, a, f)
-    _check_expect(metas[0], expect, directory)
+    check_expect(metas[0], expect, directory)
     _check_consistent(directory, files, metas, parts, run)
     if run is not None and not run.get("complete") and not allow_incomplete:
         raise ValueError(
@@ -185,7 +176,7 @@ def load_chunks(directory: Path, expect: Any, allow_incomplete: bool) -> Any:
                 if not np.array_equal(p[key], parts[0][key], equal_nan=True):
                     raise ValueError(f"load: {key!r} in {f.name} differs from the first chunk's")
             merged[key] = parts[0][key]
-    return _rebuild(metas[0]["tree"], "", _to_jax(merged, directory))
+    return rebuild(metas[0]["tree"], "", to_jax(merged, directory))
 
 
 class ChunkWriter:
@@ -285,8 +276,8 @@ class ChunkWriter:
         that ``load`` can refuse repeated or missing frames.
         """
         extra = {"chunk": self.count, "first_step": None if first_step is None else int(first_step)}
-        meta = _metadata(trajectory, trajectory=True, **self.meta, extra=extra)
+        meta = metadata(trajectory, trajectory=True, **self.meta, extra=extra)
         path = self.directory / f"chunk_{self.count:06d}.npz"
-        _write_npz(path, trajectory, meta)
+        write_npz(path, trajectory, meta)
         self.count += 1
         return path

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from ._npz import TYPES
 from ._state import quat_tolerance
 
 __all__ = ["check_arrays", "core_shape"]
@@ -45,12 +46,6 @@ def core_shape(cls: type, name: str) -> tuple[int | None, ...] | None:
     return None
 
 
-def _types() -> dict[str, type]:
-    from ._io import _TYPES
-
-    return _TYPES
-
-
 def check_arrays(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: Path) -> None:
     """``ValueError`` unless ``arrays`` are exactly what ``meta["tree"]`` describes."""
     wanted = meta.get("dtype")
@@ -67,7 +62,7 @@ def check_arrays(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: Path
 
 
 def _check_object(spec, prefix, arrays, path, dtypes, expected, stacked, lengths, *, top: bool) -> list:
-    cls = _types().get(spec.get("type", "")) if isinstance(spec, dict) else None
+    cls = TYPES.get(spec.get("type", "")) if isinstance(spec, dict) else None
     if cls is None:
         raise ValueError(f"load: {path}: unknown pytree type {spec.get('type') if isinstance(spec, dict) else spec!r}")
     fields = spec.get("fields")
