@@ -49,3 +49,48 @@ def test_pyright_is_clean():
     shown = "\n".join(f"{d['file']}:{d['range']['start']['line'] + 1}: {d['message']}" for d in errors[:20])
     assert report["summary"]["filesAnalyzed"] > 20, "pyright checked too few files: is [tool.pyright] include right?"
     assert not errors, f"{len(errors)} pyright errors:\n{shown}"
+
+
+def _imports(path: Path, module: str, modules: set[str]) -> set[str]:
+    """The rbjax modules ``module`` (at ``path``) imports, at the top or inside functions."""
+    import ast
+
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parent = package
+                for _ in range(node.level - 1):
+                    parent = parent.rpartition(".")[0]
+                base = parent + ("." + node.module if node.module else "")
+            subs = {f"{base}.{a.name}" for a in node.names} & modules
+            # `from . import x` of submodules imports them, not the package's own names
+            found |= subs if len(subs) == len(node.names) else subs | {base}
+        elif isinstance(node, ast.Import):
+            found |= {a.name for a in node.names}
+    return (found & modules) - {module}
+
+
+def test_no_import_circle_among_rbjax_modules():
+    files = {}
+    for p in (ROOT / "rbjax").rglob("*.py"):
+        parts = p.relative_to(ROOT).with_suffix("").parts
+        files[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = p
+    graph = {m: _imports(p, m, set(files)) for m, p in files.items()}
+
+    def reaches(start: str, goal: str) -> bool:
+        seen, todo = set(), [start]
+        while todo:
+            m = todo.pop()
+            if m == goal:
+                return True
+            if m not in seen:
+                seen.add(m)
+                todo += graph[m]
+        return False
+
+    # a package's __init__ may import its submodules; nothing else may come back round
+    circles = sorted(f"{a} -> {b}" for a in graph for b in graph[a] if not b.startswith(a + ".") and reaches(b, a))
+    assert not circles, f"import circles (function-level imports count): {circles}"
