@@ -152,25 +152,36 @@ def check_and_time(state: Any, steps: int, dt: float, best_time: Any, check_step
         numba.set_num_threads(k)
         rates[k] = n * steps / best_time(lambda: run(data, dt, steps))
     numba.set_num_threads(threads)
-    f = jax.jit(lambda s, fs: rb.simulate(s, fs, dt, steps, "euler", save_every=steps))
-    jax.block_until_ready(f(state, forces))
-    t_rb = best_time(f, state, forces)
-    return dict(limit=max(rates.values()), threads=max(rates, key=rates.get), rbjax=n * steps / t_rb, agreement_eps=err)
+    out = dict(limit=max(rates.values()), threads=max(rates, key=rates.get), agreement_eps=err)
+    # rbjax's two paths: the JAX steps, and the native kernel where it was built
+    for key, native in (("rbjax_jax", False), ("rbjax_native", True)):
+        if native and not rb.native_status().available:
+            continue
+        f = jax.jit(lambda s, fs, nat=native: rb.simulate(s, fs, dt, steps, "euler", save_every=steps, native=nat))
+        jax.block_until_ready(f(state, forces))
+        out[key] = n * steps / best_time(f, state, forces)
+    return out
 
 
 def limit_rows(state: Any, steps: int, dt: float, best_time: Any) -> list[dict]:
-    """throughput.py's rows: ``numba-limit`` and ``rbjax-forces`` (rbjax's euler on the loop's data)."""
+    """throughput.py's rows: ``numba-limit``, and rbjax's euler on the loop's data through its JAX
+    steps (``rbjax-forces-jax``) and its native kernel (``rbjax-forces-native``, where built)."""
     n, dname = state.batch_shape[0], np.dtype(state.dtype).name
     lim = check_and_time(state, steps, dt, best_time)
     common = dict(method="euler", dtype=dname, bodies=n, steps=steps)
+    native = lim.get("rbjax_native")
     print(
         f"numba limit euler {dname} N={n:>8}: {lim['limit']:.3e} body-steps/s ({lim['threads']} threads); "
-        f"rbjax on its data {lim['rbjax']:.3e} ({lim['rbjax'] / lim['limit']:.2f}x; "
-        f"agree to {lim['agreement_eps']:.1f} eps)",
+        f"rbjax on its data: JAX {lim['rbjax_jax']:.3e} ({lim['rbjax_jax'] / lim['limit']:.2f}x), "
+        + (f"native {native:.3e} ({native / lim['limit']:.2f}x)" if native else "native not built")
+        + f"; agree to {lim['agreement_eps']:.1f} eps",
         flush=True,
     )
     limit = dict(engine="numba-limit", body_steps_per_s=lim["limit"], threads=lim["threads"], **common)
-    return [
+    rows = [
         dict(limit, agreement_eps=lim["agreement_eps"]),
-        dict(engine="rbjax-forces", body_steps_per_s=lim["rbjax"], **common),
+        dict(engine="rbjax-forces-jax", body_steps_per_s=lim["rbjax_jax"], **common),
     ]
+    if native:
+        rows.append(dict(engine="rbjax-forces-native", body_steps_per_s=native, **common))
+    return rows

@@ -11,9 +11,13 @@ installed:
   ((3, N) arrays, vector ops);
 * ``numba-limit``: the hand-written limit, the same Euler as one fused,
   multi-threaded Numba loop (``benchmarks/_numba_limit.py``, the ``bench``
-  extra), checked against rbjax's step to round-off, with ``rbjax-forces``:
-  rbjax's euler on that loop's data (zero force and torque arrays read every
-  step), for N ≥ 1e4;
+  extra), checked against rbjax's step to round-off, with ``rbjax-forces-jax``
+  and ``rbjax-forces-native``: rbjax's euler on that loop's data (zero force
+  and torque arrays read every step) through the JAX steps and the native
+  kernel, for N ≥ 1e4;
+* ``rbjax-native``: each method with a native kernel (``rbjax.native_status()``)
+  through it, beside the JAX path (``rbjax``, ``native=False``), and both with
+  gravity and quadratic drag (``+forces``) for N ≥ 1e4;
 * ``mujoco``: MuJoCo's C engine (``mj_step``) on ONE model of N free bodies
   (freejoint, box geoms, contact and constraint disabled, gravity off, the same
   dt), with its ``Euler`` (semi-implicit) and ``RK4`` integrators; float64 (MuJoCo's
@@ -57,6 +61,8 @@ import rbjax as rb  # noqa: E402
 
 DT = 1e-3
 STATE_VALUES, PARAM_VALUES = 13, 9  # (x, v, q, L) read and written; I_L⁻¹ read
+NATIVE = rb.native_status().methods if rb.native_status().available else ()
+SCENE_FORCES = rb.Gravity() + rb.QuadraticDrag(0.05, 0.01)  # the forces every real scene has
 
 
 def make_state(n: int, dtype) -> rb.State:
@@ -75,8 +81,8 @@ def make_state(n: int, dtype) -> rb.State:
 # ----------------------------------------------------------------------------- rbjax
 
 
-def time_rbjax(state, method: str, steps: int, dt: float = DT) -> dict:
-    f = jax.jit(lambda s: rb.simulate(s, None, dt, steps, method, save_every=steps))
+def time_rbjax(state, method: str, steps: int, dt: float = DT, native: bool | None = False, forces=None) -> dict:
+    f = jax.jit(lambda s: rb.simulate(s, forces, dt, steps, method, save_every=steps, native=native))
     compiled, t_compile = compile_timed(f, state)
     jax.block_until_ready(compiled(state))
     t = best_time(compiled, state)
@@ -334,6 +340,28 @@ def main(argv=None) -> int:
                 )
             if n >= 10_000 and _numba_limit.available():
                 rows += _numba_limit.limit_rows(state, steps, DT, best_time)
+            native_methods = [m for m in methods if m in NATIVE]
+            for method in native_methods if n >= 1000 else []:
+                for forces, label in ((None, ""), (SCENE_FORCES, "+forces")):
+                    for engine, native in (("rbjax-native", True), ("rbjax", False)):
+                        if label or native:  # the plain JAX rows come below
+                            r = time_rbjax(state, method, steps, native=native, forces=forces)
+                            rows.append(
+                                dict(
+                                    engine=engine + label,
+                                    method=method,
+                                    dtype=dname,
+                                    bodies=n,
+                                    steps=steps,
+                                    body_steps_per_s=n * steps / r["seconds"],
+                                    compile_s=r["compile_s"],
+                                )
+                            )
+                            print(
+                                f"{engine + label:>20} {method:>6} {dname} N={n:>8}: "
+                                f"{n * steps / r['seconds']:.3e} body-steps/s, compile {r['compile_s']:.2f} s",
+                                flush=True,
+                            )
             for method in methods:
                 r = time_rbjax(state, method, steps)
                 itemsize = np.dtype(dtype).itemsize
@@ -466,9 +494,26 @@ def evaluate_goals(rows, hw, methods) -> dict:
     vs_limit = {}
     for r in rows:
         if r["engine"] == "numba-limit":
-            ours = _rate(rows, engine="rbjax-forces", dtype=r["dtype"], bodies=r["bodies"])
-            ratio = ours / r["body_steps_per_s"]
-            vs_limit[f"{r['dtype']} N={r['bodies']}"] = dict(ratio=ratio, target=0.9, met=ratio >= 0.9)
+            for path in ("native", "jax"):
+                ours = _rate(rows, engine=f"rbjax-forces-{path}", dtype=r["dtype"], bodies=r["bodies"])
+                if ours:
+                    ratio = ours / r["body_steps_per_s"]
+                    vs_limit[f"{path} {r['dtype']} N={r['bodies']}"] = dict(ratio=ratio, target=0.9, met=ratio >= 0.9)
+    # native rk4 against native euler, and the forces' cost on each path (N = n, float32)
+    native_goals = {}
+    eu_nat = _rate(rows, engine="rbjax-native", method="euler", dtype="float32", bodies=n)
+    for m in NATIVE:
+        nat = _rate(rows, engine="rbjax-native", method=m, dtype="float32", bodies=n)
+        nat_f = _rate(rows, engine="rbjax-native+forces", method=m, dtype="float32", bodies=n)
+        jx = _rate(rows, engine="rbjax", method=m, dtype="float32", bodies=n)
+        jx_f = _rate(rows, engine="rbjax+forces", method=m, dtype="float32", bodies=n)
+        if nat and eu_nat and jx and jx_f and nat_f:
+            native_goals[m] = dict(
+                native_vs_jax=nat / jx,
+                vs_native_euler=dict(ratio=nat / eu_nat, target=0.5, met=nat / eu_nat >= 0.5),
+                native_forces_cost=dict(ratio=nat / nat_f, target=1.5, met=nat / nat_f <= 1.5),
+                jax_with_forces=dict(ratio=jx_f / jx, target=0.5, met=jx_f / jx >= 0.5),
+            )
     return dict(
         bodies=n,
         euler_vs_limit=vs_limit,
@@ -481,6 +526,7 @@ def evaluate_goals(rows, hw, methods) -> dict:
         ),
         euler_bandwidth_fraction=dict(fraction=bw_frac, target=0.5, met=bw_frac >= 0.5),
         methods_within_2x_of_roofline=per_method,
+        native=native_goals,
     )
 
 
@@ -492,21 +538,24 @@ def table(rows, hw, goals) -> str:
         "The hand-written limit: explicit Euler as one fused multi-threaded Numba loop (benchmarks/"
         "_numba_limit.py), reading zero force and torque arrays each step; `vs limit` is rbjax's euler on "
         "that same data over the loop's rate.\n",
-        "| method | dtype | N | body-steps/s | vs NumPy | hand-written limit | vs limit | compile (s) "
-        "| peak MiB | flops/step | roofline |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| method | dtype | N | body-steps/s (JAX) | native | native / JAX | vs NumPy | hand-written limit "
+        "| JAX vs limit | native vs limit | compile (s) | peak MiB | flops/step | roofline |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
         if r["engine"] != "rbjax":
             continue
-        npy = _rate(rows, engine="numpy", dtype=r["dtype"], bodies=r["bodies"])
-        lim = _rate(rows, engine="numba-limit", dtype=r["dtype"], bodies=r["bodies"])
-        ours = _rate(rows, engine="rbjax-forces", dtype=r["dtype"], bodies=r["bodies"])
-        lim_cols = f"{lim:.2e} | {ours / lim:.2f}x" if lim and ours and r["method"] == "euler" else "- | -"
+        key = dict(dtype=r["dtype"], bodies=r["bodies"])
+        npy = _rate(rows, engine="numpy", **key)
+        lim = _rate(rows, engine="numba-limit", **key)
+        nat = _rate(rows, engine="rbjax-native", method=r["method"], **key)
+        vs = [_rate(rows, engine=f"rbjax-forces-{p}", **key) for p in ("jax", "native")]
+        lim_cols = " | ".join(f"{v / lim:.2f}x" if lim and v and r["method"] == "euler" else "-" for v in vs)
         out.append(
             f"| {r['method']} | {r['dtype']} | {r['bodies']:,} | {r['body_steps_per_s']:.2e} | "
-            f"{r['body_steps_per_s'] / npy:.1f}x | {lim_cols} | {r['compile_s']:.2f} | {r['peak_mb'] or 0:.1f} | "
-            f"{r['flops']:.0f} | {r['roofline_fraction']:.0%} |"
+            + (f"{nat:.2e} | {nat / r['body_steps_per_s']:.1f}x" if nat else "- | -")
+            + f" | {r['body_steps_per_s'] / npy:.1f}x | {f'{lim:.2e}' if lim else '-'} | {lim_cols} | "
+            f"{r['compile_s']:.2f} | {r['peak_mb'] or 0:.1f} | {r['flops']:.0f} | {r['roofline_fraction']:.0%} |"
         )
     out += [
         "",
@@ -514,7 +563,7 @@ def table(rows, hw, goals) -> str:
         "|---|---|---|---:|---:|---:|---:|",
     ]
     for r in rows:
-        if r["engine"] in ("rbjax", "rbjax-forces", "numba-limit"):
+        if r["engine"].startswith("rbjax") or r["engine"] == "numba-limit":
             continue
         m = "rk4" if r["method"] == "RK4" else "euler"
         dt = "float32" if r["engine"] == "mjx" and "32" in r["dtype"] else r["dtype"]
@@ -542,6 +591,15 @@ def table(rows, hw, goals) -> str:
         out.append(
             f"- euler vs the hand-written limit, {k}: {v['ratio']:.2f}x (target ≥ 0.9x): "
             + ("met" if v["met"] else "NOT met")
+        )
+    for m, v in g["native"].items():
+        out.append(
+            f"- {m} native: {v['native_vs_jax']:.1f}x its JAX path; {v['vs_native_euler']['ratio']:.2f}x native "
+            f"euler (target ≥ 0.5x): {'met' if v['vs_native_euler']['met'] else 'NOT met'}; with gravity + "
+            f"quadratic drag {1 / v['native_forces_cost']['ratio']:.2f}x its force-free rate (target ≥ 0.67x): "
+            f"{'met' if v['native_forces_cost']['met'] else 'NOT met'}; the JAX path with them "
+            f"{v['jax_with_forces']['ratio']:.2f}x its own (target ≥ 0.5x): "
+            f"{'met' if v['jax_with_forces']['met'] else 'NOT met'}"
         )
     for m, v in g["methods_within_2x_of_roofline"].items():
         out.append(

@@ -156,6 +156,8 @@ from ._chunked import simulate_chunked as simulate_chunked
 from ._io import load as load
 from ._io import read_metadata as read_metadata
 from ._io import save as save
+from ._native import NativeStatus as NativeStatus
+from ._native import native_status as native_status
 
 # --- end tools ---
 # exact torque-free solution (ground truth for integrator tests and benchmarks)

@@ -13,7 +13,7 @@ import numpy as np
 from jax import Array
 from jaxtyping import Float
 
-from . import _checked, _methods
+from . import _checked, _methods, _native
 from ._batching import _map_leaves, batch_last, batch_shape, lift, to_batch_first, to_batch_last
 from ._body import prepare
 from ._forces import ForceModel
@@ -176,6 +176,7 @@ def simulate(
     t0: Float[ArrayLike, ""] | None = None,
     checked: bool | _checked.Checks = False,
     checkpoint: int | None = None,
+    native: bool | None = None,
 ) -> StateT:
     """Integrate ``steps`` steps of ``dt`` with ``lax.scan`` and return the trajectory.
 
@@ -212,6 +213,13 @@ def simulate(
             (``checkpoint ≈ √steps`` minimises memory). Must divide ``steps`` and
             either divide ``save_every`` or be a multiple of it. Values and
             gradients are unchanged (to round-off). See :func:`_checkpointed_scan`.
+        native: which implementation steps the bodies. ``None`` (default): the
+            native CPU kernel where one applies (``"euler"``, ``"rk4"``, ``"splitting"`` on
+            :class:`State` batches, float32/float64, no force or constant,
+            gravity, drag forces; see :func:`rbjax.native_status`), else JAX.
+            ``False``: always JAX. ``True``: the kernel, or ``ValueError`` saying
+            why it does not apply. Both give the same values to round-off;
+            derivatives always come from the JAX steps.
 
     Returns:
         The trajectory: the same pytree type as ``state`` with a leading time axis
@@ -232,10 +240,37 @@ def simulate(
     eagerly; inside a caller's ``jax.jit`` it arrives wrapped in JAX's
     ``JaxRuntimeError`` (use ``equinox.filter_jit`` to unwrap it).
     """
-    return _run(state, forces, dt, steps, method, save_every=save_every, t0=t0, checked=checked, checkpoint=checkpoint)
+    return _run(
+        state,
+        forces,
+        dt,
+        steps,
+        method,
+        save_every=save_every,
+        t0=t0,
+        checked=checked,
+        checkpoint=checkpoint,
+        native=native,
+    )
 
 
-def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoint=None, step_offset=0):
+def _native_path(native: bool | None, state, forces, method, *, series: bool, checks, checkpoint) -> bool:
+    """Whether this run steps natively (see ``simulate``'s ``native``); ``ValueError`` for ``True`` that cannot."""
+    if native is not None and not isinstance(native, bool):
+        raise TypeError(f"simulate: native must be None, True or False, got {native!r}")
+    if native is False:
+        return False
+    reason = _native.native_plan(
+        state, forces, method, series=series, checked=checks is not None, checkpoint=checkpoint
+    )
+    if native and reason:
+        raise ValueError(f"simulate(native=True): {reason}; pass native=None to fall back to JAX")
+    if reason and isinstance(method, str) and method in _native.METHODS and type(state).__name__ == "State":
+        _native.say_once_unavailable()
+    return not reason
+
+
+def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoint=None, step_offset=0, native=None):
     """``simulate`` after its signature.
 
     ``step_offset`` is the number of steps already done from ``t0`` (a chunked
@@ -270,6 +305,16 @@ def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoin
     checks = _checked.resolve(checked, state)
     if checks is not None:
         dt, t0 = traced_step_size(dt, t0, "simulate")
+    # a force callable (force_fn) is not a force law the kernel knows: it names one, so pass it on
+    native = _native_path(
+        native,
+        state,
+        force_fn if force_fn is not None else forces,
+        method,
+        series=series,
+        checks=checks,
+        checkpoint=checkpoint,
+    )
     out = _simulate(
         state,
         forces,
@@ -283,6 +328,7 @@ def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoin
         force_fn=force_fn,
         checks=checks,
         checkpoint=None if checkpoint is None else int(checkpoint),
+        native=native,
     )
     if checks is None:
         return out
@@ -300,9 +346,9 @@ def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoin
 
 @functools.partial(
     jax.jit,
-    static_argnames=("steps", "method", "save_every", "series", "force_fn", "checks", "checkpoint"),
+    static_argnames=("steps", "method", "save_every", "series", "force_fn", "checks", "checkpoint", "native"),
 )
-def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, force_fn, checks=None, checkpoint=None):
+def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, force_fn, checks, checkpoint, native):
     step_fn = method if callable(method) else _methods.get(method, type(state))
     dtype = state.dtype
     dt, t0 = dt.astype(dtype), t0.astype(dtype)
@@ -364,11 +410,33 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
     inner = checkpoint if checkpoint is not None and checkpoint < save_every else None
     outer = checkpoint // save_every if checkpoint is not None and checkpoint >= save_every else None
 
-    def advance(carry, xs):
+    def advance_jax(carry, xs):
         (dyn, rec), _ = _checkpointed_scan(one, carry, xs, inner)
         if checks is not None:
             rec = _checked.after_save(rec, replace(to_aos(dyn), **consts), xs[0][-1] + 1, checks, steps)
         return dyn, rec
+
+    if native:
+        # the steps between two saved frames in one kernel call; derivatives from these JAX steps
+        def reference(dyn, cs_soa, cs, frc, h, t):
+            frc_fn = checked_force_fn(as_force_fn(frc))
+
+            def fn(s, tt):
+                with batch_last(False):
+                    return to_soa(frc_fn(replace(to_aos(strip(s)), **{**cs, "time": tt}), tt))
+
+            def one_step(d, j):
+                with batch_last(True):
+                    return strip(step_fn(replace(d, **cs_soa), fn, t + j.astype(dtype) * h, h)), None
+
+            return jax.lax.scan(one_step, dyn, jnp.arange(save_every))[0]
+
+        def advance_native(carry, xs):
+            dyn, rec = carry
+            t = t0 + (k0 + xs[0][0]).astype(dtype) * dt
+            return _native.advance(method, save_every, reference, dyn, consts_soa, consts, forces, dt, t), rec
+
+    advance = advance_native if native else advance_jax
 
     ks = jnp.arange(steps).reshape(n_out, save_every)
     rec0 = None if checks is None else _checked.init_record(state, checks)

@@ -268,6 +268,8 @@ EXCUSED: dict[str, str] = {
     },
     "TRIANGLE_RTOL": "a constant",
     "methods": "no argument but an optional state type; returns the registry",
+    "native_status": "takes no argument; reports whether the native kernels loaded",
+    "NativeStatus": "the report native_status returns; built by rbjax, not by users",
     "ForceModel": "abstract base class",
     "ForceSum": "built by + from validated models",
     "CustomForce": "wraps a user's callable: its output is checked as a force callable's (slot simulate(forces()))",

@@ -148,7 +148,9 @@ def test_checkpointing_gives_the_same_gradient(method):
 
 def test_checkpoint_with_save_every_and_bad_values():
     s = rb.State.create(rb.box(1.0, jnp.array([1.0, 2.0, 3.0])), angular_velocity=jnp.array([0.1, 2.0, 0.1]))
-    full = rb.simulate(s, None, 0.01, 40, "rk4", save_every=10)
+    # checkpointing segments the JAX steps: bitwise those of the JAX path (the native kernel agrees
+    # with them to round-off, tests/test_native.py)
+    full = rb.simulate(s, None, 0.01, 40, "rk4", save_every=10, native=False)
     for ck in (2, 5, 20, 40):  # divides save_every, or a multiple of it
         np.testing.assert_array_equal(
             rb.simulate(s, None, 0.01, 40, "rk4", save_every=10, checkpoint=ck).orientation, full.orientation

@@ -1,0 +1,291 @@
+"""Native CPU kernels behind :func:`rbjax.simulate`, through XLA's FFI.
+
+``kernels.cc`` (built at install, see README.md beside this file) advances a
+batch of :class:`rbjax.State` bodies by all the steps between two saved frames
+in one call: ``"euler"``, ``"rk4"`` and ``"splitting"``, float32 and float64, with the force
+laws that are per body evaluated inside the kernel (none, constant
+:class:`rbjax.Forces`, and sums of :class:`rbjax.Gravity`,
+:class:`rbjax.LinearDrag`, :class:`rbjax.QuadraticDrag` and
+:class:`rbjax.ConstantForce`). Anything else runs the JAX implementation, which
+stays the reference: the kernel mirrors it to round-off (tests/test_native.py)
+and supplies nothing but values. Derivatives come from the JAX step through a
+``custom_jvp``, so ``grad`` and ``jvp`` see exactly the JAX path.
+
+:func:`native_status` says whether the kernels were built and loaded, and why
+not; ``simulate(..., native=...)`` forces either path.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import dataclasses
+import functools
+import importlib.util
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.core
+import jax.numpy as jnp
+import numpy as np
+
+from .._forces import ConstantForce, ForceSum, Gravity, LinearDrag, QuadraticDrag
+from .._methods._common import principal_frame
+from .._pytree import replace
+from .._state import Forces, State
+
+__all__ = ["NativeStatus", "native_status", "native_plan", "advance"]
+
+METHODS = {"euler": 0, "rk4": 1, "splitting": 2}  # the kernel's method codes (kernels.cc: Method)
+_TARGET = "rbjax_advance"
+_ISA = ("x86-64 baseline", "AVX2", "AVX-512")
+
+
+@dataclasses.dataclass(frozen=True)
+class NativeStatus:
+    """Whether :func:`rbjax.simulate` can use the native kernels here.
+
+    Attributes:
+        available: the library was built, loaded and registered with XLA.
+        library: its path, or ``None``.
+        instruction_set: what its steps run with on this processor
+            (``"AVX-512"``, ``"AVX2"``, ``"x86-64 baseline"``), or ``None``.
+        reason: why not, when not available.
+        methods: the methods it implements.
+    """
+
+    available: bool
+    library: str | None
+    instruction_set: str | None
+    reason: str
+    methods: tuple[str, ...] = tuple(METHODS)
+
+    def __str__(self) -> str:
+        if self.available:
+            return (
+                f"native kernels: loaded from {self.library} ({self.instruction_set}); simulate uses them for "
+                f"{', '.join(self.methods)} on State batches on the CPU, the JAX path otherwise"
+            )
+        return f"native kernels: not available ({self.reason}); simulate uses the JAX path"
+
+
+def _library_path() -> Path | None:
+    spec = importlib.util.find_spec(__name__ + "._kernels")
+    if spec is not None and spec.origin:
+        return Path(spec.origin)
+    return None
+
+
+@functools.cache
+def native_status() -> NativeStatus:
+    """Whether the native kernels were built at install and loaded, and which path ``simulate`` takes.
+
+    The library ``rbjax/_native/_kernels*.so`` is compiled by the package's build
+    from ``kernels.cc`` (a C++ compiler is needed; without one the install still
+    succeeds and every run takes the JAX path). Loaded on the first call and
+    registered with XLA as the CPU custom call ``"rbjax_advance"``. Returns a
+    :class:`NativeStatus`; ``str()`` of it is one line for a log.
+    """
+    path = _library_path()
+    if path is None:
+        return NativeStatus(False, None, None, "the library was not built at install (no C++ compiler?)")
+    try:
+        lib = ctypes.CDLL(str(path))
+        jax.ffi.register_ffi_target(_TARGET, jax.ffi.pycapsule(lib.RbjaxAdvance), platform="cpu")
+        isa = _ISA[min(int(lib.rbjax_native_isa()), 2)]
+    except (OSError, AttributeError, ValueError, RuntimeError) as e:
+        return NativeStatus(False, str(path), None, f"{path.name} could not be loaded: {e}")
+    return NativeStatus(True, str(path), isa, "")
+
+
+# --- which runs the kernels take -------------------------------------------------------------
+
+_SIMPLE = (Gravity, LinearDrag, QuadraticDrag, ConstantForce)
+
+
+def _terms(forces: Any) -> tuple[Any, ...] | None:
+    """The terms of ``forces`` the kernel evaluates itself, or ``None`` when it cannot."""
+    if forces is None:
+        return ()
+    if isinstance(forces, Forces):
+        return (forces,)
+    if isinstance(forces, ForceSum) and all(isinstance(t, _SIMPLE) for t in forces.terms):
+        return tuple(forces.terms)
+    if isinstance(forces, _SIMPLE):
+        return (forces,)
+    return None
+
+
+def native_plan(state: Any, forces: Any, method: Any, *, series: bool, checked: bool, checkpoint: Any) -> str:
+    """``""`` when this run can take the native kernels, else the reason it cannot (for messages)."""
+    status = native_status()
+    if not status.available:
+        return status.reason
+    if not isinstance(method, str) or method not in METHODS:
+        return f"method {method!r} has no native kernel (those with one: {', '.join(METHODS)})"
+    if type(state) is not State:
+        return f"{type(state).__name__} has no native kernel (State has)"
+    if state.dtype not in (jnp.float32, jnp.float64):
+        return f"dtype {state.dtype} has no native kernel (float32 and float64 have)"
+    if series or _terms(forces) is None:
+        return (
+            "these forces are not evaluated natively (none, constant Forces, Gravity, LinearDrag, "
+            "QuadraticDrag, ConstantForce and their sums are)"
+        )
+    if checked:
+        return "checked mode tests every step in JAX"
+    if checkpoint is not None:
+        return "gradient checkpointing segments the JAX scan"
+    if jax.default_backend() != "cpu":
+        return f"the default backend is {jax.default_backend()}, the kernels are for the CPU"
+    if any(_sharded(a) for a in jax.tree.leaves(state)):
+        return "the batch is sharded (the kernel has no partitioning rule)"
+    return ""
+
+
+def _sharded(a: Any) -> bool:
+    """Whether ``a`` is laid out over a mesh, so an unpartitioned custom call would gather it."""
+    if isinstance(a, jax.core.Tracer):  # under jit: explicit mesh axes in its type
+        spec = getattr(getattr(jax.typeof(a), "sharding", None), "spec", ())
+        return any(axis is not None for axis in spec)
+    return isinstance(a, jax.Array) and not isinstance(a.sharding, jax.sharding.SingleDeviceSharding)
+
+
+_warned = False
+
+
+def say_once_unavailable() -> None:
+    """One ``UserWarning`` per process when a run that could use the kernels takes the JAX path for want of them."""
+    global _warned
+    status = native_status()
+    if not status.available and not _warned:
+        _warned = True
+        warnings.warn(f"rbjax: {status}", stacklevel=3)
+
+
+# --- the call --------------------------------------------------------------------------------
+
+
+def _parameters(forces: Any, batch: tuple[int, ...], dtype: Any) -> tuple[dict[str, jax.Array], int]:
+    """The kernel's force parameters ``F, tau, g (3, n)``, ``drag (4, n)`` and its ``terms`` bits."""
+    n = int(np.prod(batch, dtype=np.int64))
+
+    def per_body(a: Any, comps: int) -> jax.Array:
+        a = jnp.asarray(a, dtype)
+        a = a if comps > 1 else a[..., None]
+        lead = a.shape[:-1]
+        if int(np.prod(lead, dtype=np.int64)) == 1:
+            return a.reshape(1, comps).T
+        return jnp.broadcast_to(a, batch + (comps,)).reshape(n, comps).T
+
+    zero3, zero = jnp.zeros((3, 1), dtype), jnp.zeros((1, 1), dtype)
+    acc: dict[str, Any] = {"F": zero3, "tau": zero3, "g": zero3, "b": zero, "br": zero, "c": zero, "cr": zero}
+    used: set[str] = set()
+
+    def add(key: str, a: Any, comps: int) -> None:
+        if a is None:
+            return
+        p = per_body(a, comps)
+        acc[key] = p if key not in used else acc[key] + p
+        used.add(key)
+
+    for term in _terms(forces) or ():
+        if isinstance(term, Forces):
+            add("F", term.force, 3)
+            add("tau", term.torque, 3)
+        elif isinstance(term, ConstantForce):
+            add("F", term.force, 3)
+            add("tau", term.torque, 3)
+        elif isinstance(term, Gravity):
+            add("g", term.g, 3)
+        elif isinstance(term, LinearDrag):
+            add("b", term.linear, 1)
+            add("br", term.angular, 1)
+        elif isinstance(term, QuadraticDrag):
+            add("c", term.linear, 1)
+            add("cr", term.angular, 1)
+    width = max(acc[k].shape[1] for k in ("b", "br", "c", "cr"))
+    drag = jnp.concatenate([jnp.broadcast_to(acc[k], (1, width)) for k in ("b", "br", "c", "cr")])
+    terms = (1 if used else 0) | (2 if used & {"c", "cr"} else 0)
+    return {"F": acc["F"], "tau": acc["tau"], "g": acc["g"], "drag": drag}, terms
+
+
+def _frames(body: Any, shared: bool, batch: tuple[int, ...], n: int) -> jax.Array:
+    """``"splitting"``'s principal frames, ``(7, 1)`` or ``(7, n)``: the axes' quaternion ``p`` and
+    the inverse moments ``e = 1/d``, as :func:`rbjax._methods._common.principal_frame` gives them."""
+    inertia = (
+        body.inertia.reshape(3, 3, 1) if shared else jnp.broadcast_to(body.inertia, (3, 3) + batch).reshape(3, 3, n)
+    )
+    d, p, _ = jax.vmap(principal_frame)(jnp.moveaxis(inertia, -1, 0))
+    return jnp.concatenate([p.T, (1 / d).T])
+
+
+def _call(method: str, steps: int, dyn: State, body: Any, forces: Any, dt: jax.Array) -> State:
+    """``steps`` steps of the kernel on a batch-last state ``dyn`` (fields ``(c, *B)``)."""
+    batch = dyn.position.shape[1:]
+    n = int(np.prod(batch, dtype=np.int64))
+    dtype = dyn.position.dtype
+    flat = [getattr(dyn, f).reshape(getattr(dyn, f).shape[0], n) for f in ("position", "velocity", "orientation")]
+    flat.append(dyn.angular_momentum.reshape(3, n))
+    # a body shared by the whole batch stays one column; one shared over some batch axes is spread
+    shared = body.mass.size == 1
+    m = body.mass.reshape(1, 1) if shared else jnp.broadcast_to(body.mass, batch).reshape(1, n)
+    inv = body.inverse_inertia
+    inv = inv.reshape(9, 1) if shared else jnp.broadcast_to(inv, (3, 3) + tuple(batch)).reshape(9, n)
+    params, terms = _parameters(forces, tuple(batch), dtype)
+    frame = _frames(body, shared, tuple(batch), n) if method == "splitting" else jnp.zeros((7, 1), dtype)
+    call = jax.ffi.ffi_call(
+        _TARGET,
+        tuple(jax.ShapeDtypeStruct(a.shape, dtype) for a in flat),
+        vmap_method="broadcast_all",
+        input_output_aliases={0: 0, 1: 1, 2: 2, 3: 3},
+    )
+    out = call(
+        *flat,
+        m,
+        inv,
+        params["F"],
+        params["tau"],
+        params["g"],
+        params["drag"],
+        frame,
+        jnp.asarray(dt, dtype),
+        steps=np.int64(steps),
+        method=np.int64(METHODS[method]),
+        terms=np.int64(terms),
+    )
+    x, v, q, L = (a.reshape(a.shape[:1] + tuple(batch)) for a in out)
+    return replace(dyn, position=x, velocity=v, orientation=q, angular_momentum=L)
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2))
+def advance(
+    method: str,
+    steps: int,
+    reference: Callable[..., State],
+    dyn: State,
+    consts_soa: dict[str, Any],
+    consts: dict[str, Any],
+    forces: Any,
+    dt: jax.Array,
+    t: jax.Array,
+) -> State:
+    """``steps`` steps of ``method`` by the kernel, with the values of ``reference`` (same arguments).
+
+    ``dyn`` is the stripped, batch-last state (fields ``(c, *B)``);
+    ``consts_soa`` its constant fields batch-last, with the prepared body
+    (``mass`` ``(*B)`` or ``()``, ``inverse_inertia`` ``(3, 3, *B)`` or
+    ``(3, 3)``), and ``consts`` the same batch-first (the force models see
+    those); ``forces`` is what ``simulate`` was given (``None``, a constant
+    batch-first :class:`Forces` or a force model), ``dt`` the step (s) and ``t``
+    the time of the first step. Differentiated through ``reference``, the JAX steps.
+    """
+    del reference, consts, t
+    return _call(method, steps, dyn, consts_soa["body"], forces, dt)
+
+
+@advance.defjvp
+def _advance_jvp(method, steps, reference, primals, tangents):
+    return jax.jvp(reference, primals, tangents)

@@ -1,0 +1,279 @@
+// Native CPU kernels for rbjax's explicit steps, called from JAX through XLA's FFI.
+//
+// One call advances a batch of State bodies (x, v, q, L) by `steps` steps of dt,
+// the steps between two saved frames of rbjax.simulate. The arithmetic mirrors the
+// JAX reference in rbjax/_methods/euler.py and rbjax/_methods/explicit_rk.py
+// (with rbjax/_dynamics.py and the force models of rbjax/_forces.py) operation by
+// operation, so the two agree to round-off; tests/test_native.py holds them to it.
+// How the pieces map, and how to add a method: README.md beside this file.
+//
+// Layout (batch-last, as inside simulate's scan): a field of c components is a
+// (V, c, N) array, component k of body i at [k * N + i]; per-body parameters
+// are (V, c, n) with n = N (one per body) or n = 1 (shared). V (from jax.vmap)
+// counts independent batches.
+//
+// The `terms` attribute: bit 0, some force or torque acts (else v and L stay);
+// bit 1, quadratic drag is among them (two square roots per evaluation).
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstdint>
+#include <memory>
+#include <thread>
+
+#include "xla/ffi/api/ffi.h"
+
+namespace ffi = xla::ffi;
+
+namespace rbjax_native {
+
+// Method codes (the `method` attribute), as in rbjax/_native/__init__.py.
+enum Method : int64_t { kEuler = 0, kRk4 = 1, kSplitting = 2 };
+
+constexpr int kBlock = 64;  // bodies per block: its state and constants stay in L1 across the steps
+
+// The state of one block of bodies, structure of arrays.
+template <typename T>
+struct Block {
+  T x[3][kBlock], v[3][kBlock], q[4][kBlock], L[3][kBlock];
+};
+
+// Per-body constants of a block: mass, I_L⁻¹ (row-major 3x3) and the force parameters
+// (constant F and τ, gravity g, drag b, b_r, c, c_r; zero where a term is absent).
+template <typename T>
+struct Consts {
+  T m[kBlock], inv[9][kBlock];
+  T F[3][kBlock], tau[3][kBlock], g[3][kBlock];
+  T b[kBlock], br[kBlock], c[kBlock], cr[kBlock];
+};
+
+// the per-body helpers of steps.h must inline into the loops over bodies, or nothing vectorises
+#define RBJAX_INLINE __attribute__((always_inline)) inline
+
+// The steps, once per instruction set, dispatched on the running processor (the
+// shipped build targets the x86-64 baseline; no -march=native).
+namespace baseline {
+#include "steps.h"
+}  // namespace baseline
+
+#if defined(__x86_64__) && defined(__GNUC__)
+#define RBJAX_X86 1
+#pragma GCC push_options
+#pragma GCC target("avx2,fma")
+namespace avx2 {
+#include "steps.h"
+}  // namespace avx2
+#pragma GCC pop_options
+#pragma GCC push_options
+#pragma GCC target("avx512f,avx512dq,avx512vl,avx512bw,avx2,fma")
+namespace avx512 {
+#include "steps.h"
+}  // namespace avx512
+#pragma GCC pop_options
+#endif
+
+// Which instruction set the steps run with: 0 baseline, 1 AVX2, 2 AVX-512.
+int isa() {
+#ifdef RBJAX_X86
+  static const int level = __builtin_cpu_supports("avx512f")  ? 2
+                           : __builtin_cpu_supports("avx2") ? 1
+                                                            : 0;
+  return level;
+#else
+  return 0;
+#endif
+}
+
+inline void block_steps(Block<float>& B, const Consts<float>& k, const float (*frame)[kBlock], int n, float dt,
+                        int64_t steps, int64_t method, bool forces, bool quad) {
+#ifdef RBJAX_X86
+  if (isa() == 2) return avx512::block_steps_f32(B, k, frame, n, dt, steps, method, forces, quad);
+  if (isa() == 1) return avx2::block_steps_f32(B, k, frame, n, dt, steps, method, forces, quad);
+#endif
+  baseline::block_steps_f32(B, k, frame, n, dt, steps, method, forces, quad);
+}
+
+inline void block_steps(Block<double>& B, const Consts<double>& k, const double (*frame)[kBlock], int n, double dt,
+                        int64_t steps, int64_t method, bool forces, bool quad) {
+#ifdef RBJAX_X86
+  if (isa() == 2) return avx512::block_steps_f64(B, k, frame, n, dt, steps, method, forces, quad);
+  if (isa() == 1) return avx2::block_steps_f64(B, k, frame, n, dt, steps, method, forces, quad);
+#endif
+  baseline::block_steps_f64(B, k, frame, n, dt, steps, method, forces, quad);
+}
+
+// A per-body parameter of `comps` components, (V, comps, n) with n = N or 1 (shared).
+template <typename T>
+struct Param {
+  const T* p = nullptr;
+  int64_t n = 1;
+  void load(int64_t vb, int64_t i0, int count, int comps, T (*dst)[kBlock]) const {
+    const T* base = p + vb * comps * n;
+    for (int c = 0; c < comps; ++c)
+      for (int j = 0; j < count; ++j) dst[c][j] = base[c * n + (n == 1 ? 0 : i0 + j)];
+  }
+};
+
+// Everything one call needs, with the element type erased to T.
+template <typename T>
+struct Problem {
+  T *x, *v, *q, *L;                  // outputs, (V, c, N)
+  const T *x0, *v0, *q0, *L0;        // inputs, (V, c, N)
+  Param<T> m, inv, F, tau, g, drag;  // (V, c, n): mass 1, inverse 9, F/τ/g 3, drag 4 (b, b_r, c, c_r)
+  Param<T> frame;                    // (V, 7, n): the principal frame's quaternion and inverse moments
+  const T* dt;                       // (V,)
+  int64_t V, N, steps, method;
+  bool forces, quad;
+};
+
+template <typename T>
+void run_block(const Problem<T>& P, int64_t vb, int64_t i0, int n) {
+  Block<T> B;
+  Consts<T> k;
+  const int64_t N = P.N;
+  const T* in[4] = {P.x0, P.v0, P.q0, P.L0};
+  T* out[4] = {P.x, P.v, P.q, P.L};
+  T(*blk[4])[kBlock] = {B.x, B.v, B.q, B.L};
+  const int comps[4] = {3, 3, 4, 3};
+  for (int f = 0; f < 4; ++f)
+    for (int c = 0; c < comps[f]; ++c)
+      for (int j = 0; j < n; ++j) blk[f][c][j] = in[f][(vb * comps[f] + c) * N + i0 + j];
+  T m[1][kBlock], drag[4][kBlock], frame[7][kBlock];
+  P.m.load(vb, i0, n, 1, m);
+  P.inv.load(vb, i0, n, 9, k.inv);
+  P.F.load(vb, i0, n, 3, k.F);
+  P.tau.load(vb, i0, n, 3, k.tau);
+  P.g.load(vb, i0, n, 3, k.g);
+  P.drag.load(vb, i0, n, 4, drag);
+  if (P.method == kSplitting) P.frame.load(vb, i0, n, 7, frame);
+  for (int j = 0; j < n; ++j) {
+    k.m[j] = m[0][j];
+    k.b[j] = drag[0][j];
+    k.br[j] = drag[1][j];
+    k.c[j] = drag[2][j];
+    k.cr[j] = drag[3][j];
+  }
+  block_steps(B, k, frame, n, P.dt[vb], P.steps, P.method, P.forces, P.quad);
+  for (int f = 0; f < 4; ++f)
+    for (int c = 0; c < comps[f]; ++c)
+      for (int j = 0; j < n; ++j) out[f][(vb * comps[f] + c) * N + i0 + j] = blk[f][c][j];
+}
+
+// The blocks of all V batches, claimed from a shared counter by the calling thread and by
+// tasks on XLA's intra-op thread pool. The caller claims blocks too, so the call finishes
+// even if no task ever runs (or the caller is the pool's only thread); it returns once
+// every block is done. The counters are shared with the tasks, which may start late.
+template <typename T>
+void run(const Problem<T>& P, ffi::ThreadPool& pool) {
+  const int64_t per_v = (P.N + kBlock - 1) / kBlock;
+  const int64_t blocks = P.V * per_v;
+  struct Counters {
+    std::atomic<int64_t> next{0}, done{0};
+  };
+  auto counters = std::make_shared<Counters>();
+  auto work = [P, per_v, blocks](Counters& s) {
+    for (int64_t b; (b = s.next.fetch_add(1)) < blocks;) {
+      const int64_t vb = b / per_v, i0 = (b % per_v) * kBlock;
+      run_block(P, vb, i0, static_cast<int>(std::min<int64_t>(kBlock, P.N - i0)));
+      s.done.fetch_add(1);
+    }
+  };
+  // a few blocks per task at least: below ~16 blocks a task costs more than it saves
+  const int64_t helpers = std::min<int64_t>(pool.num_threads(), blocks / 16);
+  for (int64_t h = 0; h < helpers; ++h) pool.Schedule([counters, work]() { work(*counters); });
+  work(*counters);
+  while (counters->done.load() < blocks) std::this_thread::yield();
+}
+
+template <typename T>
+ffi::Error advance_typed(ffi::ThreadPool& pool, ffi::AnyBuffer x, ffi::AnyBuffer v, ffi::AnyBuffer q,
+                         ffi::AnyBuffer L, ffi::AnyBuffer m, ffi::AnyBuffer inv, ffi::AnyBuffer F,
+                         ffi::AnyBuffer tau, ffi::AnyBuffer g, ffi::AnyBuffer drag, ffi::AnyBuffer frame,
+                         ffi::AnyBuffer dt, ffi::Result<ffi::AnyBuffer> xo, ffi::Result<ffi::AnyBuffer> vo,
+                         ffi::Result<ffi::AnyBuffer> qo, ffi::Result<ffi::AnyBuffer> Lo, int64_t steps,
+                         int64_t method, int64_t terms) {
+  auto dims = x.dimensions();
+  if (dims.size() < 2 || dims[dims.size() - 2] != 3) return ffi::Error::InvalidArgument("x must be (..., 3, N)");
+  if (method != kEuler && method != kRk4 && method != kSplitting) {
+    return ffi::Error::InvalidArgument("unknown method code");
+  }
+  Problem<T> P;
+  P.N = dims[dims.size() - 1];
+  P.V = P.N == 0 ? 0 : static_cast<int64_t>(x.element_count()) / (3 * P.N);
+  P.steps = steps;
+  P.method = method;
+  P.forces = (terms & 1) != 0;
+  P.quad = (terms & 2) != 0;
+  P.x0 = x.typed_data<T>();
+  P.v0 = v.typed_data<T>();
+  P.q0 = q.typed_data<T>();
+  P.L0 = L.typed_data<T>();
+  P.x = xo->typed_data<T>();
+  P.v = vo->typed_data<T>();
+  P.q = qo->typed_data<T>();
+  P.L = Lo->typed_data<T>();
+  P.dt = dt.typed_data<T>();
+  auto bind = [](const ffi::AnyBuffer& b, Param<T>& p) {
+    auto d = b.dimensions();
+    p.p = b.typed_data<T>();
+    p.n = d[d.size() - 1];
+  };
+  bind(m, P.m);
+  bind(inv, P.inv);
+  bind(F, P.F);
+  bind(tau, P.tau);
+  bind(g, P.g);
+  bind(drag, P.drag);
+  bind(frame, P.frame);
+  if (P.V > 0) run(P, pool);
+  return ffi::Error::Success();
+}
+
+ffi::Error advance(ffi::ThreadPool pool, ffi::AnyBuffer x, ffi::AnyBuffer v, ffi::AnyBuffer q, ffi::AnyBuffer L,
+                   ffi::AnyBuffer m, ffi::AnyBuffer inv, ffi::AnyBuffer F, ffi::AnyBuffer tau, ffi::AnyBuffer g,
+                   ffi::AnyBuffer drag, ffi::AnyBuffer frame, ffi::AnyBuffer dt, ffi::Result<ffi::AnyBuffer> xo,
+                   ffi::Result<ffi::AnyBuffer> vo, ffi::Result<ffi::AnyBuffer> qo, ffi::Result<ffi::AnyBuffer> Lo,
+                   int64_t steps, int64_t method, int64_t terms) {
+  switch (x.element_type()) {
+    case ffi::DataType::F32:
+      return advance_typed<float>(pool, x, v, q, L, m, inv, F, tau, g, drag, frame, dt, xo, vo, qo, Lo, steps,
+                                  method, terms);
+    case ffi::DataType::F64:
+      return advance_typed<double>(pool, x, v, q, L, m, inv, F, tau, g, drag, frame, dt, xo, vo, qo, Lo, steps,
+                                   method, terms);
+    default:
+      return ffi::Error::InvalidArgument("rbjax native kernels take float32 or float64 states");
+  }
+}
+
+}  // namespace rbjax_native
+
+// The library's two exported symbols (everything else is hidden: -fvisibility=hidden).
+extern "C" __attribute__((visibility("default"))) XLA_FFI_Error* RbjaxAdvance(XLA_FFI_CallFrame* call_frame);
+
+// The instruction set the steps run with here: 0 x86-64 baseline (or not x86), 1 AVX2, 2 AVX-512.
+extern "C" __attribute__((visibility("default"))) int rbjax_native_isa() { return rbjax_native::isa(); }
+
+XLA_FFI_DEFINE_HANDLER_SYMBOL(RbjaxAdvance, rbjax_native::advance,
+                              ffi::Ffi::Bind()
+                                  .Ctx<ffi::ThreadPool>()
+                                  .Arg<ffi::AnyBuffer>()  // x
+                                  .Arg<ffi::AnyBuffer>()  // v
+                                  .Arg<ffi::AnyBuffer>()  // q
+                                  .Arg<ffi::AnyBuffer>()  // L
+                                  .Arg<ffi::AnyBuffer>()  // mass
+                                  .Arg<ffi::AnyBuffer>()  // inverse inertia
+                                  .Arg<ffi::AnyBuffer>()  // force
+                                  .Arg<ffi::AnyBuffer>()  // torque
+                                  .Arg<ffi::AnyBuffer>()  // gravity
+                                  .Arg<ffi::AnyBuffer>()  // drag coefficients
+                                  .Arg<ffi::AnyBuffer>()  // principal frames (splitting)
+                                  .Arg<ffi::AnyBuffer>()  // dt
+                                  .Ret<ffi::AnyBuffer>()
+                                  .Ret<ffi::AnyBuffer>()
+                                  .Ret<ffi::AnyBuffer>()
+                                  .Ret<ffi::AnyBuffer>()
+                                  .Attr<int64_t>("steps")
+                                  .Attr<int64_t>("method")
+                                  .Attr<int64_t>("terms"));

@@ -1,0 +1,347 @@
+// The per-block steps of rbjax's native kernels (see README.md beside this file).
+//
+// Included by kernels.cc once per instruction set, inside a namespace of its own
+// under `#pragma GCC target`, so this file includes nothing and defines only
+// templates. Every loop runs over the bodies j of one block, straight-line, so
+// the compiler vectorises it; the steps are the outer loop, so the block's
+// state stays in L1 between them.
+//
+// Each formula mirrors the JAX reference operation by operation (same products,
+// same order of sums; kernels.cc is built with -ffp-contract=off, so no fused
+// multiply-adds), which keeps the two within round-off of each other.
+
+// ω = R I_L⁻¹ Rᵀ L by quaternion rotations, as rbjax._quantities._omega_world with
+// rbjax._math.quat_rotate (v + w t + u × t, t = 2 u × v) and rbjax._state._apply.
+template <typename T>
+RBJAX_INLINE void omega(const T q[4], const T L[3], const T inv[9], T w[3]) {
+  const T cx = -q[1], cy = -q[2], cz = -q[3];  // Rᵀ: the conjugate (w, -u)
+  T t0 = T(2) * (cy * L[2] - cz * L[1]);
+  T t1 = T(2) * (cz * L[0] - cx * L[2]);
+  T t2 = T(2) * (cx * L[1] - cy * L[0]);
+  const T b0 = L[0] + q[0] * t0 + (cy * t2 - cz * t1);
+  const T b1 = L[1] + q[0] * t1 + (cz * t0 - cx * t2);
+  const T b2 = L[2] + q[0] * t2 + (cx * t1 - cy * t0);
+  const T a0 = inv[0] * b0 + inv[1] * b1 + inv[2] * b2;  // I_L⁻¹ (Rᵀ L), row by row
+  const T a1 = inv[3] * b0 + inv[4] * b1 + inv[5] * b2;
+  const T a2 = inv[6] * b0 + inv[7] * b1 + inv[8] * b2;
+  const T ux = q[1], uy = q[2], uz = q[3];
+  t0 = T(2) * (uy * a2 - uz * a1);
+  t1 = T(2) * (uz * a0 - ux * a2);
+  t2 = T(2) * (ux * a1 - uy * a0);
+  w[0] = a0 + q[0] * t0 + (uy * t2 - uz * t1);
+  w[1] = a1 + q[0] * t1 + (uz * t0 - ux * t2);
+  w[2] = a2 + q[0] * t2 + (ux * t1 - uy * t0);
+}
+
+// (0, ω) ⊗ q without the zero, as rbjax._math._pure_quat_multiply.
+template <typename T>
+RBJAX_INLINE void pure_quat_multiply(const T w[3], const T q[4], T p[4]) {
+  p[0] = -(w[0] * q[1] + w[1] * q[2] + w[2] * q[3]);
+  p[1] = q[0] * w[0] + (w[1] * q[3] - w[2] * q[2]);
+  p[2] = q[0] * w[1] + (w[2] * q[1] - w[0] * q[3]);
+  p[3] = q[0] * w[2] + (w[0] * q[2] - w[1] * q[1]);
+}
+
+// ‖a‖, as rbjax._math.safe_norm (whose where only guards its gradient at 0).
+template <typename T>
+RBJAX_INLINE T norm3(const T a[3]) {
+  return std::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+}
+
+template <typename T>
+RBJAX_INLINE void normalize(T q[4]) {
+  const T inv = T(1) / std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+  #pragma GCC unroll 16
+  for (int c = 0; c < 4; ++c) q[c] = q[c] * inv;
+}
+
+// Force and torque on body j at velocity v and world ω: the terms of a force model
+// sum in the order constant, gravity, linear drag, quadratic drag. Absent terms have
+// zero coefficients, and adding their (signed) zeros changes no finite value, so this
+// is the sum of the present terms alone.
+template <typename T, bool kQuad>
+RBJAX_INLINE void forces(const Consts<T>& k, int j, const T v[3], const T w[3], T F[3], T tau[3]) {
+  T sv = T(0), sw = T(0);
+  if (kQuad) {
+    sv = -k.c[j] * norm3(v);
+    sw = -k.cr[j] * norm3(w);
+  }
+  #pragma GCC unroll 16
+  for (int c = 0; c < 3; ++c) {
+    F[c] = (k.F[c][j] + k.m[j] * k.g[c][j]) + -k.b[j] * v[c];
+    tau[c] = k.tau[c][j] + -k.br[j] * w[c];
+    if (kQuad) {
+      F[c] = F[c] + sv * v[c];
+      tau[c] = tau[c] + sw * w[c];
+    }
+  }
+}
+
+// `steps` explicit-Euler steps of a block (rbjax/_methods/euler.py: euler_state).
+// kForces: whether any force or torque acts (else v and L do not change).
+template <typename T, bool kForces, bool kQuad>
+void euler_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
+  const T h = T(0.5) * dt;
+  for (int64_t s = 0; s < steps; ++s) {
+#pragma GCC ivdep
+    for (int j = 0; j < n; ++j) {
+      T q[4] = {B.q[0][j], B.q[1][j], B.q[2][j], B.q[3][j]};
+      T L[3] = {B.L[0][j], B.L[1][j], B.L[2][j]};
+      T v[3] = {B.v[0][j], B.v[1][j], B.v[2][j]};
+      T inv[9], w[3], p[4];
+      #pragma GCC unroll 16
+      for (int c = 0; c < 9; ++c) inv[c] = k.inv[c][j];
+      omega(q, L, inv, w);
+      if (kForces) {
+        T F[3], tau[3];
+        forces<T, kQuad>(k, j, v, w, F, tau);
+        #pragma GCC unroll 16
+        for (int c = 0; c < 3; ++c) {
+          B.v[c][j] = v[c] + F[c] / k.m[j] * dt;
+          B.L[c][j] = L[c] + tau[c] * dt;
+        }
+      }
+      #pragma GCC unroll 16
+      for (int c = 0; c < 3; ++c) B.x[c][j] = B.x[c][j] + v[c] * dt;
+      pure_quat_multiply(w, q, p);
+      #pragma GCC unroll 16
+      for (int c = 0; c < 4; ++c) q[c] = q[c] + h * p[c];
+      normalize(q);
+      #pragma GCC unroll 16
+      for (int c = 0; c < 4; ++c) B.q[c][j] = q[c];
+    }
+  }
+}
+
+// The Newton–Euler right-hand side (rbjax/_dynamics.py) of a 13-component state
+// y = (x, v, q, L) of body j, into d; v̇ and L̇ only with forces.
+template <typename T, bool kForces, bool kQuad>
+RBJAX_INLINE void derivative(const Consts<T>& k, int j, const T y[13], T d[13]) {
+  T inv[9], w[3], p[4];
+  #pragma GCC unroll 16
+  for (int c = 0; c < 9; ++c) inv[c] = k.inv[c][j];
+  omega(y + 6, y + 10, inv, w);
+  #pragma GCC unroll 16
+  for (int c = 0; c < 3; ++c) d[c] = y[3 + c];
+  if (kForces) {
+    T F[3], tau[3];
+    forces<T, kQuad>(k, j, y + 3, w, F, tau);
+    #pragma GCC unroll 16
+    for (int c = 0; c < 3; ++c) {
+      d[3 + c] = F[c] / k.m[j];
+      d[10 + c] = tau[c];
+    }
+  }
+  pure_quat_multiply(w, y + 6, p);
+  #pragma GCC unroll 16
+  for (int c = 0; c < 4; ++c) d[6 + c] = T(0.5) * p[c];
+}
+
+// `steps` classical RK4 steps of a block (rbjax/_methods/rk4.py through
+// explicit_rk.py): stage i at y + dt (Σ_j a_ij k_j), the result y + dt Σ_i b_i k_i
+// summed left to right, then q normalised. Without forces v and L do not change.
+template <typename T, bool kForces, bool kQuad>
+void rk4_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
+  const T half = T(0.5), sixth = T(1.0 / 6.0), third = T(1.0 / 3.0);
+  const int moving = kForces ? 13 : 10;  // components 10-12 (L) move only under a torque
+  for (int64_t s = 0; s < steps; ++s) {
+#pragma GCC ivdep
+    for (int j = 0; j < n; ++j) {
+      T y[13], k1[13], k2[13], k3[13], k4[13], st[13];
+      #pragma GCC unroll 16
+      for (int c = 0; c < 3; ++c) {
+        y[c] = B.x[c][j];
+        y[3 + c] = B.v[c][j];
+        y[10 + c] = B.L[c][j];
+      }
+      #pragma GCC unroll 16
+      for (int c = 0; c < 4; ++c) y[6 + c] = B.q[c][j];
+      derivative<T, kForces, kQuad>(k, j, y, k1);
+      #pragma GCC unroll 16
+      for (int c = 0; c < 13; ++c) st[c] = y[c];
+      #pragma GCC unroll 16
+      for (int c = 0; c < moving; ++c) {
+        if (kForces || c < 3 || c >= 6) st[c] = y[c] + dt * (half * k1[c]);
+      }
+      derivative<T, kForces, kQuad>(k, j, st, k2);
+      #pragma GCC unroll 16
+      for (int c = 0; c < moving; ++c) {
+        if (kForces || c < 3 || c >= 6) st[c] = y[c] + dt * (half * k2[c]);
+      }
+      derivative<T, kForces, kQuad>(k, j, st, k3);
+      #pragma GCC unroll 16
+      for (int c = 0; c < moving; ++c) {
+        if (kForces || c < 3 || c >= 6) st[c] = y[c] + dt * k3[c];
+      }
+      derivative<T, kForces, kQuad>(k, j, st, k4);
+      #pragma GCC unroll 16
+      for (int c = 0; c < moving; ++c) {
+        if (kForces || c < 3 || c >= 6) {
+          y[c] = y[c] + dt * (((sixth * k1[c] + third * k2[c]) + third * k3[c]) + sixth * k4[c]);
+        }
+      }
+      normalize(y + 6);
+      #pragma GCC unroll 16
+      for (int c = 0; c < 3; ++c) {
+        B.x[c][j] = y[c];
+        B.v[c][j] = y[3 + c];
+        B.L[c][j] = y[10 + c];
+      }
+      #pragma GCC unroll 16
+      for (int c = 0; c < 4; ++c) B.q[c][j] = y[6 + c];
+    }
+  }
+}
+
+// Hamilton product p ⊗ q, as rbjax._math.quat_multiply.
+template <typename T>
+RBJAX_INLINE void quat_multiply(const T p[4], const T q[4], T out[4]) {
+  out[0] = p[0] * q[0] - p[1] * q[1] - p[2] * q[2] - p[3] * q[3];
+  out[1] = p[0] * q[1] + p[1] * q[0] + p[2] * q[3] - p[3] * q[2];
+  out[2] = p[0] * q[2] - p[1] * q[3] + p[2] * q[0] + p[3] * q[1];
+  out[3] = p[0] * q[3] + p[1] * q[2] - p[2] * q[1] + p[3] * q[0];
+}
+
+// Half-angle pair of a rational turn (rbjax/_methods/splitting.py: _cayley).
+template <typename T>
+RBJAX_INLINE void cayley(T g, T n2, T& c2, T& t2) {
+  const T x2 = g * g * n2;
+  const T num = g * (T(945) + x2 * (x2 - T(105)));
+  const T den = T(945) + x2 * (T(15) * x2 - T(420));
+  const T num2 = num * num * n2, den2 = den * den;
+  const T r = T(1) / (den2 + num2);
+  c2 = (den2 - num2) * r;
+  t2 = T(2) * num * den * r;
+}
+
+// The exact flow of ½ k_i m_i² over h: a turn about principal axis i (splitting.py: _rotate_about).
+template <typename T, int i>
+RBJAX_INLINE void rotate_about(T qp[4], T m[3], T k, T h) {
+  constexpr int j = (i + 1) % 3, l = (i + 2) % 3;
+  T c2, t2;
+  cayley(h * k / T(4), m[i] * m[i], c2, t2);
+  const T s2 = t2 * m[i];
+  const T c = T(1) - T(2) * s2 * s2, s = T(2) * s2 * c2;
+  const T qw = qp[0], u[3] = {qp[1], qp[2], qp[3]};
+  T nu[3], nm[3];
+  nu[i] = c2 * u[i] + s2 * qw;
+  nu[j] = c2 * u[j] + s2 * u[l];
+  nu[l] = c2 * u[l] - s2 * u[j];
+  nm[i] = m[i];
+  nm[j] = c * m[j] + s * m[l];
+  nm[l] = c * m[l] - s * m[j];
+  qp[0] = qw * c2 - s2 * u[i];
+  for (int a = 0; a < 3; ++a) {
+    qp[1 + a] = nu[a];
+    m[a] = nm[a];
+  }
+}
+
+// ``q`` after the split free rotor over h (splitting.py: free_rotor), from the principal frame's
+// quaternion p and inverse moments e (computed by rbjax._methods._common.principal_frame).
+template <typename T>
+RBJAX_INLINE void free_rotor(T q[4], const T L[3], const T p[4], const T e[3], T h) {
+  const T k0 = e[0] - e[1], k2 = e[2] - e[1];
+  T qp[4], m[3], conj[4];
+  quat_multiply(q, p, qp);
+  // m = quat_rotate(conj(qp), L)
+  const T cx = -qp[1], cy = -qp[2], cz = -qp[3];
+  const T t0 = T(2) * (cy * L[2] - cz * L[1]);
+  const T t1 = T(2) * (cz * L[0] - cx * L[2]);
+  const T t2 = T(2) * (cx * L[1] - cy * L[0]);
+  m[0] = L[0] + qp[0] * t0 + (cy * t2 - cz * t1);
+  m[1] = L[1] + qp[0] * t1 + (cz * t0 - cx * t2);
+  m[2] = L[2] + qp[0] * t2 + (cx * t1 - cy * t0);
+  rotate_about<T, 2>(qp, m, k2, T(0.5) * h);
+  rotate_about<T, 0>(qp, m, k0, T(1.0) * h);
+  rotate_about<T, 2>(qp, m, k2, T(0.5) * h);
+  T c2, tl;  // H_L: the turn about world L by |L| h e₂
+  cayley(h * e[1] / T(4), L[0] * L[0] + L[1] * L[1] + L[2] * L[2], c2, tl);
+  const T turn[4] = {c2, tl * L[0], tl * L[1], tl * L[2]};
+  T turned[4];
+  quat_multiply(turn, qp, turned);
+  conj[0] = p[0];
+  conj[1] = -p[1];
+  conj[2] = -p[2];
+  conj[3] = -p[3];
+  quat_multiply(turned, conj, q);
+  normalize(q);
+}
+
+// `steps` steps of "splitting" (rbjax/_methods/splitting.py): kick(h/2) drift(h) kick(h/2), the
+// forces at the step's start and after the drift. frame: the principal frame's quaternion p
+// (rows 0-3) and inverse moments e (rows 4-6) per body.
+template <typename T, bool kForces, bool kQuad>
+void splitting_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], int n, T dt, int64_t steps) {
+  const T half = dt / T(2);
+  for (int64_t s = 0; s < steps; ++s) {
+#pragma GCC ivdep
+    for (int j = 0; j < n; ++j) {
+      T q[4] = {B.q[0][j], B.q[1][j], B.q[2][j], B.q[3][j]};
+      T L[3] = {B.L[0][j], B.L[1][j], B.L[2][j]};
+      T v[3] = {B.v[0][j], B.v[1][j], B.v[2][j]};
+      T inv[9], w[3], F[3], tau[3];
+#pragma GCC unroll 16
+      for (int c = 0; c < 9; ++c) inv[c] = k.inv[c][j];
+      if (kForces) {  // kick(h/2) with the forces at the start
+        omega(q, L, inv, w);
+        forces<T, kQuad>(k, j, v, w, F, tau);
+#pragma GCC unroll 16
+        for (int c = 0; c < 3; ++c) {
+          v[c] = v[c] + F[c] / k.m[j] * half;
+          L[c] = L[c] + tau[c] * half;
+        }
+      }
+      const T p[4] = {frame[0][j], frame[1][j], frame[2][j], frame[3][j]};
+      const T e[3] = {frame[4][j], frame[5][j], frame[6][j]};
+#pragma GCC unroll 16
+      for (int c = 0; c < 3; ++c) B.x[c][j] = B.x[c][j] + v[c] * dt;
+      free_rotor(q, L, p, e, dt);
+      if (kForces) {  // kick(h/2) with the forces after the drift
+        omega(q, L, inv, w);
+        forces<T, kQuad>(k, j, v, w, F, tau);
+#pragma GCC unroll 16
+        for (int c = 0; c < 3; ++c) {
+          v[c] = v[c] + F[c] / k.m[j] * half;
+          L[c] = L[c] + tau[c] * half;
+        }
+      }
+#pragma GCC unroll 16
+      for (int c = 0; c < 4; ++c) B.q[c][j] = q[c];
+#pragma GCC unroll 16
+      for (int c = 0; c < 3; ++c) {
+        B.v[c][j] = v[c];
+        B.L[c][j] = L[c];
+      }
+    }
+  }
+}
+
+// All steps of one block with the method's and the forces' static choices made.
+template <typename T>
+void block_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], int n, T dt, int64_t steps,
+                 int64_t method, bool forces, bool quad) {
+  if (method == kSplitting) {
+    if (!forces) return splitting_steps<T, false, false>(B, k, frame, n, dt, steps);
+    if (!quad) return splitting_steps<T, true, false>(B, k, frame, n, dt, steps);
+    return splitting_steps<T, true, true>(B, k, frame, n, dt, steps);
+  }
+  if (method == kEuler) {
+    if (!forces) return euler_steps<T, false, false>(B, k, n, dt, steps);
+    if (!quad) return euler_steps<T, true, false>(B, k, n, dt, steps);
+    return euler_steps<T, true, true>(B, k, n, dt, steps);
+  }
+  if (!forces) return rk4_steps<T, false, false>(B, k, n, dt, steps);
+  if (!quad) return rk4_steps<T, true, false>(B, k, n, dt, steps);
+  return rk4_steps<T, true, true>(B, k, n, dt, steps);
+}
+
+void block_steps_f32(Block<float>& B, const Consts<float>& k, const float (*frame)[kBlock], int n, float dt,
+                     int64_t steps, int64_t method, bool forces, bool quad) {
+  block_steps<float>(B, k, frame, n, dt, steps, method, forces, quad);
+}
+
+void block_steps_f64(Block<double>& B, const Consts<double>& k, const double (*frame)[kBlock], int n, double dt,
+                     int64_t steps, int64_t method, bool forces, bool quad) {
+  block_steps<double>(B, k, frame, n, dt, steps, method, forces, quad);
+}

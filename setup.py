@@ -1,0 +1,68 @@
+"""Builds rbjax's native CPU kernels (rbjax/_native/kernels.cc) with the package.
+
+Everything else about the package is in pyproject.toml. The kernels are a plain
+shared library that rbjax loads with ctypes and registers with XLA's FFI; the
+extension is optional: where no C++ compiler (or no jaxlib with the FFI headers)
+is found, the build still succeeds and rbjax runs its JAX implementation
+(``rbjax.native_status()`` says which). Portable flags only: the x86-64 baseline,
+with AVX2 and AVX-512 variants chosen at run time inside the library.
+"""
+
+import sys
+
+from setuptools import Extension, setup
+from setuptools.command.build_ext import build_ext
+
+
+def _ffi_include() -> list[str]:
+    try:
+        import jax.ffi  # noqa: PLC0415  (a build requirement, present only while building)
+
+        return [jax.ffi.include_dir()]
+    except Exception:  # noqa: BLE001  (no jaxlib in the build environment: build without the kernels)
+        return []
+
+
+class OptionalBuildExt(build_ext):
+    """build_ext that reports a failed kernel build and carries on: rbjax then runs on JAX alone."""
+
+    def run(self):
+        try:
+            super().run()
+        except Exception as e:  # noqa: BLE001  (compiler missing or failing: the extension is optional)
+            print(f"rbjax: native kernels not built ({e}); rbjax will use its JAX path", file=sys.stderr)
+
+    def build_extension(self, ext):
+        try:
+            super().build_extension(ext)
+        except Exception as e:  # noqa: BLE001
+            print(f"rbjax: native kernels not built ({e}); rbjax will use its JAX path", file=sys.stderr)
+
+
+include = _ffi_include()
+extensions = []
+if include:
+    extensions.append(
+        Extension(
+            "rbjax._native._kernels",
+            sources=["rbjax/_native/kernels.cc"],
+            depends=["rbjax/_native/steps.h"],
+            include_dirs=include,
+            language="c++",
+            # -fno-math-errno: sqrt must not set errno, or the loops over bodies do not vectorise;
+            # -ffp-contract=off: no fused multiply-adds, so the kernels round as the JAX reference does
+            extra_compile_args=[
+                "-std=c++17",
+                "-O3",
+                "-fno-math-errno",
+                "-ffp-contract=off",
+                "-fvisibility=hidden",
+                "-Wno-return-type",
+            ],
+            # linked by the C compiler: name the C++ runtime (operator new, std::function) explicitly
+            extra_link_args=["-lstdc++"],
+            optional=True,
+        )
+    )
+
+setup(ext_modules=extensions, cmdclass={"build_ext": OptionalBuildExt})
