@@ -435,6 +435,24 @@ def test_gyro_only_fits_the_shape_from_euler_equations():
     np.testing.assert_array_equal(np.asarray(res.initial_orientation), [1.0, 0.0, 0.0, 0.0])
 
 
+def test_noise_ten_times_larger_not_told_is_estimated_and_sigma_follows():
+    # a gyro 10x noisier (0.1 rad/s) than the tests' 0.01, its level not given: the fit estimates it
+    # (second differences) and scales σ by the gyro residuals' own variance, so converged, truth
+    # within 3σ, and σ within 15% of the Cramér–Rao value (the σ of a fit told the true 0.1, without
+    # the residual scaling: σ_told / noise_scale_told). Measured on 8 draws: converged 8/8, |z| ≤ 2.1,
+    # σ ratio 1 ± 7e-5 against the told fit; noise_scale 0.96-1.06 (its spread ~sqrt(2/1200) = 4%)
+    wb = _record(T_FAST)[1]
+    wn = wb + np.random.default_rng(1).normal(0, 0.1, wb.shape)
+    res = rb.fit_inertia(T_FAST, body_rates=wn)  # the compiled program of the gyro-only test above
+    told = rb.fit_inertia(T_FAST, body_rates=wn, rate_std=0.1)
+    assert bool(res.converged) and bool(res.noise_estimated[1]) and not bool(told.noise_estimated[1])
+    np.testing.assert_allclose(float(res.noise_std[1]), 0.1, rtol=0.15)  # the estimate itself
+    z = (np.asarray(res.principal_moments) - np.linalg.eigvalsh(I_BAR)) / np.asarray(res.moment_std)
+    assert np.all(np.abs(z) < 3), z
+    cramer_rao = np.asarray(told.moment_std) / float(told.noise_scale[1])
+    np.testing.assert_allclose(np.asarray(res.moment_std), cramer_rao, rtol=0.15)
+
+
 def test_thrown_object_gyro_only():
     # the issue's case: 1 s @ 400 Hz, |ω| ≈ 10 rad/s, gyro noise 2e-3 rad/s, no orientations; goal
     # error ≤ 0.5% (measured 1e-4 on three draws). 401 samples: the compiled program of the test above
