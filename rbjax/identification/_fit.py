@@ -33,7 +33,7 @@ from jaxtyping import Float
 from .._pytree import new_unchecked
 from .._typing import ArrayLike
 from . import _robust
-from ._checks import check_options
+from ._checks import check_arrays, check_options
 from ._model import _model
 from ._problem import prepare
 from ._queue import run_queue, stage_widths
@@ -268,7 +268,10 @@ def fit_inertia(
 
     Raises:
         TypeError: before any tracing, for options of the wrong type (e.g. a
-            float or bool ``max_steps``/``segments``/``substeps``).
+            float or bool ``max_steps``/``segments``/``substeps``), half-precision
+            (float16, bfloat16) or complex data, or when called inside ``jax.jit``
+            (``vmap``, ``grad``): fitting is not jittable (it validates in NumPy and
+            compiles its own solver); call it outside, on concrete arrays.
         ValueError: before any tracing, for noise levels, ``continuity_weight``,
             tolerances that are not finite and > 0; ``max_steps``, ``segments``
             or ``substeps`` < 1; all-zero ``torques`` (they cannot fix the scale:
@@ -277,6 +280,18 @@ def fit_inertia(
             or too little excitation (naming the unidentifiable directions), or
             ``body_rates`` that look world-frame (``check_gyro_frame``).
     """
+    check_arrays(
+        times=times,
+        orientations=orientations,
+        body_rates=body_rates,
+        torques=torques,
+        body_torques=body_torques,
+        initial_inertia=initial_inertia,
+        accelerations=accelerations,
+        orientation_std=orientation_std,
+        rate_std=rate_std,
+        acceleration_std=acceleration_std,
+    )
     check_options(
         orientation_std=orientation_std,
         rate_std=rate_std,
