@@ -250,6 +250,54 @@ def test_half_precision_and_jit_raise_in_our_words():
         rb.fit_inertia(T_FAST[:50], body_rates=wb.astype(complex))
 
 
+def test_ragged_list_and_bad_members_are_fitted_one_by_one():
+    # the issue's cases: a list of throws of different lengths failed with NumPy's "setting an
+    # array element with a sequence"; one under-excited or non-finite recording made the whole
+    # batch raise without saying which. Now each recording is fitted on its own (similar lengths
+    # share a compiled program through the shape buckets), a bad one is named with its reason and
+    # gets NaN with failed=True, the others are fitted as if alone
+    rng = np.random.default_rng(0)
+    ts, ws = [], []
+    for n in (41, 60, 100):  # 0.4-1.0 s at 100 Hz, a 10 rad/s throw, 0.01 rad/s gyro noise
+        t = np.arange(n) / 100.0
+        ts.append(t)
+        ws.append(_record(t, w0=np.array([1.0, 9.8, 1.3]))[1] + rng.normal(0, 0.01, (n, 3)))
+    pure_spin = np.tile([0.0, 0.0, 5.0], (60, 1))  # about a fixed axis: nothing to identify
+    res = rb.fit_inertia(ts, body_rates=[ws[0], pure_spin, ws[2]])
+    np.testing.assert_array_equal(np.asarray(res.failed), [False, True, False])
+    assert len(res.member_errors) == 1 and res.member_errors[0].startswith("recording 1: ")
+    assert "too little excitation" in res.member_errors[0]
+    assert np.all(np.isnan(np.asarray(res.principal_moments[1]))) and not bool(res.converged[1])
+    alone = rb.fit_inertia(ts[2], body_rates=ws[2])  # the same fit as in the list, to rounding
+    np.testing.assert_allclose(res.principal_moments[2], alone.principal_moments, rtol=1e-10)
+    np.testing.assert_allclose(res.moment_std[2], alone.moment_std, rtol=1e-8)
+    assert res.residuals.shape[0] == 3 and np.all(np.isnan(np.asarray(res.residuals[0, -1])))  # padded
+    # a regular batch (N, T, 3) with a non-finite member: named, the rest fitted as a batch
+    W = np.stack([ws[2]] * 3)
+    W[1, 7, 0] = np.nan
+    res = rb.fit_inertia(ts[2], body_rates=W)
+    np.testing.assert_array_equal(np.asarray(res.failed), [False, True, False])
+    assert "recording 1: " in res.member_errors[0] and "non-finite" in res.member_errors[0]
+    np.testing.assert_allclose(res.principal_moments[0], alone.principal_moments, rtol=1e-8)
+    # lists that do not match, and all members bad, raise naming them
+    with pytest.raises(ValueError, match="body_rates must be a list of 3 arrays"):
+        rb.fit_inertia(ts, body_rates=ws[:2])
+    with pytest.raises(ValueError, match="none of the 2 recordings.*recording 0: .*recording 1: "):
+        rb.fit_inertia(ts[1:2] * 2, body_rates=[pure_spin, pure_spin])
+
+
+def test_gyro_in_degrees_gets_a_units_hint():
+    # the issue's case: a gyro in deg/s was reported as "too little excitation". With orientations
+    # the gyro reads 57.3x the rate they imply; without them a median |ω| > 50 rad/s adds the hint
+    # to the excitation error (no fit runs: these raise in the NumPy checks)
+    q, wb = _record(T_FAST[:50])
+    with pytest.raises(ValueError, match=r"57\.3.*np\.deg2rad\(body_rates\)"):
+        rb.fit_inertia(T_FAST[:50], q, body_rates=np.degrees(wb))
+    spin = np.tile(np.degrees([0.0, 0.0, 5.0]), (50, 1))  # 286 "rad/s" about a fixed axis
+    with pytest.raises(ValueError, match=r"too little excitation.*deg/s.*np\.deg2rad"):
+        rb.fit_inertia(T_FAST[:50], body_rates=spin)
+
+
 def test_bad_input_raises_before_tracing():
     q, wb = _record(T_FAST[:50])
     t = T_FAST[:50]

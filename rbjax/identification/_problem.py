@@ -62,6 +62,34 @@ def _default_segments(n_intervals: int, total_angle: float) -> int:
     return int(min(_next_pow2(want), max(1, n_intervals // 8)))
 
 
+# median |ω| above this (rad/s) is unusual for a hand-tossed object: a hint that the gyro is in deg/s
+_DEG_HINT_RATE = 50.0
+
+
+def _deg_hint(rates: np.ndarray) -> str:
+    med = float(np.median(np.linalg.norm(rates, axis=-1)))
+    return (
+        f"The gyro's median rate is {med:.3g} rad/s ({med / (2 * np.pi):.3g} turns/s), a lot for a tossed "
+        "object: if body_rates are in deg/s, pass np.deg2rad(body_rates) (rad/s)"
+    )
+
+
+def _check_gyro_units(rates: np.ndarray, implied: np.ndarray) -> None:
+    """``ValueError`` when the gyro ``(N, T, 3)`` reads ~57.3x (deg/s) the rates the orientations imply."""
+    for n in range(rates.shape[0]):
+        g, o = np.linalg.norm(rates[n], axis=-1), np.linalg.norm(implied[n], axis=-1)
+        moving = o > 0.05 * max(float(o.max()), 1e-300)
+        if not np.any(moving):
+            continue
+        ratio = float(np.median(g[moving] / o[moving]))
+        if 0.8 * np.degrees(1.0) < ratio < 1.25 * np.degrees(1.0):
+            raise ValueError(
+                f"fit_inertia: body_rates{'' if rates.shape[0] == 1 else f'[{n}]'} read {ratio:.3g}x the "
+                "angular rate the orientations imply, the factor between deg/s and rad/s (57.3): pass "
+                "np.deg2rad(body_rates) (the gyro in rad/s)"
+            )
+
+
 class Problem(NamedTuple):
     """Recordings packed for the solver: start ``y0 (N, p)``, segment data (leading ``N``), static options."""
 
@@ -195,6 +223,8 @@ def prepare(
     k = int(np.clip(np.ceil(0.1 / max(np.median(angles), 1e-12)), 1, max(1, (T - 1) // 4)))
     if use_rates:
         rates = np.asarray(wr, np.float64)
+        if use_q:  # a gyro in deg/s reads 57.3x the rate the orientations imply
+            _check_gyro_units(rates, _rate_estimate(t, q, k))
         if check_gyro_frame and use_q:
             for n in range(N):
                 _gyro_frame_check(t, q[n], rates[n], k)
@@ -221,7 +251,12 @@ def prepare(
             MtM, Mtb, scale = _momentum_system(t, q[n], rates[n], tau_w)
         else:
             MtM, Mtb, scale = _body_momentum_system(t, rates[n], taub_n)
-        _identifiability(MtM, excitation_tol, torque_free)
+        try:
+            _identifiability(MtM, excitation_tol, torque_free)
+        except ValueError as e:
+            if use_rates and np.median(np.linalg.norm(rates[n], axis=-1)) > _DEG_HINT_RATE:
+                raise ValueError(f"{e} {_deg_hint(rates[n])}") from None
+            raise
         if initial_inertia is None:
             I0 = _initial_inertia(MtM, Mtb, scale, torque_free)
         else:

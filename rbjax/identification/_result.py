@@ -118,9 +118,16 @@ class FitResult:
             noise level is ``noise_std · noise_scale``, and the covariance
             uses it (so a wrong or guessed level does not mis-state σ; the
             consistency test says whether the difference is noise).
+        failed: ``True`` for a recording of a batch or list that could not be
+            fitted (its reason in ``member_errors``); its other fields are NaN
+            (``False``, 0). Always ``False`` for a single recording, which raises instead.
         scale_fixed: ``True`` when known torques fix the absolute scale;
             ``False`` for torque-free data, where only ``I / tr I`` is identifiable.
-        segments: number of shooting segments used.
+        segments: number of shooting segments used (for a list of recordings
+            fitted one by one: the largest).
+        member_errors: for a batch or list with recordings that could not be
+            fitted, one ``"recording i: reason"`` per such recording (the
+            ``ValueError`` a single fit of it raises); ``()`` otherwise.
     """
 
     inertia: Float[Array, "*N 3 3"] = field(core_ndim=2)
@@ -156,8 +163,10 @@ class FitResult:
     noise_std: Float[Array, "*N 3"] = field(core_ndim=1)
     noise_estimated: Bool[Array, "*N 3"] = field(core_ndim=1)
     noise_scale: Float[Array, "*N 3"] = field(core_ndim=1)
+    failed: Bool[Array, "*N"] = field(core_ndim=0)
     scale_fixed: bool = static_field(default=False)
     segments: int = static_field(default=1)
+    member_errors: tuple = static_field(default=())
 
 
 _BOUNDARY_RTOL = 1e-3  # (I1 + I2 - I3) / tr I below this: on the edge of the consistent set
