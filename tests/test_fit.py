@@ -672,7 +672,7 @@ def test_bad_robust_options_raise(kwargs, exc, match):
 
 @pytest.mark.slow
 def test_short_random_tumbles_converge_with_calibrated_sigma():
-    # the issue's case: random 1 s @ 200 Hz tumbles, 1e-3 rad + 0.01 rad/s noise, converged only
+    # issue 13's case: random 1 s @ 200 Hz tumbles, 1e-3 rad + 0.01 rad/s noise, converged only
     # 72-90% of the time (the solver crept along the flat valleys of near-spherical bodies). Goal
     # ≥ 98% converged, ≥ 95% of the moments within 3σ. On the 100-draw study
     # (benchmarks/fit_convergence.py) 99% / 98%; here 40 draws of the same generator, one batch.
@@ -691,11 +691,19 @@ def test_short_random_tumbles_converge_with_calibrated_sigma():
         qs.append(qn)
         ws.append(wn)
     res = rb.fit_inertia(t, np.stack(qs), body_rates=np.stack(ws))
+    # since issue 28 converged also needs well_determined (every moment σ ≤ 0.1 tr I): 8 of these
+    # 40 are near-symmetric bodies whose 1 s tumble determines the moments to σ 0.1-1.3 (the same σ
+    # as before; estimates up to 0.2 off, e.g. 0.058 ± 0.43 for 0.26), which used to count as
+    # converged. The solver and the consistency test still pass on ≥ 39/40; measured 32/40 converged
+    solved = np.asarray(res.solver_converged) & np.asarray(res.model_consistent)
+    assert solved.sum() >= 39, np.flatnonzero(~solved)
     conv = np.asarray(res.converged)
-    assert conv.sum() >= 39, np.flatnonzero(~conv)
+    assert conv.sum() >= 28, np.flatnonzero(~conv)  # 32 measured; a margin of 4 for rounding/draws
+    wd = np.asarray(res.well_determined)
+    assert np.all(np.nanmax(np.asarray(res.moment_std)[~wd], -1) > 0.1)  # flagged for its σ, not else
     truth = np.stack([np.linalg.eigvalsh(I) for I in Is])
     z = np.abs(np.asarray(res.principal_moments) - truth) / np.asarray(res.moment_std)
-    assert np.mean(z[conv] < 3) >= 0.93, np.sort(z[conv].ravel())[-10:]
+    assert np.mean(z[solved] < 3) >= 0.93, np.sort(z[solved].ravel())[-10:]
 
 
 def test_gyro_rotation_is_fitted_as_a_nuisance_parameter():
