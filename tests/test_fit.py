@@ -283,7 +283,10 @@ def test_ragged_list_and_bad_members_are_fitted_one_by_one():
     with pytest.raises(ValueError, match="body_rates must be a list of 3 arrays"):
         rb.fit_inertia(ts, body_rates=ws[:2])
     with pytest.raises(ValueError, match="none of the 2 recordings.*recording 0: .*recording 1: "):
-        rb.fit_inertia(ts[1:2] * 2, body_rates=[pure_spin, pure_spin])
+        rb.fit_inertia(ts[1:3], body_rates=[pure_spin, ws[2] * np.nan])
+    # the same reason for every member (an option): said once, as for a single recording
+    with pytest.raises(ValueError, match=r"^fit_inertia: gyro_rotation=True needs body_rates and orientations"):
+        rb.fit_inertia(ts, body_rates=ws, gyro_rotation=True)
 
 
 def test_flat_body_on_the_boundary_gets_finite_sigma_and_converges():

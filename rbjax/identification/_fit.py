@@ -478,9 +478,14 @@ def _fit_members(members, options) -> FitResult:
             errors[i] = str(e)
     good = [i for i in range(len(members)) if i not in errors]
     if not good:
+        reasons = list(dict.fromkeys(errors.values()))
+        if len(reasons) == 1:  # the same for all (an option, a shared array): say it once
+            raise ValueError(reasons[0])
+        listed = list(errors.items())
         raise ValueError(
             f"fit_inertia: none of the {len(members)} recordings can be fitted: "
-            + "; ".join(f"recording {i}: {msg}" for i, msg in errors.items())
+            + "; ".join(f"recording {i}: {msg}" for i, msg in listed[:5])
+            + (f"; and {len(listed) - 5} more" if len(listed) > 5 else "")
         )
     lengths = {np.shape(members[i][0])[0] for i in good}
     results: dict[int, FitResult] = {}
