@@ -177,10 +177,10 @@ def fit_inertia(
             Or a list of ``N`` such arrays of any lengths ``T_i`` (recordings of
             different lengths): then every data argument is a list of ``N``
             arrays too (``orientations[i]`` ``(T_i, 4)``, ``body_rates[i]``
-            ``(T_i, 3)``, ...), each recording is fitted on its own (similar
-            lengths share a compiled program through the shape buckets), and the
-            result has a leading ``N`` axis, its per-sample fields padded with
-            NaN to the longest.
+            ``(T_i, 3)``, ...), each recording is fitted as if alone (those with
+            the same number of segments padded to the longest, masked, and fitted
+            as one batch: one compiled program), and the result has a leading
+            ``N`` axis, its per-sample fields padded with NaN to the longest.
         orientations: ``(T, 4)`` unit quaternions ``[w, x, y, z]`` body to world,
             or ``(N, T, 4)`` for ``N`` recordings fitted together (one compiled
             program, a work queue in which each recording stops on its own:
@@ -403,19 +403,48 @@ def _fit_regular(
         accelerations=accelerations,
         acceleration_std=None if acceleration_std is None else float(acceleration_std),
     )
-    data = dict(prob.data, loss_scale=np.full(prob.y0.shape[0], float(loss_scale), prob.y0.dtype))
+    return _solve(prob, dict(loss=loss, loss_scale=loss_scale, rtol=rtol, atol=atol, max_steps=max_steps))
+
+
+_OPTION_NAMES = (
+    "orientation_std",
+    "rate_std",
+    "continuity_weight",
+    "excitation_tol",
+    "rtol",
+    "atol",
+    "max_steps",
+    "segments",
+    "substeps",
+    "loss",
+    "loss_scale",
+    "acceleration_std",
+)
+
+
+def _solve(prob, options, sample_weights: bool = True) -> FitResult:
+    """Run the compiled solver on a packed :class:`._problem.Problem`; ``options``: loss, tolerances.
+
+    ``sample_weights=False`` leaves ``robust_weights`` as the solver's per-segment
+    rows (``(N, S, B, K+1)``) for the caller to map member by member.
+    """
+    loss = options["loss"]
+    data = dict(prob.data, loss_scale=np.full(prob.y0.shape[0], float(options["loss_scale"]), prob.y0.dtype))
     out = _fit_batch_jit(jax.default_backend())(
         prob.y0,
         data,
         model_opts=tuple(sorted(prob.static.items())),
         loss=loss,
-        rtol=float(rtol),
-        atol=float(atol),
-        max_steps=int(max_steps),
+        rtol=float(options["rtol"]),
+        atol=float(options["atol"]),
+        max_steps=int(options["max_steps"]),
         unbatch=not prob.batched,
     )
     rw = np.asarray(out.pop("robust_weights"))
-    out["robust_weights"], out["outliers"] = _sample_weights(prob, rw, _robust.outlier_weight(loss))
+    if sample_weights:
+        out["robust_weights"], out["outliers"] = _sample_weights(prob, rw, _robust.outlier_weight(loss))
+    else:
+        out["robust_weights"], out["outliers"] = jnp.asarray(rw), jnp.zeros(rw.shape[0], bool)
     out["failed"] = jnp.zeros(prob.y0.shape[0] if prob.batched else (), bool)
     return new_unchecked(
         FitResult, **out, scale_fixed=prob.static["scale_fixed"], segments=prob.segments, member_errors=()
@@ -466,14 +495,16 @@ def _fit_members(members, options) -> FitResult:
     ``ValueError`` (too little excitation, non-finite data, too few samples, ...) gets
     NaN results, ``failed = True`` and its reason in ``FitResult.member_errors``; the
     others are fitted. Members of equal length share one batched solve; ragged ones
-    are fitted one at a time, each through the shape buckets (similar lengths reuse a
-    compiled program). Arrays whose length varies (``residuals``, ``robust_weights``,
+    with the same number of segments are padded to the longest and fitted as one
+    batch too (:func:`_fit_padded`). Arrays whose length varies (``residuals``, ``robust_weights``,
     ``outliers``) are padded with NaN (``False``) to the longest.
     """
+    check_options(**{k: options[k] for k in _OPTION_NAMES})  # an option's error is raised once
     errors: dict[int, str] = {}
+    probs = {}
     for i, (t, arrays) in enumerate(members):
         try:
-            _fit_regular_check(t, arrays, options)
+            probs[i] = _fit_regular_check(t, arrays, options)
         except ValueError as e:
             errors[i] = str(e)
     good = [i for i in range(len(members)) if i not in errors]
@@ -496,8 +527,7 @@ def _fit_members(members, options) -> FitResult:
         for j, i in enumerate(good):
             results[i] = jax.tree.map(lambda a, j=j: a[j], batch)
     else:
-        for i in good:
-            results[i] = _fit_regular(members[i][0], **members[i][1], **options)
+        results = _fit_padded(members, probs, options)
     return _stack_results(results, len(members), errors)
 
 
@@ -510,10 +540,14 @@ def _stack_or_share(values):
     return np.stack([np.asarray(v) for v in values])
 
 
-def _fit_regular_check(t, arrays, options) -> None:
-    """Run :func:`fit_inertia`'s checks on one recording (NumPy only, nothing compiled)."""
+def _fit_regular_check(t, arrays, options, **fixed):
+    """:func:`fit_inertia`'s checks and packing of one recording (NumPy only, nothing compiled).
+
+    ``fixed``: ``segments``, ``substeps``, ``pad_intervals`` overriding the options.
+    """
     check_arrays(times=t, **arrays)
-    prepare(
+    options = {**options, **{k: v for k, v in fixed.items() if k != "pad_intervals"}}
+    return prepare(
         t,
         arrays["orientations"],
         arrays["body_rates"],
@@ -532,7 +566,47 @@ def _fit_regular_check(t, arrays, options) -> None:
         gyro_rotation=options["gyro_rotation"],
         accelerations=arrays["accelerations"],
         acceleration_std=None if options["acceleration_std"] is None else float(options["acceleration_std"]),
+        pad_intervals=fixed.get("pad_intervals"),
     )
+
+
+def _fit_padded(members, probs, options) -> dict:
+    """Fit ragged recordings in groups that share one compiled program: ``{index: FitResult}``.
+
+    Recordings with the same number of segments (their default, or the option) are
+    packed with the intervals per segment of the group's longest (the padding is
+    masked: ``dt = 0``, no residuals) and the group's largest ``substeps``, stacked
+    and fitted as one batch.
+    """
+    groups: dict = {}
+    for i, prob in probs.items():
+        groups.setdefault(prob.segments, []).append(i)
+    out = {}
+    for S, idx in groups.items():
+        K = max(probs[i].data["seg"]["dt"].shape[-1] for i in idx)
+        substeps = max(probs[i].static["substeps"] for i in idx)  # more steps only add accuracy
+        packed = {
+            i: _fit_regular_check(members[i][0], members[i][1], options, segments=S, substeps=substeps, pad_intervals=K)
+            for i in idx
+        }
+        if len(idx) == 1:
+            i = idx[0]
+            out[i] = _solve(packed[i], options)
+            continue
+        first = packed[idx[0]]
+        batch = first._replace(
+            y0=np.concatenate([packed[i].y0 for i in idx]),
+            data=jax.tree.map(lambda *a: np.concatenate(a), *[packed[i].data for i in idx]),
+            batched=True,
+        )
+        res = _solve(batch, options, sample_weights=False)
+        rw = np.asarray(res.robust_weights)
+        for j, i in enumerate(idx):
+            one = jax.tree.map(lambda a, j=j: a[j], res)
+            w, o = _sample_weights(packed[i], rw[j], _robust.outlier_weight(options["loss"]))
+            fields = {f.name: getattr(one, f.name) for f in dataclasses.fields(FitResult)}
+            out[i] = new_unchecked(FitResult, **{**fields, "robust_weights": w, "outliers": o})
+    return out
 
 
 def _stack_results(results: dict, n: int, errors: dict) -> FitResult:

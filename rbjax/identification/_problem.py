@@ -123,12 +123,15 @@ def prepare(
     gyro_rotation=False,
     accelerations=None,
     acceleration_std=None,
+    pad_intervals=None,
 ) -> Problem:
     """Validate recordings and pack them for :func:`rbjax.fit_inertia` (arguments as there).
 
     NumPy only, before any tracing: checks inputs and identifiability, estimates
     noise levels, fits the linear start, chooses substeps and segments, and cuts
-    the recordings into padded segments. Without orientations (gyro only) the
+    the recordings into padded segments (``pad_intervals``: at least that many
+    intervals per segment, so recordings of different lengths share one shape).
+    Without orientations (gyro only) the
     body frame at ``times[0]`` is taken as the world frame: every segment starts
     from the identity times its fitted rotation, chained by the joins.
     """
@@ -232,6 +235,8 @@ def prepare(
         rates = _rate_estimate(t, q, k)
 
     K = _bucket(-(-(T - 1) // S))  # intervals per segment, padded: shapes from a coarse grid
+    if pad_intervals is not None:  # padded further, to share a program with longer recordings
+        K = max(K, int(pad_intervals))
     n_real = np.full(S, (T - 1) // S) + (np.arange(S) < (T - 1) % S)  # spread the real intervals evenly
     starts = np.concatenate([[0], np.cumsum(n_real)[:-1]])
     local = np.arange(K)[None, :]
