@@ -478,6 +478,11 @@ def _batch_members(times, arrays):
     if main is None or np.ndim(main) != 3:
         return None
     main = np.asarray(main)
+    if np.ndim(times) != 1 or main.shape[1] != np.shape(times)[0]:
+        return None
+    for k, a in arrays.items():  # a shape that does not match the batch: the batch-wide message stands
+        if a is not None and np.ndim(a) == _PER_MEMBER_NDIM[k] and np.shape(a)[0] != main.shape[0]:
+            return None
     out = []
     for i in range(main.shape[0]):
         member = {}
