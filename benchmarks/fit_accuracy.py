@@ -13,14 +13,21 @@ fits all draws in one batched call. Beside the achieved error it puts
   1 when the estimator is efficient (its error is the bound's), above 1 by the
   factor it loses;
 * ``cal``: the RMS of ``(fitted - true) / sigma``: about 1 when the reported σ
-  is calibrated.
+  is calibrated;
+* ``in2σ``: the fraction of moments within 2 reported σ of the truth (~0.95
+  when σ is calibrated), over the draws that report ``converged``.
+
+The ``calibration`` sweep fits gyro-only and orientation+gyro recordings, short
+(0.5 s @ 100 Hz, a 10 rad/s throw) and long (2 s @ 200 Hz), in float64 and
+float32 (the data cast, so the whole fit runs in float32): run it alone with
+``--sweep calibration --draws 40``.
 
 Moments are those of ``I / tr I`` unless torques fix the scale (none here:
 every case is torque-free, as a thrown or tumbling body is). Errors are
 relative, ``|λ_fit - λ_true| / λ_true``, the worst of the three moments, median
 over draws.
 
-    python benchmarks/fit_accuracy.py [--quick] [--draws 8] [--json fit_accuracy.json]
+    python benchmarks/fit_accuracy.py [--quick] [--draws 8] [--sweep NAME] [--json fit_accuracy.json]
 
 ``--quick`` runs two small cases with 2 draws (< 1 min); the default runs every
 sweep (about 10 minutes on the 2-core machine).
@@ -66,6 +73,7 @@ class Case:
     bias: tuple = (0.02, -0.01, 0.015)  # rad/s, used with "+bias"
     lever_arm: tuple = (0.05, -0.02, 0.03)  # m, used with "+accel"
     accel_bias: tuple = (0.1, 0.0, -0.05)  # m/s², used with "+accel"
+    dtype: str = "float64"  # the data's dtype, and so the fit's
 
 
 def cases(quick: bool) -> list[Case]:
@@ -78,6 +86,10 @@ def cases(quick: bool) -> list[Case]:
     out += [Case("sensors", sensors=s) for s in ("gyro", "gyro+bias")]
     out += [Case("sensors", sensors="gyro+accel", duration=1.0, spin=10.0)]
     out += [Case("thrown", sensors="gyro", duration=1.0, rate=400.0, spin=10.0, rate_std=2e-3)]
+    for dtype in ("float64", "float32"):
+        for sensors in ("gyro", "orientation+gyro"):
+            out += [Case("calibration", sensors=sensors, duration=0.5, rate=100.0, spin=10.0, dtype=dtype)]
+            out += [Case("calibration", sensors=sensors, duration=2.0, rate=200.0, dtype=dtype)]
     return out
 
 
@@ -188,10 +200,12 @@ def recordings(case: Case, times: np.ndarray, draws: int, rng: np.random.Generat
 
 
 def fit(case: Case, times: np.ndarray, rec: dict[str, np.ndarray]):
-    kwargs = {k: v for k, v in rec.items() if k != "orientations"}
+    dt = np.dtype(case.dtype)
+    kwargs = {k: v.astype(dt) for k, v in rec.items() if k != "orientations"}
     if "bias" in case.sensors:
         kwargs["gyro_bias"] = True
-    return rb.fit_inertia(times, rec.get("orientations"), **kwargs)
+    q = rec.get("orientations")
+    return rb.fit_inertia(times.astype(dt), None if q is None else q.astype(dt), **kwargs)
 
 
 def run(case: Case, draws: int, rng: np.random.Generator) -> dict:
@@ -205,7 +219,8 @@ def run(case: Case, draws: int, rng: np.random.Generator) -> dict:
     jax.block_until_ready(res.inertia)
     t_fit = time.perf_counter() - t0
     lam = np.linalg.eigvalsh(INERTIA / np.trace(INERTIA))
-    got, sig = np.asarray(res.principal_moments), np.asarray(res.moment_std)
+    got, sig = np.asarray(res.principal_moments, np.float64), np.asarray(res.moment_std, np.float64)
+    conv = np.asarray(res.converged)
     err = np.max(np.abs(got - lam) / lam, axis=-1)
     out = dict(
         dataclasses.asdict(case),
@@ -217,6 +232,7 @@ def run(case: Case, draws: int, rng: np.random.Generator) -> dict:
         crb_rel=float(np.mean(crb / lam)),
         z_rms=float(np.sqrt(np.mean(((got - lam) / crb) ** 2))),
         cal=float(np.sqrt(np.nanmean(((got - lam) / sig) ** 2))),
+        within_2sigma=float(np.mean(np.abs(got - lam)[conv] < 2 * sig[conv])) if conv.any() else float("nan"),
         fit_s=t_fit,
         crb_s=t_crb,
     )
@@ -232,23 +248,27 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--draws", type=int, default=8)
     ap.add_argument("--json", default="fit_accuracy.json")
+    ap.add_argument("--sweep", default=None, help="run only this sweep (e.g. calibration)")
     args = ap.parse_args()
     draws = 2 if args.quick else args.draws
     rng = np.random.default_rng(0)
     rows = []
     head = (
         f"{'sweep':>10} {'sensors':>17} {'T s':>4} {'Hz':>5} {'σ_q':>7} {'σ_ω':>6} {'exc':>9} "
-        f"{'conv':>5} {'err med':>8} {'err max':>8} {'σ rep':>8} {'CRB':>8} {'z_rms':>6} {'cal':>5} {'fit s':>6}"
+        f"{'conv':>5} {'err med':>8} {'err max':>8} {'σ rep':>8} {'CRB':>8} {'z_rms':>6} {'cal':>5} "
+        f"{'in2σ':>5} {'dtype':>7} {'fit s':>6}"
     )
     print(head)
     for case in cases(args.quick):
+        if args.sweep is not None and case.sweep != args.sweep:
+            continue
         r = run(case, draws, rng)
         rows.append(r)
         print(
             f"{r['sweep']:>10} {r['sensors']:>17} {r['duration']:>4g} {r['rate']:>5g} {r['orientation_std']:>7.0e} "
             f"{r['rate_std']:>6.0e} {r['excitation']:>9} {r['converged']:>5.2f} {r['error_median']:>8.1e} "
             f"{r['error_max']:>8.1e} {r['sigma_rel']:>8.1e} {r['crb_rel']:>8.1e} {r['z_rms']:>6.2f} {r['cal']:>5.2f} "
-            f"{r['fit_s']:>6.1f}"
+            f"{r['within_2sigma']:>5.2f} {r['dtype']:>7} {r['fit_s']:>6.1f}"
             + (f"  lever arm {r['lever_arm_error_mm']:.2f} mm" if "lever_arm_error_mm" in r else ""),
             flush=True,
         )

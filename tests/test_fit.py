@@ -187,6 +187,144 @@ def test_float32_clean_fit():
     assert _rel(res.inertia, I_BAR) < 1e-4
 
 
+def test_float32_sigma_of_a_weakly_determined_fit_matches_float64():
+    # the issue's case: a short (0.5 s @ 100 Hz) gyro-only fit of a near-pure spin, 0.01 rad/s
+    # noise. float32 reported σ ≈ 0.09 where float64 gave 3.5 (a direction with a relative
+    # singular value 1e-5 fell below the float32 cut and got variance 0), with converged=True.
+    # Now the columns are scaled and the joins eliminated before the cut: measured σ equal to
+    # 4e-4 relative. Tolerance 10%: float32's rounding on the data and on J (1e-6 relative)
+    # moves singular values ~1e-5 of the largest (cond ~1e3 here) by well under that
+    t = np.linspace(0.0, 0.5, 51)
+    q, wb = _record(t, I=np.diag([1.0, 2.0, 2.6]), w0=np.array([0.05, 0.05, 3.0]))
+    wn = wb + np.random.default_rng(0).normal(0, 0.01, wb.shape)
+    r64 = rb.fit_inertia(t, body_rates=wn)
+    r32 = rb.fit_inertia(t.astype(np.float32), body_rates=wn.astype(np.float32))
+    s64, s32 = np.asarray(r64.moment_std), np.asarray(r32.moment_std, np.float64)
+    np.testing.assert_allclose(s32, s64, rtol=0.1)
+    # σ of several times the moments' range: the data say nothing useful, and the flags say so
+    assert s64.max() > 1 and not bool(r64.well_determined)
+    assert not bool(r32.converged) and not bool(r64.converged)
+
+
+def test_undetermined_directions_get_infinite_not_zero_variance():
+    # _variances on a hand-made Jacobian (no fit): columns 0 and 1 differ by 1e-6 of their norm, a
+    # direction float32 cannot resolve (relative singular value ~7e-7, below its cut of
+    # 40 · 1.2e-7 = 4.8e-6) and float64 can; column 2 is exactly zero (a pinned parameter), which
+    # must contribute nothing rather than NaN. float32: inf, never the 0 of a pseudo-inverse
+    from rbjax.identification._result import _variances
+
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(size=(2, 40))
+    b -= (a @ b) / (a @ a) * a  # orthogonal: the sum's variance does not depend on the lost direction
+    J64 = np.stack([a, a + 1e-6 * b, np.zeros(40)], 1)
+    F = np.array([[1.0, 0.0, 0.0], [1.0, 1.0, 0.0]])  # parameter 0, and the sum (well determined)
+    P = np.linalg.pinv(J64[:, :2])  # float64 reference: (JᵀJ)⁻¹ on the used columns
+    ref = np.einsum("fi,ij,fj->f", F[:, :2], P @ P.T, F[:, :2])
+    for dtype in (np.float32, np.float64):
+        J = jax.numpy.asarray(J64, dtype)
+        var = np.asarray(_variances(J, 40, 0, jax.numpy.ones(40, dtype), jax.numpy.asarray(F, dtype)))
+        assert not np.any(np.isnan(var)), var
+        if dtype == np.float32:
+            assert np.isinf(var[0]), var  # undetermined
+            # the sum is determined: within float32's rounding of the basis (1e-3 relative)
+            np.testing.assert_allclose(var[1], ref[1], rtol=1e-3)
+        else:  # resolved: float64 agrees with the pseudo-inverse; the sum's 0.04 is what is left of
+            # terms of 2e10 (measured 2.3e-5 relative apart: 2e10 · eps ≈ 4e-6 absolute per term)
+            np.testing.assert_allclose(var, ref, rtol=1e-4)
+
+
+def test_half_precision_and_jit_raise_in_our_words():
+    # float16 data used to reach the solver (raw dtype errors); jax.jit(fit_inertia) raised JAX's
+    # TracerArrayConversionError. Both are TypeErrors naming the argument and the remedy now,
+    # before anything is compiled (no fit runs here)
+    q, wb = _record(T_FAST[:50])
+    with pytest.raises(TypeError, match=r"body_rates has dtype float16.*float32 or float64"):
+        rb.fit_inertia(T_FAST[:50], body_rates=wb.astype(np.float16))
+    with pytest.raises(TypeError, match=r"orientations has dtype float16"):
+        rb.fit_inertia(T_FAST[:50], q.astype(np.float16))
+    with pytest.raises(TypeError, match=r"fit_inertia is not jittable.*outside"):
+        jax.jit(lambda w: rb.fit_inertia(T_FAST[:50], body_rates=w).inertia)(wb)
+    with pytest.raises(TypeError, match=r"not jittable: rate_std is a JAX tracer"):
+        jax.jit(lambda s: rb.fit_inertia(T_FAST[:50], body_rates=wb, rate_std=s).inertia)(0.01)
+    with pytest.raises(TypeError, match=r"must be real numbers"):
+        rb.fit_inertia(T_FAST[:50], body_rates=wb.astype(complex))
+
+
+def _ragged_throws():
+    """Three throws of 0.4, 0.6, 1.0 s at 100 Hz (10 rad/s, 0.01 rad/s gyro noise): ``(times, rates)``."""
+    rng = np.random.default_rng(0)
+    ts, ws = [], []
+    for n in (41, 60, 100):
+        t = np.arange(n) / 100.0
+        ts.append(t)
+        ws.append(_record(t, w0=np.array([1.0, 9.8, 1.3]))[1] + rng.normal(0, 0.01, (n, 3)))
+    return ts, ws
+
+
+_PURE_SPIN = np.tile([0.0, 0.0, 5.0], (60, 1))  # about a fixed axis: nothing to identify
+
+
+def test_ragged_list_and_bad_members_are_fitted_one_by_one():
+    # the issue's cases: a list of throws of different lengths failed with NumPy's "setting an
+    # array element with a sequence"; one under-excited recording made the whole batch raise
+    # without saying which. Now the good ones are padded to one shape and fitted as one batch (one
+    # compiled program), the bad one is named with its reason and gets NaN with failed=True
+    ts, ws = _ragged_throws()
+    fit_jit = _fit._fit_batch_jit(jax.default_backend())
+    before = fit_jit._cache_size()
+    res = rb.fit_inertia(ts, body_rates=[ws[0], _PURE_SPIN, ws[2]])
+    assert fit_jit._cache_size() <= before + 1  # the 41- and 100-sample throws: one program
+    np.testing.assert_array_equal(np.asarray(res.failed), [False, True, False])
+    assert len(res.member_errors) == 1 and res.member_errors[0].startswith("recording 1: ")
+    assert "too little excitation" in res.member_errors[0]
+    assert np.all(np.isnan(np.asarray(res.principal_moments[1]))) and not bool(res.converged[1])
+    assert np.all(np.isnan(np.asarray(res.residuals[1])))
+    assert np.asarray(res.robust_weights).shape == (3, 100, 3)  # per sample, padded to the longest
+    # 0.01 rad/s on 10 rad/s throws: σ ~1e-3 (measured 7e-4 / 2e-4); within 4σ of the truth
+    z = (np.asarray(res.principal_moments)[[0, 2]] - np.linalg.eigvalsh(I_BAR)) / np.asarray(res.moment_std)[[0, 2]]
+    assert np.all(np.abs(z) < 4), z
+    # lists that do not match, and all members bad, raise naming them
+    with pytest.raises(ValueError, match="body_rates must be a list of 3 arrays"):
+        rb.fit_inertia(ts, body_rates=ws[:2])
+    with pytest.raises(ValueError, match="none of the 2 recordings.*recording 0: .*recording 1: "):
+        rb.fit_inertia(ts[1:3], body_rates=[_PURE_SPIN, ws[2] * np.nan])
+    # the same reason for every member (an option): said once, as for a single recording
+    with pytest.raises(ValueError, match=r"^fit_inertia: gyro_rotation=True needs body_rates and orientations"):
+        rb.fit_inertia(ts, body_rates=ws, gyro_rotation=True)
+
+
+@pytest.mark.slow  # three more compiled programs (~30 s on a loaded 2-core machine)
+def test_ragged_members_fit_as_if_alone_and_a_nan_member_of_a_batch():
+    ts, ws = _ragged_throws()
+    res = rb.fit_inertia(ts, body_rates=[ws[0], _PURE_SPIN, ws[2]])
+    # the same fit as alone: the padding is masked, the substeps the group's largest (rk4 error
+    # ~(ωh)⁴ ≈ 1e-8 per step at the coarser one, far below the 0.01 rad/s noise); tolerance 1e-3 of σ
+    for i in (0, 2):
+        alone = rb.fit_inertia(ts[i], body_rates=ws[i])
+        diff = np.abs(np.asarray(res.principal_moments[i]) - np.asarray(alone.principal_moments))
+        assert np.all(diff < 1e-3 * np.asarray(alone.moment_std)), diff
+        np.testing.assert_allclose(res.moment_std[i], alone.moment_std, rtol=1e-3)
+    # a regular batch (N, T, 3) with a non-finite member: named, the rest fitted as a batch
+    W = np.stack([ws[2]] * 3)
+    W[1, 7, 0] = np.nan
+    res = rb.fit_inertia(ts[2], body_rates=W)
+    np.testing.assert_array_equal(np.asarray(res.failed), [False, True, False])
+    assert "recording 1: " in res.member_errors[0] and "non-finite" in res.member_errors[0]
+    np.testing.assert_allclose(res.principal_moments[0], alone.principal_moments, rtol=1e-8)
+
+
+def test_gyro_in_degrees_gets_a_units_hint():
+    # the issue's case: a gyro in deg/s was reported as "too little excitation". With orientations
+    # the gyro reads 57.3x the rate they imply; without them a median |ω| > 50 rad/s adds the hint
+    # to the excitation error (no fit runs: these raise in the NumPy checks)
+    q, wb = _record(T_FAST[:50])
+    with pytest.raises(ValueError, match=r"57\.3.*np\.deg2rad\(body_rates\)"):
+        rb.fit_inertia(T_FAST[:50], q, body_rates=np.degrees(wb))
+    spin = np.tile(np.degrees([0.0, 0.0, 5.0]), (50, 1))  # 286 "rad/s" about a fixed axis
+    with pytest.raises(ValueError, match=r"too little excitation.*deg/s.*np\.deg2rad"):
+        rb.fit_inertia(T_FAST[:50], body_rates=spin)
+
+
 def test_bad_input_raises_before_tracing():
     q, wb = _record(T_FAST[:50])
     t = T_FAST[:50]
@@ -289,8 +427,11 @@ def test_world_frame_gyro_is_detected():
     # with the check off the fit runs into the edge of the consistent set, and says so now
     # (measured: moments [2e-6, 0.5, 0.5], residual ratio 1.9e4)
     res = rb.fit_inertia(T_FAST, q, body_rates=w_world, check_gyro_frame=False)
-    assert bool(res.on_boundary) and not bool(res.converged)
-    assert np.all(np.isnan(np.asarray(res.moment_std)))  # not the ~3e-7 it used to report
+    # on the edge, and the residuals (0.5 rad, 0.77 rad/s against estimated noise levels of 2e-5 and
+    # 6e-5: ratio 1.9e4) fail the consistency test, which is what says this fit is junk; its σ
+    # (~3e-7, finite) is not to be believed, and converged says so
+    assert bool(res.on_boundary) and not bool(res.converged) and not bool(res.model_consistent)
+    assert float(res.consistency_pvalue) < 1e-10 and np.all(np.isfinite(np.asarray(res.moment_std)))
 
 
 def test_gyro_frame_check_misfits():
@@ -319,9 +460,9 @@ def test_orientation_glitches_do_not_claim_convergence():
     assert not bool(res.converged)
     assert float(res.residual_ratio) > 3
     std = np.asarray(res.moment_std)
-    # never a confident σ: either NaN (on the boundary) or scaled by the huge residuals
-    assert np.all(np.isnan(std) | (std > 1e-6)), std
-    assert bool(res.on_boundary) == bool(np.all(np.isnan(std)))
+    # never a confident σ: scaled by the huge residuals (or inf), on the boundary or not
+    assert np.all(std > 1e-6), std
+    assert not bool(res.model_consistent)
     # the clean recording: all flags agree that the fit is good
     clean = rb.fit_inertia(T_FAST, _record(T_FAST)[0])
     assert bool(clean.converged) and bool(clean.solver_converged) and not bool(clean.on_boundary)
@@ -335,8 +476,23 @@ def test_gyro_bias_is_fitted_as_a_nuisance_parameter():
     q, wb = _record(T_FAST)
     qn, wn = imu_noise(q, wb, np.random.default_rng(0))
     bias = np.array([0.02, -0.02, 0.02])
-    err_clean = _rel(rb.fit_inertia(T_FAST, qn, body_rates=wn).inertia, I_BAR)
-    assert _rel(rb.fit_inertia(T_FAST, qn, body_rates=wn + bias).inertia, I_BAR) > 5 * err_clean
+    clean = rb.fit_inertia(T_FAST, qn, body_rates=wn)
+    err_clean = _rel(clean.inertia, I_BAR)
+    biased = rb.fit_inertia(T_FAST, qn, body_rates=wn + bias)
+    assert _rel(biased.inertia, I_BAR) > 5 * err_clean
+    # the unmodelled bias used to pass as converged (fixed threshold: ratio 1.6 ≤ 3, truth 6σ away);
+    # the χ²/F test with ~1,200 residuals sees it (measured p = 2e-29, gyro s = 1.9); the clean
+    # recording passes (p = 0.16). α = 1e-3: a correct model fails 1 fit in 1000
+    assert bool(clean.converged) and bool(clean.model_consistent) and float(clean.consistency_pvalue) > 1e-3
+    assert not bool(biased.model_consistent) and not bool(biased.converged)
+    assert float(biased.consistency_pvalue) < 1e-10
+    assert float(biased.noise_scale[1]) > 1.5  # the gyro's residuals carry the bias
+    np.testing.assert_array_equal(np.asarray(clean.noise_estimated), [True, True, False])
+    # noise levels given: the exact χ² test; the true levels pass, a gyro level half the truth fails
+    told = rb.fit_inertia(T_FAST, qn, body_rates=wn, orientation_std=1e-3, rate_std=0.01)
+    assert bool(told.model_consistent) and not np.any(np.asarray(told.noise_estimated))
+    np.testing.assert_allclose(told.noise_std[:2], [1e-3, 0.01])
+    assert not bool(rb.fit_inertia(T_FAST, qn, body_rates=wn, orientation_std=1e-3, rate_std=0.005).converged)
     res = rb.fit_inertia(T_FAST, qn, body_rates=wn + bias, gyro_bias=True)
     assert bool(res.converged)
     assert _rel(res.inertia, I_BAR) < 1.5 * err_clean  # back to the no-bias level
@@ -372,6 +528,24 @@ def test_gyro_only_fits_the_shape_from_euler_equations():
     assert np.isnan(float(res.orientation_rms))
     # the world frame is the body frame at times[0]: segment 0's rotation is pinned
     np.testing.assert_array_equal(np.asarray(res.initial_orientation), [1.0, 0.0, 0.0, 0.0])
+
+
+def test_noise_ten_times_larger_not_told_is_estimated_and_sigma_follows():
+    # a gyro 10x noisier (0.1 rad/s) than the tests' 0.01, its level not given: the fit estimates it
+    # (second differences) and scales σ by the gyro residuals' own variance, so converged, truth
+    # within 3σ, and σ within 15% of the Cramér–Rao value (the σ of a fit told the true 0.1, without
+    # the residual scaling: σ_told / noise_scale_told). Measured on 8 draws: converged 8/8, |z| ≤ 2.1,
+    # σ ratio 1 ± 7e-5 against the told fit; noise_scale 0.96-1.06 (its spread ~sqrt(2/1200) = 4%)
+    wb = _record(T_FAST)[1]
+    wn = wb + np.random.default_rng(1).normal(0, 0.1, wb.shape)
+    res = rb.fit_inertia(T_FAST, body_rates=wn)  # the compiled program of the gyro-only test above
+    told = rb.fit_inertia(T_FAST, body_rates=wn, rate_std=0.1)
+    assert bool(res.converged) and bool(res.noise_estimated[1]) and not bool(told.noise_estimated[1])
+    np.testing.assert_allclose(float(res.noise_std[1]), 0.1, rtol=0.15)  # the estimate itself
+    z = (np.asarray(res.principal_moments) - np.linalg.eigvalsh(I_BAR)) / np.asarray(res.moment_std)
+    assert np.all(np.abs(z) < 3), z
+    cramer_rao = np.asarray(told.moment_std) / float(told.noise_scale[1])
+    np.testing.assert_allclose(np.asarray(res.moment_std), cramer_rao, rtol=0.15)
 
 
 def test_thrown_object_gyro_only():
@@ -510,7 +684,7 @@ def test_bad_robust_options_raise(kwargs, exc, match):
 
 @pytest.mark.slow
 def test_short_random_tumbles_converge_with_calibrated_sigma():
-    # the issue's case: random 1 s @ 200 Hz tumbles, 1e-3 rad + 0.01 rad/s noise, converged only
+    # issue 13's case: random 1 s @ 200 Hz tumbles, 1e-3 rad + 0.01 rad/s noise, converged only
     # 72-90% of the time (the solver crept along the flat valleys of near-spherical bodies). Goal
     # ≥ 98% converged, ≥ 95% of the moments within 3σ. On the 100-draw study
     # (benchmarks/fit_convergence.py) 99% / 98%; here 40 draws of the same generator, one batch.
@@ -529,11 +703,19 @@ def test_short_random_tumbles_converge_with_calibrated_sigma():
         qs.append(qn)
         ws.append(wn)
     res = rb.fit_inertia(t, np.stack(qs), body_rates=np.stack(ws))
+    # since issue 28 converged also needs well_determined (every moment σ ≤ 0.1 tr I): 8 of these
+    # 40 are near-symmetric bodies whose 1 s tumble determines the moments to σ 0.1-1.3 (the same σ
+    # as before; estimates up to 0.2 off, e.g. 0.058 ± 0.43 for 0.26), which used to count as
+    # converged. The solver and the consistency test still pass on ≥ 39/40; measured 32/40 converged
+    solved = np.asarray(res.solver_converged) & np.asarray(res.model_consistent)
+    assert solved.sum() >= 39, np.flatnonzero(~solved)
     conv = np.asarray(res.converged)
-    assert conv.sum() >= 39, np.flatnonzero(~conv)
+    assert conv.sum() >= 28, np.flatnonzero(~conv)  # 32 measured; a margin of 4 for rounding/draws
+    wd = np.asarray(res.well_determined)
+    assert np.all(np.nanmax(np.asarray(res.moment_std)[~wd], -1) > 0.1)  # flagged for its σ, not else
     truth = np.stack([np.linalg.eigvalsh(I) for I in Is])
     z = np.abs(np.asarray(res.principal_moments) - truth) / np.asarray(res.moment_std)
-    assert np.mean(z[conv] < 3) >= 0.93, np.sort(z[conv].ravel())[-10:]
+    assert np.mean(z[solved] < 3) >= 0.93, np.sort(z[solved].ravel())[-10:]
 
 
 def test_gyro_rotation_is_fitted_as_a_nuisance_parameter():
@@ -598,3 +780,34 @@ def test_accelerometer_bad_inputs_name_the_remedy():
         rb.fit_inertia(t, body_rates=wb, accelerations=acc, body_torques=np.ones((201, 3)))
     with pytest.raises(ValueError, match="acceleration_std must be finite and > 0"):
         rb.fit_inertia(t, body_rates=wb, accelerations=acc, acceleration_std=-1.0)
+
+
+@pytest.mark.slow  # 8 cases of ~30-50 s each (one batch of 40 draws, its own compiled program)
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize(("duration", "rate_hz", "sensors"), [
+    (0.5, 100, "gyro"), (0.5, 100, "orientations"), (2.0, 200, "gyro"), (2.0, 200, "orientations"),
+])  # fmt: skip
+def test_sigma_is_calibrated_over_noise_draws(duration, rate_hz, sensors, dtype):
+    # σ checked by simulation: 40 noise draws (1e-3 rad or 0.01 rad/s, levels estimated) of one
+    # tumble (short: a 10 rad/s throw; long: the 2 s @ 200 Hz test tumble), data in ``dtype``.
+    # If σ is right, ~95% of the moments lie within 2σ and the RMS of z = error / σ is ~1. With 40
+    # draws × 3 moments (two independent: tr I = 1) the binomial sd of the 2σ rate is ~2.4%, of
+    # the RMS z ~8%; bounds ~3 sd: within 2σ ≥ 0.87, RMS z in [0.75, 1.3]. Measured at 100 draws
+    # (/tmp study, same generator): 2σ rates 0.91 (short gyro: RMS z 1.14, the linearisation's
+    # optimism on 51 samples), 0.95, 0.94, 0.97; float32 equal to float64 to 3 digits
+    T = np.linspace(0.0, duration, int(round(duration * rate_hz)) + 1)
+    q, wb = _record(T, w0=W0 if duration > 1 else np.array([1.0, 9.8, 1.3]))
+    rng = np.random.default_rng(0)
+    recs = [imu_noise(q, wb, rng) for _ in range(40)]
+    if sensors == "gyro":
+        res = rb.fit_inertia(T.astype(dtype), body_rates=np.stack([w for _, w in recs]).astype(dtype))
+    else:
+        res = rb.fit_inertia(T.astype(dtype), np.stack([qn for qn, _ in recs]).astype(dtype))
+    conv = np.asarray(res.converged)
+    assert conv.sum() >= 39, np.flatnonzero(~conv)
+    z = (np.asarray(res.principal_moments, np.float64) - np.linalg.eigvalsh(I_BAR)) / np.asarray(
+        res.moment_std, np.float64
+    )
+    z = z[conv]
+    assert np.mean(np.abs(z) < 2) >= 0.87, np.sort(np.abs(z).ravel())[-12:]
+    assert 0.75 <= np.sqrt(np.mean(z**2)) <= 1.3, np.sqrt(np.mean(z**2))

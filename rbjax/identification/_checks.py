@@ -7,6 +7,7 @@ argument and the remedy.
 from __future__ import annotations
 
 import jax
+import jax.core
 import numpy as np
 
 from .._state import quat_tolerance
@@ -100,6 +101,39 @@ def _gyro_frame_check(times: np.ndarray, q: np.ndarray, w: np.ndarray, k: int, r
             f"better than in the body frame ({r_body:.3g} rad/s). Pass body-frame rates R(q)ᵀ ω, e.g. "
             "rb.quat_rotate(rb.quat_conjugate(q), w), or check_gyro_frame=False to skip this check"
         )
+
+
+def check_arrays(**arrays) -> None:
+    """``TypeError`` in rbjax's words for array arguments the fit cannot take, before any conversion.
+
+    * a JAX tracer (``fit_inertia`` inside ``jax.jit``, ``vmap`` or ``grad``): the fit
+      checks and packs its data in NumPy and compiles its own solver, so it cannot be
+      traced; call it outside the transformation;
+    * half precision (float16, bfloat16): ``eps ≈ 1e-3`` cannot carry the integration
+      or the noise model; cast to float32 or float64;
+    * complex or non-numeric data.
+    """
+    for name, a in arrays.items():
+        if a is None:
+            continue
+        if isinstance(a, jax.core.Tracer):
+            raise TypeError(
+                f"fit_inertia is not jittable: {name} is a JAX tracer (fit_inertia was called inside "
+                "jax.jit, vmap or grad). Call fit_inertia outside the transformation with concrete "
+                "arrays: it validates the data in NumPy and compiles its own solver (one program per "
+                "shape bucket, reused), and a batch (N, T, ...) is fitted in one call"
+            )
+        dtype = getattr(a, "dtype", None)
+        if dtype is None:
+            continue
+        dtype = np.dtype(dtype)
+        if dtype == np.float16 or dtype.name == "bfloat16":
+            raise TypeError(
+                f"fit_inertia: {name} has dtype {dtype.name}, too coarse to fit with (eps ≈ 1e-3); "
+                f"cast it to float32 or float64 first, e.g. np.asarray({name}, np.float32)"
+            )
+        if not (np.issubdtype(dtype, np.floating) or np.issubdtype(dtype, np.integer)):
+            raise TypeError(f"fit_inertia: {name} must be real numbers (float32 or float64), got dtype {dtype.name}")
 
 
 def _check_inputs(times, orientations, body_rates, torques, body_torques=None):

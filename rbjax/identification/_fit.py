@@ -23,6 +23,7 @@ differentiated data), which also gives the identifiability check
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import jax
@@ -33,7 +34,7 @@ from jaxtyping import Float
 from .._pytree import new_unchecked
 from .._typing import ArrayLike
 from . import _robust
-from ._checks import check_options
+from ._checks import check_arrays, check_options
 from ._model import _model
 from ._problem import prepare
 from ._queue import run_queue, stage_widths
@@ -173,6 +174,13 @@ def fit_inertia(
     Args:
         times: ``(T,)`` sample times (s), strictly increasing, possibly irregular
             (each interval is its own ``dt``, split into ``substeps`` steps).
+            Or a list of ``N`` such arrays of any lengths ``T_i`` (recordings of
+            different lengths): then every data argument is a list of ``N``
+            arrays too (``orientations[i]`` ``(T_i, 4)``, ``body_rates[i]``
+            ``(T_i, 3)``, ...), each recording is fitted as if alone (those with
+            the same number of segments padded to the longest, masked, and fitted
+            as one batch: one compiled program), and the result has a leading
+            ``N`` axis, its per-sample fields padded with NaN to the longest.
         orientations: ``(T, 4)`` unit quaternions ``[w, x, y, z]`` body to world,
             or ``(N, T, 4)`` for ``N`` recordings fitted together (one compiled
             program, a work queue in which each recording stops on its own:
@@ -264,11 +272,19 @@ def fit_inertia(
             3-vectors (``|r|`` mostly < 3) almost untouched.
 
     Returns:
-        :class:`FitResult` (with a leading ``N`` axis for batched input).
+        :class:`FitResult` (with a leading ``N`` axis for batched input). In a
+        batch or list, a recording that cannot be fitted (the ``ValueError`` a
+        single fit of it would raise: too little excitation, non-finite data,
+        too few samples) does not stop the others: its fields are NaN,
+        ``failed[i]`` is ``True`` and ``member_errors`` names it with the reason.
+        Only when no recording can be fitted does the call raise.
 
     Raises:
         TypeError: before any tracing, for options of the wrong type (e.g. a
-            float or bool ``max_steps``/``segments``/``substeps``).
+            float or bool ``max_steps``/``segments``/``substeps``), half-precision
+            (float16, bfloat16) or complex data, or when called inside ``jax.jit``
+            (``vmap``, ``grad``): fitting is not jittable (it validates in NumPy and
+            compiles its own solver); call it outside, on concrete arrays.
         ValueError: before any tracing, for noise levels, ``continuity_weight``,
             tolerances that are not finite and > 0; ``max_steps``, ``segments``
             or ``substeps`` < 1; all-zero ``torques`` (they cannot fix the scale:
@@ -277,6 +293,82 @@ def fit_inertia(
             or too little excitation (naming the unidentifiable directions), or
             ``body_rates`` that look world-frame (``check_gyro_frame``).
     """
+    options = dict(
+        initial_inertia=initial_inertia,
+        method=method,
+        segments=segments,
+        substeps=substeps,
+        orientation_std=orientation_std,
+        rate_std=rate_std,
+        continuity_weight=continuity_weight,
+        excitation_tol=excitation_tol,
+        rtol=rtol,
+        atol=atol,
+        max_steps=max_steps,
+        check_gyro_frame=check_gyro_frame,
+        gyro_bias=gyro_bias,
+        gyro_rotation=gyro_rotation,
+        acceleration_std=acceleration_std,
+        loss=loss,
+        loss_scale=loss_scale,
+    )
+    arrays = dict(
+        orientations=orientations,
+        body_rates=body_rates,
+        torques=torques,
+        body_torques=body_torques,
+        accelerations=accelerations,
+    )
+    if _is_ragged(times):
+        return _fit_members(_ragged_members(times, arrays), options)
+    try:
+        return _fit_regular(times, **arrays, **options)
+    except ValueError:
+        members = _batch_members(times, arrays)
+        if members is None:  # one recording, or a batch-wide problem: the message stands
+            raise
+        return _fit_members(members, options)
+
+
+def _fit_regular(
+    times,
+    orientations,
+    *,
+    body_rates,
+    torques,
+    body_torques,
+    initial_inertia,
+    method,
+    segments,
+    substeps,
+    orientation_std,
+    rate_std,
+    continuity_weight,
+    excitation_tol,
+    rtol,
+    atol,
+    max_steps,
+    check_gyro_frame,
+    gyro_bias,
+    gyro_rotation,
+    accelerations,
+    acceleration_std,
+    loss,
+    loss_scale,
+) -> FitResult:
+    """:func:`fit_inertia` on one recording or a regular batch ``(N, T, ...)``: any bad input raises."""
+    check_arrays(
+        times=times,
+        orientations=orientations,
+        body_rates=body_rates,
+        torques=torques,
+        body_torques=body_torques,
+        initial_inertia=initial_inertia,
+        accelerations=accelerations,
+        orientation_std=orientation_std,
+        rate_std=rate_std,
+        acceleration_std=acceleration_std,
+    )
     check_options(
         orientation_std=orientation_std,
         rate_std=rate_std,
@@ -311,20 +403,241 @@ def fit_inertia(
         accelerations=accelerations,
         acceleration_std=None if acceleration_std is None else float(acceleration_std),
     )
-    data = dict(prob.data, loss_scale=np.full(prob.y0.shape[0], float(loss_scale), prob.y0.dtype))
+    return _solve(prob, dict(loss=loss, loss_scale=loss_scale, rtol=rtol, atol=atol, max_steps=max_steps))
+
+
+_OPTION_NAMES = (
+    "orientation_std",
+    "rate_std",
+    "continuity_weight",
+    "excitation_tol",
+    "rtol",
+    "atol",
+    "max_steps",
+    "segments",
+    "substeps",
+    "loss",
+    "loss_scale",
+    "acceleration_std",
+)
+
+
+def _solve(prob, options, sample_weights: bool = True) -> FitResult:
+    """Run the compiled solver on a packed :class:`._problem.Problem`; ``options``: loss, tolerances.
+
+    ``sample_weights=False`` leaves ``robust_weights`` as the solver's per-segment
+    rows (``(N, S, B, K+1)``) for the caller to map member by member.
+    """
+    loss = options["loss"]
+    data = dict(prob.data, loss_scale=np.full(prob.y0.shape[0], float(options["loss_scale"]), prob.y0.dtype))
     out = _fit_batch_jit(jax.default_backend())(
         prob.y0,
         data,
         model_opts=tuple(sorted(prob.static.items())),
         loss=loss,
-        rtol=float(rtol),
-        atol=float(atol),
-        max_steps=int(max_steps),
+        rtol=float(options["rtol"]),
+        atol=float(options["atol"]),
+        max_steps=int(options["max_steps"]),
         unbatch=not prob.batched,
     )
     rw = np.asarray(out.pop("robust_weights"))
-    out["robust_weights"], out["outliers"] = _sample_weights(prob, rw, _robust.outlier_weight(loss))
-    return new_unchecked(FitResult, **out, scale_fixed=prob.static["scale_fixed"], segments=prob.segments)
+    if sample_weights:
+        out["robust_weights"], out["outliers"] = _sample_weights(prob, rw, _robust.outlier_weight(loss))
+    else:
+        out["robust_weights"], out["outliers"] = jnp.asarray(rw), jnp.zeros(rw.shape[0], bool)
+    out["failed"] = jnp.zeros(prob.y0.shape[0] if prob.batched else (), bool)
+    return new_unchecked(
+        FitResult, **out, scale_fixed=prob.static["scale_fixed"], segments=prob.segments, member_errors=()
+    )
+
+
+def _is_ragged(times) -> bool:
+    """``times`` given as a list (or tuple) of 1-D arrays: one per recording, lengths free."""
+    return isinstance(times, (list, tuple)) and len(times) > 0 and all(np.ndim(t) == 1 for t in times)
+
+
+_PER_MEMBER_NDIM = {"orientations": 3, "body_rates": 3, "torques": 3, "body_torques": 3, "accelerations": 3}
+
+
+def _ragged_members(times, arrays):
+    """Per-recording ``(times, arrays)`` of a ragged list; ``ValueError`` if the lists do not match."""
+    n = len(times)
+    for name, a in arrays.items():
+        if a is not None and not (isinstance(a, (list, tuple)) and len(a) == n):
+            raise ValueError(
+                f"fit_inertia: times is a list of {n} recordings, so {name} must be a list of {n} arrays "
+                f"(one per recording, each of its own length), got {type(a).__name__}"
+                + (f" of length {len(a)}" if isinstance(a, (list, tuple)) else "")
+            )
+    return [(times[i], {k: None if a is None else a[i] for k, a in arrays.items()}) for i in range(n)]
+
+
+def _batch_members(times, arrays):
+    """Per-recording ``(times, arrays)`` of a regular batch ``(N, T, ...)``; ``None`` for a single recording."""
+    main = arrays["orientations"] if arrays["orientations"] is not None else arrays["body_rates"]
+    if main is None or np.ndim(main) != 3:
+        return None
+    main = np.asarray(main)
+    if np.ndim(times) != 1 or main.shape[1] != np.shape(times)[0]:
+        return None
+    for k, a in arrays.items():  # a shape that does not match the batch: the batch-wide message stands
+        if a is not None and np.ndim(a) == _PER_MEMBER_NDIM[k] and np.shape(a)[0] != main.shape[0]:
+            return None
+    out = []
+    for i in range(main.shape[0]):
+        member = {}
+        for k, a in arrays.items():
+            a = None if a is None else np.asarray(a)
+            member[k] = a[i] if a is not None and a.ndim == _PER_MEMBER_NDIM[k] else a
+        out.append((times, member))
+    return out
+
+
+def _fit_members(members, options) -> FitResult:
+    """Fit recordings one by one (ragged) or as one batch (equal lengths), setting bad ones aside.
+
+    Each member is checked first (:func:`._problem.prepare`, NumPy); one that raises
+    ``ValueError`` (too little excitation, non-finite data, too few samples, ...) gets
+    NaN results, ``failed = True`` and its reason in ``FitResult.member_errors``; the
+    others are fitted. Members of equal length share one batched solve; ragged ones
+    with the same number of segments are padded to the longest and fitted as one
+    batch too (:func:`_fit_padded`). Arrays whose length varies (``residuals``, ``robust_weights``,
+    ``outliers``) are padded with NaN (``False``) to the longest.
+    """
+    check_options(**{k: options[k] for k in _OPTION_NAMES})  # an option's error is raised once
+    errors: dict[int, str] = {}
+    probs = {}
+    for i, (t, arrays) in enumerate(members):
+        try:
+            probs[i] = _fit_regular_check(t, arrays, options)
+        except ValueError as e:
+            errors[i] = str(e)
+    good = [i for i in range(len(members)) if i not in errors]
+    if not good:
+        reasons = list(dict.fromkeys(errors.values()))
+        if len(reasons) == 1:  # the same for all (an option, a shared array): say it once
+            raise ValueError(reasons[0])
+        listed = list(errors.items())
+        raise ValueError(
+            f"fit_inertia: none of the {len(members)} recordings can be fitted: "
+            + "; ".join(f"recording {i}: {msg}" for i, msg in listed[:5])
+            + (f"; and {len(listed) - 5} more" if len(listed) > 5 else "")
+        )
+    lengths = {np.shape(members[i][0])[0] for i in good}
+    results: dict[int, FitResult] = {}
+    if len(lengths) == 1 and all(members[i][0] is members[good[0]][0] for i in good):
+        t = members[good[0]][0]
+        stacked = {k: _stack_or_share([members[i][1][k] for i in good]) for k in _PER_MEMBER_NDIM}
+        batch = _fit_regular(t, **stacked, **options)
+        for j, i in enumerate(good):
+            results[i] = jax.tree.map(lambda a, j=j: a[j], batch)
+    else:
+        results = _fit_padded(members, probs, options)
+    return _stack_results(results, len(members), errors)
+
+
+def _stack_or_share(values):
+    """The members' arrays as one batch array; one shared array (the same object) passed as is."""
+    if values[0] is None:
+        return None
+    if len(values) > 1 and all(v is values[0] for v in values):
+        return values[0]
+    return np.stack([np.asarray(v) for v in values])
+
+
+def _fit_regular_check(t, arrays, options, **fixed):
+    """:func:`fit_inertia`'s checks and packing of one recording (NumPy only, nothing compiled).
+
+    ``fixed``: ``segments``, ``substeps``, ``pad_intervals`` overriding the options.
+    """
+    check_arrays(times=t, **arrays)
+    options = {**options, **{k: v for k, v in fixed.items() if k != "pad_intervals"}}
+    return prepare(
+        t,
+        arrays["orientations"],
+        arrays["body_rates"],
+        arrays["torques"],
+        initial_inertia=options["initial_inertia"],
+        method=options["method"],
+        segments=options["segments"],
+        substeps=options["substeps"],
+        orientation_std=options["orientation_std"],
+        rate_std=options["rate_std"],
+        continuity_weight=options["continuity_weight"],
+        excitation_tol=options["excitation_tol"],
+        check_gyro_frame=bool(options["check_gyro_frame"]),
+        gyro_bias=options["gyro_bias"],
+        body_torques=arrays["body_torques"],
+        gyro_rotation=options["gyro_rotation"],
+        accelerations=arrays["accelerations"],
+        acceleration_std=None if options["acceleration_std"] is None else float(options["acceleration_std"]),
+        pad_intervals=fixed.get("pad_intervals"),
+    )
+
+
+def _fit_padded(members, probs, options) -> dict:
+    """Fit ragged recordings in groups that share one compiled program: ``{index: FitResult}``.
+
+    Recordings with the same number of segments (their default, or the option) are
+    packed with the intervals per segment of the group's longest (the padding is
+    masked: ``dt = 0``, no residuals) and the group's largest ``substeps``, stacked
+    and fitted as one batch.
+    """
+    groups: dict = {}
+    for i, prob in probs.items():
+        groups.setdefault(prob.segments, []).append(i)
+    out = {}
+    for S, idx in groups.items():
+        K = max(probs[i].data["seg"]["dt"].shape[-1] for i in idx)
+        substeps = max(probs[i].static["substeps"] for i in idx)  # more steps only add accuracy
+        packed = {
+            i: _fit_regular_check(members[i][0], members[i][1], options, segments=S, substeps=substeps, pad_intervals=K)
+            for i in idx
+        }
+        if len(idx) == 1:
+            i = idx[0]
+            out[i] = _solve(packed[i], options)
+            continue
+        first = packed[idx[0]]
+        batch = first._replace(
+            y0=np.concatenate([packed[i].y0 for i in idx]),
+            data=jax.tree.map(lambda *a: np.concatenate(a), *[packed[i].data for i in idx]),
+            batched=True,
+        )
+        res = _solve(batch, options, sample_weights=False)
+        rw = np.asarray(res.robust_weights)
+        for j, i in enumerate(idx):
+            one = jax.tree.map(lambda a, j=j: a[j], res)
+            w, o = _sample_weights(packed[i], rw[j], _robust.outlier_weight(options["loss"]))
+            fields = {f.name: getattr(one, f.name) for f in dataclasses.fields(FitResult)}
+            out[i] = new_unchecked(FitResult, **{**fields, "robust_weights": w, "outliers": o})
+    return out
+
+
+def _stack_results(results: dict, n: int, errors: dict) -> FitResult:
+    """One batched :class:`FitResult` of ``n`` members; the failed ones NaN (False, 0), padded to the longest."""
+    template = next(iter(results.values()))
+    fields = {}
+    for f in dataclasses.fields(FitResult):
+        if f.metadata.get("static"):
+            continue
+        arrs = [None if i not in results else np.asarray(getattr(results[i], f.name)) for i in range(n)]
+        ref = np.asarray(getattr(template, f.name))
+        shape = tuple(max(a.shape[d] for a in arrs if a is not None) for d in range(ref.ndim))
+        fill = np.nan if np.issubdtype(ref.dtype, np.floating) else (0 if ref.dtype != bool else False)
+        out = np.full((n,) + shape, fill, ref.dtype)
+        for i, a in enumerate(arrs):
+            if a is not None:
+                out[(i,) + tuple(slice(0, s) for s in a.shape)] = a
+        fields[f.name] = jnp.asarray(out)
+    fields["failed"] = jnp.asarray([i in errors for i in range(n)])
+    return new_unchecked(
+        FitResult,
+        **fields,
+        scale_fixed=template.scale_fixed,
+        segments=max(r.segments for r in results.values()),
+        member_errors=tuple(f"recording {i}: {msg}" for i, msg in sorted(errors.items())),
+    )
 
 
 def _sample_weights(prob, rw: np.ndarray, outlier_weight: float):

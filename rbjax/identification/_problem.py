@@ -34,6 +34,9 @@ def _mad_sigma(x: np.ndarray) -> np.ndarray:
     return 1.4826 * np.median(np.abs(x), axis=(-2, -1)) / np.sqrt(6.0)
 
 
+# effective degrees of freedom of a MAD-of-second-differences noise estimate per component
+_MAD_DOF = 0.2
+
 # Default numerics (see fit_inertia's docstring for the error budget)
 _MAX_STEP_ANGLE = 0.05  # rad turned per integrator step: rk4 error ~1e-9 rad per step at this size
 _SEGMENT_INTERVALS = 512  # target intervals per shooting segment (scan depth)
@@ -57,6 +60,34 @@ def _default_segments(n_intervals: int, total_angle: float) -> int:
     """
     want = max(n_intervals / _SEGMENT_INTERVALS, total_angle / (4 * np.pi))
     return int(min(_next_pow2(want), max(1, n_intervals // 8)))
+
+
+# median |ω| above this (rad/s) is unusual for a hand-tossed object: a hint that the gyro is in deg/s
+_DEG_HINT_RATE = 50.0
+
+
+def _deg_hint(rates: np.ndarray) -> str:
+    med = float(np.median(np.linalg.norm(rates, axis=-1)))
+    return (
+        f"The gyro's median rate is {med:.3g} rad/s ({med / (2 * np.pi):.3g} turns/s), a lot for a tossed "
+        "object: if body_rates are in deg/s, pass np.deg2rad(body_rates) (rad/s)"
+    )
+
+
+def _check_gyro_units(rates: np.ndarray, implied: np.ndarray) -> None:
+    """``ValueError`` when the gyro ``(N, T, 3)`` reads ~57.3x (deg/s) the rates the orientations imply."""
+    for n in range(rates.shape[0]):
+        g, o = np.linalg.norm(rates[n], axis=-1), np.linalg.norm(implied[n], axis=-1)
+        moving = o > 0.05 * max(float(o.max()), 1e-300)
+        if not np.any(moving):
+            continue
+        ratio = float(np.median(g[moving] / o[moving]))
+        if 0.8 * np.degrees(1.0) < ratio < 1.25 * np.degrees(1.0):
+            raise ValueError(
+                f"fit_inertia: body_rates{'' if rates.shape[0] == 1 else f'[{n}]'} read {ratio:.3g}x the "
+                "angular rate the orientations imply, the factor between deg/s and rad/s (57.3): pass "
+                "np.deg2rad(body_rates) (the gyro in rad/s)"
+            )
 
 
 class Problem(NamedTuple):
@@ -92,12 +123,15 @@ def prepare(
     gyro_rotation=False,
     accelerations=None,
     acceleration_std=None,
+    pad_intervals=None,
 ) -> Problem:
     """Validate recordings and pack them for :func:`rbjax.fit_inertia` (arguments as there).
 
     NumPy only, before any tracing: checks inputs and identifiability, estimates
     noise levels, fits the linear start, chooses substeps and segments, and cuts
-    the recordings into padded segments. Without orientations (gyro only) the
+    the recordings into padded segments (``pad_intervals``: at least that many
+    intervals per segment, so recordings of different lengths share one shape).
+    Without orientations (gyro only) the
     body frame at ``times[0]`` is taken as the world frame: every segment starts
     from the identity times its fitted rotation, chained by the joins.
     """
@@ -192,6 +226,8 @@ def prepare(
     k = int(np.clip(np.ceil(0.1 / max(np.median(angles), 1e-12)), 1, max(1, (T - 1) // 4)))
     if use_rates:
         rates = np.asarray(wr, np.float64)
+        if use_q:  # a gyro in deg/s reads 57.3x the rate the orientations imply
+            _check_gyro_units(rates, _rate_estimate(t, q, k))
         if check_gyro_frame and use_q:
             for n in range(N):
                 _gyro_frame_check(t, q[n], rates[n], k)
@@ -199,6 +235,8 @@ def prepare(
         rates = _rate_estimate(t, q, k)
 
     K = _bucket(-(-(T - 1) // S))  # intervals per segment, padded: shapes from a coarse grid
+    if pad_intervals is not None:  # padded further, to share a program with longer recordings
+        K = max(K, int(pad_intervals))
     n_real = np.full(S, (T - 1) // S) + (np.arange(S) < (T - 1) % S)  # spread the real intervals evenly
     starts = np.concatenate([[0], np.cumsum(n_real)[:-1]])
     local = np.arange(K)[None, :]
@@ -218,7 +256,12 @@ def prepare(
             MtM, Mtb, scale = _momentum_system(t, q[n], rates[n], tau_w)
         else:
             MtM, Mtb, scale = _body_momentum_system(t, rates[n], taub_n)
-        _identifiability(MtM, excitation_tol, torque_free)
+        try:
+            _identifiability(MtM, excitation_tol, torque_free)
+        except ValueError as e:
+            if use_rates and np.median(np.linalg.norm(rates[n], axis=-1)) > _DEG_HINT_RATE:
+                raise ValueError(f"{e} {_deg_hint(rates[n])}") from None
+            raise
         if initial_inertia is None:
             I0 = _initial_inertia(MtM, Mtb, scale, torque_free)
         else:
@@ -267,6 +310,7 @@ def prepare(
             ww=ones / sw[n] if use_rates else ones,
             wc=ones * ((1 / sw[n]) if use_rates else seg_dur / sq[n]),
         )
+        sa = np.nan
         if use_accel:
             sa = (
                 acceleration_std if acceleration_std is not None else max(_mad_sigma(np.diff(acc[n], 2, axis=0)), 1e-12)
@@ -281,8 +325,16 @@ def prepare(
         # without orientations segment 0's rotation δ_0 is pinned (delta_free = 0): 3 parameters
         # with a zero Jacobian column, not degrees of freedom of the fit
         n_unused = 0.0 if use_q else 3.0
+        # the noise levels that whiten the residuals [orientation, gyro, accelerometer] (NaN: no such
+        # sensor), and the effective degrees of freedom of each: inf when given, about a quarter of
+        # the second differences' components when estimated (the MAD of correlated second
+        # differences: measured 0.24-0.26 n for white noise, T = 50-1000; 0.2 n is used)
+        given = (orientation_std is not None, rate_std is not None, acceleration_std is not None)
+        n_mad = _MAD_DOF * 3 * max(T - 2, 1)
         datas.append(
             dict(
+                noise_std=np.array([sq[n], sw[n], sa], np.float64),
+                noise_dof=np.array([np.inf if g else n_mad for g in given]),
                 seg=seg,
                 n_data=np.float64(n_data),
                 n_unused=np.float64(n_unused),
