@@ -364,3 +364,29 @@ def test_state_create_refuses_in_rbjax_words(name):
     with pytest.raises((ValueError, TypeError)) as info:
         FIXED_GAPS[name]()
     assert _from_rbjax(info.value), info.value
+
+
+# ------------------------------------------------------------------ issue 26: silent wrong answers, third round
+
+
+def test_cli_fit_help_quotes_the_defaults_fit_inertia_uses():
+    """Every ``(default X)`` in ``fit``'s help for an option passed to fit_inertia is fit_inertia's default."""
+    import argparse
+    import inspect
+    import re
+
+    from rbjax import _cli
+
+    parser = _cli.build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    fit = sub.choices["fit"]
+    defaults = inspect.signature(rb.fit_inertia).parameters
+    checked = 0
+    for action in fit._actions:
+        kw = _cli._FIT_OPTIONS.get(action.dest)
+        said = re.search(r"default ([^()\s]+)\)", action.help or "")
+        if kw is None or said is None:
+            continue
+        assert said.group(1) == str(defaults[kw].default), (action.dest, action.help, defaults[kw].default)
+        checked += 1
+    assert checked >= 2  # --method and --max-steps at least
