@@ -50,9 +50,12 @@ def start_time(state: AnyState) -> Array:
     """The one time ``t`` (s) of a state or batch, from ``state.time``.
 
     A batch is stepped on one clock: concrete times must all be equal; traced
-    ones (inside ``jit``) are taken from the first body.
+    ones (inside ``jit``) are taken from the first body. An empty batch
+    (``N = 0``) has no clock: its time is 0 (pass ``t0`` to choose another).
     """
     t = state.time
+    if jnp.size(t) == 0:  # static shape: no body, no clock to read
+        return jnp.zeros((), jnp.result_type(t))
     if not isinstance(t, jax.core.Tracer) and isinstance(t, jax.Array) and not t.is_fully_addressable:
         # a batch split over processes: its clock from a reduction (replicated), not a host copy
         lo, hi = _time_range(t)

@@ -74,7 +74,7 @@ def _check_rotation(cls: str, R: Array) -> None:
     if not _is_concrete(R):
         return
     R64 = np.asarray(R, dtype=np.float64)
-    err = np.max(np.abs(np.swapaxes(R64, -1, -2) @ R64 - np.eye(3)))
+    err = np.max(np.abs(np.swapaxes(R64, -1, -2) @ R64 - np.eye(3)), initial=0.0)
     tol = quat_tolerance(R.dtype)
     if err > tol or np.any(np.linalg.det(R64) <= 0):
         raise ValueError(
@@ -96,18 +96,9 @@ def _convert(obj: Any, *names: str) -> None:
         a = getattr(obj, n)
         if a.dtype != dtype and not isinstance(a, jax.core.Tracer):
             object.__setattr__(obj, n, a.astype(dtype))
-    t = obj.time
     batch = getattr(obj, names[0]).shape[:-1]
-    t = jnp.asarray(t).astype(dtype)
-    if _is_concrete(t) and not np.all(np.isfinite(np.asarray(t))):
-        raise ValueError(f"{type(obj).__name__}: time must be finite")
-    try:
-        # one clock per body, so that slicing every leaf of a batch (jax.tree.map) keeps it
-        t = jnp.broadcast_to(t, batch)
-    except ValueError:
-        raise ValueError(
-            f"{type(obj).__name__}: time of shape {jnp.shape(t)} does not broadcast to the batch shape {batch}"
-        ) from None
+    # one clock per body, so that slicing every leaf of a batch (jax.tree.map) keeps it
+    t = _time(type(obj).__name__, obj.time, dtype, batch)
     object.__setattr__(obj, "time", t)
 
 
@@ -117,6 +108,23 @@ def _dtype_of(body: Body | None, *xs: Any) -> Any:
         arrays.append(body.mass)
     floats = [a for a in arrays if jnp.issubdtype(a.dtype, jnp.floating)]
     return jnp.result_type(*floats) if floats else jnp.result_type(float)
+
+
+def _time(cls: str, time: Any, dtype: Any, shape: tuple[int, ...]) -> Array:
+    """``time`` (s) as ``dtype`` broadcast to the batch ``shape``; ``TypeError``/``ValueError`` naming it otherwise."""
+    try:
+        t = _as_float(time)
+    except TypeError as e:
+        raise TypeError(f"{cls}: time: {e}") from None
+    if _is_concrete(t) and not np.all(np.isfinite(np.asarray(t))):
+        raise ValueError(f"{cls}: time must be finite, got non-finite entries")
+    try:
+        return jnp.broadcast_to(t.astype(dtype), shape)
+    except ValueError:
+        raise ValueError(
+            f"{cls}: time of shape {t.shape} does not broadcast to the batch shape {shape}; give one time "
+            "(a scalar, in seconds) or one per body"
+        ) from None
 
 
 def _vec(x: ArrayLike | None, default: tuple[float, ...], dtype: Any) -> Array:
@@ -220,7 +228,7 @@ class State(BatchIndexing):
         _check_unit_quaternion("State.create", q)
         L = quat_rotate(q, _apply(inertia_of(body), quat_rotate(_conj(q), w)))
         bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])  # noqa: E731
-        return cls(body, bc(x), bc(v), bc(q), bc(L), jnp.broadcast_to(jnp.asarray(time, dtype), shape))
+        return cls(body, bc(x), bc(v), bc(q), bc(L), _time("State.create", time, dtype, shape))
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
@@ -314,7 +322,7 @@ class MatrixState(BatchIndexing):
         )
         bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])  # noqa: E731
         R = jnp.broadcast_to(R, shape + (3, 3))
-        return cls(body, bc(x), bc(v), R, bc(w), jnp.broadcast_to(jnp.asarray(time, dtype), shape))
+        return cls(body, bc(x), bc(v), R, bc(w), _time("MatrixState.create", time, dtype, shape))
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
@@ -381,7 +389,7 @@ class ParticleState(BatchIndexing):
             jnp.broadcast_to(x, shape + (3,)),
             jnp.broadcast_to(v, shape + (3,)),
             jnp.broadcast_to(m.astype(dtype), shape),
-            jnp.broadcast_to(jnp.asarray(time, dtype), shape),
+            _time("ParticleState.create", time, dtype, shape),
         )
 
     @property

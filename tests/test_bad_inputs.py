@@ -390,3 +390,50 @@ def test_cli_fit_help_quotes_the_defaults_fit_inertia_uses():
         assert said.group(1) == str(defaults[kw].default), (action.dest, action.help, defaults[kw].default)
         checked += 1
     assert checked >= 2  # --method and --max-steps at least
+
+
+def _empty(kind: str):
+    """An empty batch (N = 0) of ``kind``."""
+    if kind == "ParticleState":
+        return rb.ParticleState.create(jnp.ones(0))
+    body = rb.box(jnp.ones(0), jnp.ones((0, 3)))
+    return getattr(rb, kind).create(body)
+
+
+@pytest.mark.parametrize("kind", ["State", "MatrixState", "ParticleState"])
+@pytest.mark.parametrize("method", ["euler", "rk4", "splitting"])
+def test_an_empty_batch_simulates_to_empty_results(kind, method):
+    """N = 0 has no clock to read (the time was read from body 0): it simulates to empty frames."""
+    state = _empty(kind)
+    traj = rb.simulate(state, rb.Gravity() + rb.LinearDrag(0.1), 0.01, 4, method, save_every=2)
+    assert traj.position.shape == (3, 0, 3)
+    assert traj.time.shape == (3, 0)
+    assert rb.step(state, None, 0.01, method).position.shape == (0, 3)
+    chunked = rb.simulate_chunked(state, None, 0.01, 4, method, chunk_steps=2, progress=False)
+    assert chunked.position.shape == (5, 0, 3)
+
+
+_BAD_TIMES = {
+    "two times, one body": [0.0, 1.0],
+    "(2, 3) times": np.zeros((2, 3)),
+    "a string": "x",
+    "NaN": np.nan,
+    "inf in a list": [np.inf],
+}
+_TIME_TAKERS = {
+    "State.create": lambda t: rb.State.create(_body(), time=t),
+    "MatrixState.create": lambda t: rb.MatrixState.create(_body(), time=t),
+    "ParticleState.create": lambda t: rb.ParticleState.create(1.0, time=t),
+    "State": lambda t: rb.State(_body(), [0.0, 0, 0], [0.0, 0, 0], [1.0, 0, 0, 0], [0.0, 0, 0], time=t),
+    "MatrixState": lambda t: rb.MatrixState(_body(), [0.0, 0, 0], [0.0, 0, 0], np.eye(3), [0.0, 0, 0], time=t),
+    "ParticleState": lambda t: rb.ParticleState([0.0, 0, 0], [0.0, 0, 0], 1.0, time=t),
+}
+
+
+@pytest.mark.parametrize("bad", list(_BAD_TIMES))
+@pytest.mark.parametrize("taker", list(_TIME_TAKERS))
+def test_a_time_that_does_not_fit_the_batch_is_refused_naming_time(taker, bad):
+    with pytest.raises((ValueError, TypeError)) as info:
+        _TIME_TAKERS[taker](_BAD_TIMES[bad])
+    assert _from_rbjax(info.value), info.value
+    assert "time" in str(info.value) and taker.split(".")[0] in str(info.value)
