@@ -144,6 +144,8 @@ def step(
     if isinstance(forces, Forces):
         forces = cast_forces(forces, dtype)
         batch_shape(state, forces)
+    elif isinstance(forces, ForceModel):
+        forces.check(state)
     dt = jnp.asarray(dt, dtype)
     t = start_time(state) if t is None else jnp.asarray(t, dtype)
     new = fn(_prepared(_canonical(state)), checked_force_fn(as_force_fn(forces)), t, dt)
@@ -265,6 +267,7 @@ def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoin
         if not series:
             batch_shape(state, forces)
     elif isinstance(forces, ForceModel):
+        forces.check(state)  # shapes and body indices against the batch, before they are traced
         series, force_fn = False, None  # a pytree: its arrays are traced data, not static
     elif forces is None or callable(forces):
         series, force_fn, forces = False, forces, None

@@ -445,9 +445,25 @@ class Forces:
     def gravity(
         cls, state: AnyState, g: Float[ArrayLike, " 3"] | tuple[float, float, float] = (0.0, 0.0, -9.81)
     ) -> Forces:
-        """Uniform gravity ``F = m g`` (world frame, m/s²), no torque."""
+        """Uniform gravity ``F = m g`` (world frame, m/s²), no torque.
+
+        ``g``: ``(3,)`` or ``(*B, 3)`` acceleration vector (a scalar is refused, as by
+        :class:`rbjax.Gravity`); returns ``force`` ``(*B, 3)`` in N.
+        """
         m = state.mass if isinstance(state, ParticleState) else state.body.mass
-        g = jnp.asarray(g, dtype=state.dtype)
+        try:
+            g = _as_float(g).astype(state.dtype)
+        except TypeError as e:
+            raise TypeError(f"Forces.gravity: g: {e}") from None
+        if g.shape[-1:] != (3,):
+            raise ValueError(
+                f"Forces.gravity: g must be a (3,) acceleration vector in m/s² (e.g. (0, 0, -9.81)), got shape "
+                f"{tuple(g.shape)}"
+            )
+        if _batch("Forces.gravity", None, state=state.batch_shape, g=g.shape[:-1]) != state.batch_shape:
+            raise ValueError(
+                f"Forces.gravity: g of shape {tuple(g.shape)} does not fit the state's batch shape {state.batch_shape}"
+            )
         return cls(force=jnp.broadcast_to(m[..., None] * g, state.position.shape))
 
     def __add__(self, other: Forces) -> Forces:

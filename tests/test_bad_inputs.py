@@ -20,6 +20,8 @@ with its reason.
 from __future__ import annotations
 
 import dataclasses
+import inspect
+import re
 import traceback
 from collections.abc import Callable
 from pathlib import Path
@@ -242,7 +244,8 @@ EXCUSED: dict[str, str] = {
     # jax.numpy-level building blocks used inside traced kernels: they follow jax.numpy's shape and
     # type conventions (its errors are JAX's) and cannot test values, which are traced there
     **{
-        n: "jax.numpy-level array function used inside traced kernels: NaN in gives NaN out by design"
+        n: "array function used inside traced kernels: NaN in gives NaN out by design; its shapes and "
+        "dtypes are checked while tracing (HELPERS, test_helpers_*)"
         for n in (
             "cross",
             "matrix_to_quat",
@@ -262,9 +265,11 @@ EXCUSED: dict[str, str] = {
             "inertia_from_params",
             "params_from_inertia",
             "second_moment",
-            "derivative",
-            "defects",
         )
+    },
+    **{
+        n: "jax.numpy-level function of states used inside traced kernels: NaN in gives NaN out by design"
+        for n in ("derivative", "defects")
     },
     "TRIANGLE_RTOL": "a constant",
     "methods": "no argument but an optional state type; returns the registry",
@@ -437,3 +442,257 @@ def test_a_time_that_does_not_fit_the_batch_is_refused_naming_time(taker, bad):
         _TIME_TAKERS[taker](_BAD_TIMES[bad])
     assert _from_rbjax(info.value), info.value
     assert "time" in str(info.value) and taker.split(".")[0] in str(info.value)
+
+
+# ---- math helpers: every public function taking (..., 3), (..., 4), (..., 3, 3) or (..., 6) arrays
+
+_CORE = re.compile(r"""["']\.\.\. ?(3 3|3|4|6)["']""")
+_EXTRA_ARGS = {"parallel_axis": {"mass": 1.0}}  # required arguments without a core shape
+
+
+def _core_args() -> dict[str, dict[str, tuple[int, ...]]]:
+    """``{helper: {argument: core shape}}`` of every public function, read from its annotations."""
+    out = {}
+    for name in rb.__all__:
+        fn = getattr(rb, name)
+        if not inspect.isfunction(fn):
+            continue
+        args = {}
+        for p in inspect.signature(fn).parameters.values():
+            m = _CORE.search(str(p.annotation))
+            if m:
+                args[p.name] = tuple(int(c) for c in m.group(1).split())
+        if args:
+            out[name] = args
+    return out
+
+
+HELPERS = _core_args()
+
+
+def _good(core: tuple[int, ...], dtype=np.float64) -> np.ndarray:
+    """A valid argument of ``core`` shape for every helper: a vector, a unit quaternion, the identity."""
+    return {
+        (3,): np.array([1, 2, 3]),
+        (4,): np.array([1, 0, 0, 0]),
+        (3, 3): np.eye(3, dtype=int),
+        (6,): np.array([0, 1, 0, 1, 0, 1]),
+    }[core].astype(dtype)
+
+
+def _helper_call(name: str, **override):
+    kwargs = {a: _good(c) for a, c in HELPERS[name].items()} | _EXTRA_ARGS.get(name, {}) | override
+    return getattr(rb, name)(**kwargs)
+
+
+def test_the_helper_list_is_complete():
+    """The introspected list holds the helpers the issue named (so the regex still reads the annotations)."""
+    for name in ("quat_multiply", "quat_exp", "skew", "quat_to_matrix", "orthonormalize", "cross", "quat_rotate"):
+        assert name in HELPERS, name
+    assert HELPERS["quat_rotate"] == {"q": (4,), "v": (3,)}
+
+
+@pytest.mark.parametrize("slot", [f"{n}.{a}" for n, args in HELPERS.items() for a in args])
+@settings(max_examples=8, deadline=None)
+@given(data=st.data())
+def test_helpers_refuse_a_wrong_last_axis_naming_the_argument(slot, data):
+    """A 3-vector for a quaternion, a fifth component, ``[1, 2]`` for ``skew``: ``ValueError`` naming it."""
+    name, arg = slot.split(".")
+    core = HELPERS[name][arg]
+    batch = data.draw(st.sampled_from([(), (2,)]), label="batch")
+    axis = data.draw(st.integers(0, len(core) - 1), label="axis")
+    size = data.draw(st.integers(1, 7).filter(lambda k: k != core[axis]), label="size")
+    shape = batch + core[:axis] + (size,) + core[axis + 1 :]
+    with pytest.raises(ValueError) as info:
+        jax.block_until_ready(_helper_call(name, **{arg: np.full(shape, 0.5)}))
+    assert _from_rbjax(info.value), info.value
+    assert f"{name}: {arg} " in str(info.value), info.value
+
+
+@pytest.mark.parametrize("name", list(HELPERS))
+def test_helpers_compute_integer_inputs_in_floats(name):
+    """Integers are cast to the default float dtype (as the constructors do): same values as float input."""
+    as_int = {a: _good(c, np.int32) for a, c in HELPERS[name].items()}
+    got = _helper_call(name, **as_int)
+    want = _helper_call(name)
+    assert jnp.issubdtype(got.dtype, jnp.floating)
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+
+
+@pytest.mark.parametrize("name", list(HELPERS))
+def test_helpers_refuse_bool_and_complex_arguments_in_rbjax_words(name):
+    for bad in (np.full(_good(next(iter(HELPERS[name].values()))).shape, 0.5 + 0.5j), True):
+        arg = next(iter(HELPERS[name]))
+        with pytest.raises(TypeError) as info:
+            _helper_call(name, **{arg: bad})
+        assert _from_rbjax(info.value) and f"{name}: {arg} " in str(info.value), info.value
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    rotvec=st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3),
+    scale=st.floats(0.05, 20.0),
+    noise=st.lists(st.floats(-1e-3, 1e-3), min_size=9, max_size=9),
+)
+def test_orthonormalize_returns_the_rotation_of_any_positive_multiple(rotvec, scale, noise):
+    """``orthonormalize(c (Q + E))`` is ``Q`` (to ``O(E)``) with ``det = +1`` for every ``c > 0``; 2 R gave -R."""
+    Q = np.asarray(rb.quat_to_matrix(rb.quat_exp(np.asarray(rotvec))))
+    R = scale * (Q + np.reshape(noise, (3, 3)))
+    out = np.asarray(rb.orthonormalize(R))
+    assert abs(np.linalg.det(out) - 1) < 1e-9
+    np.testing.assert_allclose(out.T @ out, np.eye(3), atol=1e-9)
+    np.testing.assert_allclose(out, Q, atol=1e-2)
+    np.testing.assert_allclose(np.asarray(rb.orthonormalize(scale * Q)), Q, atol=1e-12)
+
+
+def test_orthonormalize_refuses_what_it_cannot_do():
+    Q = np.asarray(rb.quat_to_matrix(rb.quat_normalize(np.array([1.0, 0.2, 0.3, 0.4]))))
+    with pytest.raises(ValueError, match=r"orthonormalize: R must have det R > 0"):
+        rb.orthonormalize(-Q)  # a reflection
+    with pytest.raises(ValueError, match=r"orthonormalize: R is too far .* more iterations"):
+        rb.orthonormalize(Q @ np.diag([1.3, 1.0, 0.8]))  # 2 iterations do not get there
+    far = np.asarray(rb.orthonormalize(Q @ np.diag([1.3, 1.0, 0.8]), iterations=8))
+    assert abs(np.linalg.det(far) - 1) < 1e-12
+    assert np.isnan(np.asarray(jax.jit(rb.orthonormalize)(-Q))).all()  # traced: NaN, not a wrong rotation
+
+
+# ---- force models: every public ForceModel class refuses what it cannot mean, naming the argument
+
+
+def _three():
+    """Three rigid bodies in a row (a 1-D batch of N = 3)."""
+    return rb.State.create(rb.box(jnp.ones(3), jnp.ones((3, 3))), position=np.eye(3), angular_velocity=np.ones(3))
+
+
+_Z = [[0.0, 0.0, 1.0]]
+
+# model class -> {case: (what the message names, build at construction, or None if refused when simulated)}
+FORCE_MODEL_CASES: dict[str, dict[str, tuple[str, Callable[[], Any]]]] = {
+    "Gravity": {
+        "scalar g": ("g", lambda: rb.Gravity(9.81)),
+        "2-vector g": ("g", lambda: rb.Gravity([0.0, -9.81])),
+        "4-vector g": ("g", lambda: rb.Gravity([0.0, 0.0, -9.81, 0.0])),
+        "g per body, wrong batch": ("g", lambda: _sim3(rb.Gravity(np.zeros((2, 3))))),
+    },
+    "LinearDrag": {
+        "negative linear": ("linear", lambda: rb.LinearDrag(-0.1)),
+        "negative angular": ("angular", lambda: rb.LinearDrag(0.1, angular=[-0.2])),
+        "linear per body, wrong batch": ("linear", lambda: _sim3(rb.LinearDrag(np.ones(2)))),
+    },
+    "QuadraticDrag": {
+        "negative linear": ("linear", lambda: rb.QuadraticDrag(-0.1)),
+        "negative angular": ("angular", lambda: rb.QuadraticDrag(0.1, angular=-1.0)),
+        "angular per body, wrong batch": ("angular", lambda: _sim3(rb.QuadraticDrag(0.1, angular=np.ones(4)))),
+    },
+    "Spring": {
+        "negative stiffness": ("stiffness", lambda: rb.Spring.between([0], [1], -1.0)),
+        "negative damping": ("damping", lambda: rb.Spring.to_anchor([0], [0.0, 0, 0], 1.0, damping=-0.5)),
+        "negative rest length": ("rest_length", lambda: rb.Spring.between([0], [1], 1.0, rest_length=-1.0)),
+        "negative body index": ("body", lambda: rb.Spring.between([-1], [1], 1.0)),
+        "float body index": ("body", lambda: rb.Spring.to_anchor([0.0], [0.0, 0, 0], 1.0)),
+        "2-D body indices": ("body", lambda: rb.Spring.to_anchor([[0]], [0.0, 0, 0], 1.0)),
+        "body past the batch": ("body", lambda: _sim3(rb.Spring.to_anchor([3], [0.0, 0, 0], 1.0))),
+        "body_b past the batch": ("body_b", lambda: _sim3(rb.Spring.between([0], [7], 1.0))),
+        "body_b past the batch, step": ("body_b", lambda: rb.step(_three(), rb.Spring.between([0], [7], 1.0), 0.01)),
+        "body_b past the batch, Scene": ("body_b", lambda: rb.Scene.build(_three(), rb.Spring.between([0], [7], 1.0))),
+        "stiffness per spring, wrong count": ("stiffness", lambda: rb.Spring.between([0, 1], [1, 2], [1.0, 2, 3])),
+        "2-vector anchor": ("anchor", lambda: rb.Spring.to_anchor([0], [[0.0, 0]], 1.0)),
+        "body and other of different lengths": ("other", lambda: rb.Spring.between([0, 1], [2], 1.0)),
+    },
+    "Thruster": {
+        "body past the batch": ("body", lambda: _sim3(rb.Thruster(jnp.array([5]), _Z, 1.0))),
+        "body past the batch, step": ("body", lambda: rb.step(_three(), rb.Thruster([3], _Z, 1.0), 0.01)),
+        "negative body index": ("body", lambda: rb.Thruster([-1], _Z, 1.0)),
+        "float body index": ("body", lambda: rb.Thruster([1.0], _Z, 1.0)),
+        "non-unit direction": ("direction", lambda: rb.Thruster([0], [[0.0, 0, 2]], 1.0)),
+        "4-vector direction": ("direction", lambda: rb.Thruster([0], [[0.0, 0, 1, 0]], 1.0)),
+        "thrust per thruster, wrong count": ("thrust", lambda: rb.Thruster([0, 1], _Z, [1.0, 2, 3])),
+    },
+    "ConstantForce": {
+        "2-vector force": ("force", lambda: rb.ConstantForce([0.0, 1.0])),
+        "4-vector torque": ("torque", lambda: rb.ConstantForce(torque=[0.0, 0, 1, 0])),
+        "force per body, wrong batch": ("force", lambda: _sim3(rb.ConstantForce(np.ones((2, 3))))),
+    },
+    "TimeSeriesForce": {
+        "decreasing times": ("times", lambda: rb.TimeSeriesForce([1.0, 0.0], force=np.ones((2, 3)))),
+        "2-D times": ("times", lambda: rb.TimeSeriesForce(np.zeros((2, 2)), force=np.ones((2, 3)))),
+        "(K, 2) force": ("force", lambda: rb.TimeSeriesForce([0.0, 1.0], force=np.ones((2, 2)))),
+        "force per body, wrong batch": (
+            "force",
+            lambda: _sim3(rb.TimeSeriesForce([0.0, 1.0], force=np.ones((2, 2, 3)))),
+        ),
+    },
+    "ExternalForce": {
+        "force not callable": ("force", lambda: rb.ExternalForce(force=np.ones(3))),
+        "force(t) of the wrong shape": ("force", lambda: _sim3(rb.ExternalForce(force=lambda t: jnp.ones(2)))),
+        "torque(t) a string": ("torque", lambda: _sim3(rb.ExternalForce(torque=lambda t: "x"))),
+    },
+    "CustomForce": {
+        "fn not callable": ("fn", lambda: rb.CustomForce(3.0)),
+        "fn returning a wrong shape": ("force", lambda: _sim3(rb.CustomForce(lambda s, t: rb.Forces(np.ones((2, 3)))))),
+    },
+    "ForceSum": {
+        "a term that is not a model": ("terms", lambda: rb.ForceSum((rb.Gravity(), 3.0))),
+        "a bad term inside a sum": ("Thruster: body", lambda: _sim3(rb.Gravity() + rb.Thruster([4], _Z, 1.0))),
+    },
+}
+
+
+def _sim3(model):
+    return rb.simulate(_three(), model, 0.01, 2, "euler")
+
+
+def test_every_public_force_model_has_bad_input_cases():
+    models = sorted(
+        n for n in rb.__all__ if isinstance(getattr(rb, n), type) and issubclass(getattr(rb, n), rb.ForceModel)
+    )
+    models.remove("ForceModel")  # the abstract base
+    assert sorted(FORCE_MODEL_CASES) == models
+
+
+@pytest.mark.parametrize(
+    "case", [f"{m}: {c}" for m, cases in FORCE_MODEL_CASES.items() for c in cases], ids=lambda c: c
+)
+def test_force_models_refuse_what_they_cannot_mean_naming_the_argument(case):
+    model, name = case.split(": ", 1)
+    arg, build = FORCE_MODEL_CASES[model][name]
+    with pytest.raises((ValueError, TypeError)) as info:
+        jax.block_until_ready(build())
+    msg = str(info.value)
+    assert _from_rbjax(info.value), f"{case}: raw error {type(info.value).__name__}: {msg}"
+    assert arg in msg, f"{case}: the message does not name {arg!r}: {msg}"
+    assert model in msg or "force callable" in msg or ": " in arg, f"{case}: the message does not name {model}: {msg}"
+
+
+@settings(max_examples=15, deadline=None)
+@given(
+    pairs=st.lists(st.tuples(st.integers(0, 3), st.integers(0, 3)), min_size=1, max_size=4),
+    k=st.floats(0.0, 50.0),
+    c=st.floats(0.0, 5.0),
+)
+def test_springs_between_bodies_in_the_batch_conserve_momentum(pairs, k, c):
+    """Σ F = 0 and Σ (τ + x × F) = 0 over the batch for any valid index pairs (equal and opposite forces)."""
+    n = 4
+    rng = np.random.default_rng(len(pairs))
+    q = rng.normal(size=(n, 4))
+    s = rb.State.create(
+        rb.box(jnp.ones(n), jnp.ones((n, 3))),
+        position=rng.normal(size=(n, 3)),
+        velocity=rng.normal(size=(n, 3)),
+        orientation=q / np.linalg.norm(q, axis=-1, keepdims=True),
+        angular_velocity=rng.normal(size=(n, 3)),
+    )
+    a, b = (np.array(x) for x in zip(*pairs))
+    points = dict(point_a=rng.normal(size=(len(a), 3)), point_b=rng.normal(size=(len(a), 3)))
+    # the spring force is central (along d): linear and angular momentum are conserved
+    out = rb.Spring.between(a, b, k, rest_length=0.3, **points)(s, 0.0)
+    F, tau = np.asarray(out.force), np.asarray(out.torque)
+    np.testing.assert_allclose(F.sum(0), 0.0, atol=1e-10 * (1 + np.abs(F).max()))
+    L_rate = tau + np.cross(np.asarray(s.position), F)
+    np.testing.assert_allclose(L_rate.sum(0), 0.0, atol=1e-10 * (1 + np.abs(L_rate).max()))
+    # the vector dashpot is equal and opposite but not central: linear momentum only
+    F = np.asarray(rb.Spring.between(a, b, k, rest_length=0.3, damping=c, **points)(s, 0.0).force)
+    np.testing.assert_allclose(F.sum(0), 0.0, atol=1e-10 * (1 + np.abs(F).max()))
+    # and one index past the batch is refused, not dropped (the reaction would vanish)
+    with pytest.raises(ValueError, match="outside the batch of 4 bodies"):
+        rb.simulate(s, rb.Spring.between(a, b + n, k), 0.01, 1, "euler")
