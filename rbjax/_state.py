@@ -84,30 +84,63 @@ def _check_rotation(cls: str, R: Array) -> None:
 
 
 def _convert(obj: Any, *names: str) -> None:
-    """In ``__post_init__``: array-likes (nested lists too) as float arrays of one dtype, and ``time`` with them.
+    """In ``__post_init__``: array-likes (nested lists too) as float arrays of one dtype, with ``time`` and ``body``.
 
-    The dtype is that of the state's arrays (and body), so a float32 state built
-    from Python lists stays float32 rather than taking ``time``'s default.
+    The dtype follows :func:`_dtype_of` (the rule of :class:`State`): a float32
+    state built from float32 arrays and Python lists stays float32, and a
+    float32 body in a float64 state is cast to float64, so every leaf shares it.
     """
-    _floats(obj, *names)
     body = getattr(obj, "body", None)
     dtype = _dtype_of(body, *(getattr(obj, n) for n in names))
+    _floats(obj, *names)
     for n in names:
         a = getattr(obj, n)
         if a.dtype != dtype and not isinstance(a, jax.core.Tracer):
             object.__setattr__(obj, n, a.astype(dtype))
+    if body is not None:
+        object.__setattr__(obj, "body", _body_as(body, dtype))
     batch = getattr(obj, names[0]).shape[:-1]
     # one clock per body, so that slicing every leaf of a batch (jax.tree.map) keeps it
     t = _time(type(obj).__name__, obj.time, dtype, batch)
     object.__setattr__(obj, "time", t)
 
 
+def _typed(x: Any) -> Any:
+    """The float dtype ``x`` asserts, or ``None``.
+
+    NumPy and JAX float arrays (and NumPy float scalars) assert theirs; Python
+    numbers, (nested) lists and tuples, integer arrays and weakly typed JAX
+    values do not: they take the dtype of the arrays they are combined with.
+    """
+    if isinstance(x, (np.ndarray, np.generic)):
+        return x.dtype if np.issubdtype(x.dtype, np.floating) else None
+    if isinstance(x, (jax.Array, jax.core.Tracer)):
+        weak = getattr(x, "weak_type", False) or getattr(getattr(x, "aval", None), "weak_type", False)
+        return None if weak or not jnp.issubdtype(x.dtype, jnp.floating) else x.dtype
+    return None
+
+
 def _dtype_of(body: Body | None, *xs: Any) -> Any:
-    arrays = [_as_float(x) for x in xs if x is not None]
+    """The one float dtype of a state: ``result_type`` of the float arrays among ``xs`` and the body's.
+
+    Python numbers and lists are weakly typed (see :func:`_typed`); with no
+    typed array at all, the default float dtype (float64 under x64, else
+    float32). ``TypeError`` for an argument that is not a real number or array.
+    """
+    for x in xs:
+        if x is not None:
+            _as_float(x)  # TypeError in rbjax's words for strings, complex, float16, ...
+    typed = [d for d in (_typed(x) for x in xs if x is not None) if d is not None]
     if body is not None:
-        arrays.append(body.mass)
-    floats = [a for a in arrays if jnp.issubdtype(a.dtype, jnp.floating)]
-    return jnp.result_type(*floats) if floats else jnp.result_type(float)
+        typed.append(body.mass.dtype)
+    # NumPy's promotion of the dtypes themselves (float32 with float64 is float64), which JAX's strict
+    # promotion mode would refuse; canonical, so float64 means float32 without x64
+    return jax.dtypes.canonicalize_dtype(np.result_type(*typed)) if typed else jnp.result_type(float)
+
+
+def _body_as(body: Body, dtype: Any) -> Body:
+    """``body`` with its arrays in ``dtype`` (the state's): one dtype per state."""
+    return body if body.mass.dtype == dtype else jax.tree.map(lambda a: a.astype(dtype), body)
 
 
 def _time(cls: str, time: Any, dtype: Any, shape: tuple[int, ...]) -> Array:
@@ -162,6 +195,15 @@ class State(BatchIndexing):
     Direct construction takes array-likes (nested lists too) and validates shapes,
     finiteness and ``‖q‖ = 1`` (tolerance :func:`quat_tolerance`) when values
     are concrete.
+
+    One dtype: every leaf (the body's too) has the state's dtype, the NumPy
+    promotion (``result_type``) of the float arrays given (NumPy or JAX, the
+    body's included); Python numbers and lists, integer arrays and ``time``
+    take it. So a float32 body with float32 arrays and Python lists is a
+    float32 state, and a float32 body with a float64 array (under x64) a
+    float64 state with its body cast. With no float array at all, the default
+    float dtype (float64 under x64, else float32). The same rule holds for
+    :class:`MatrixState` and :class:`ParticleState` and their ``create``.
     """
 
     body: Body
@@ -212,6 +254,7 @@ class State(BatchIndexing):
         body's batch shape; ``time`` (s) is the state's ``t``.
         """
         dtype = _dtype_of(body, position, velocity, orientation, angular_velocity)
+        body = _body_as(body, dtype)
         q = _vec(orientation, (1.0, 0.0, 0.0, 0.0), dtype)
         w = _vec(angular_velocity, (0.0, 0.0, 0.0), dtype)
         x = _vec(position, (0.0, 0.0, 0.0), dtype)
@@ -302,6 +345,7 @@ class MatrixState(BatchIndexing):
         rotation matrix; ``angular_velocity`` is world-frame ``ω`` (rad/s).
         """
         dtype = _dtype_of(body, position, velocity, orientation, angular_velocity)
+        body = _body_as(body, dtype)
         o = _vec(orientation, (1.0, 0.0, 0.0, 0.0), dtype)
         if o.shape[-1:] == (4,):
             _check_unit_quaternion("MatrixState.create", o)
@@ -380,7 +424,7 @@ class ParticleState(BatchIndexing):
     ) -> ParticleState:
         """Particles from mass (kg), optional position and velocity (zeros) and time (s)."""
         m = _as_float(mass)
-        dtype = _dtype_of(None, m, position, velocity)
+        dtype = _dtype_of(None, mass, position, velocity)
         x = _vec(position, (0.0, 0.0, 0.0), dtype)
         v = _vec(velocity, (0.0, 0.0, 0.0), dtype)
         _check_vectors("ParticleState.create", position=x, velocity=v)

@@ -696,3 +696,78 @@ def test_springs_between_bodies_in_the_batch_conserve_momentum(pairs, k, c):
     # and one index past the batch is refused, not dropped (the reaction would vanish)
     with pytest.raises(ValueError, match="outside the batch of 4 bodies"):
         rb.simulate(s, rb.Spring.between(a, b + n, k), 0.01, 1, "euler")
+
+
+# ---- one dtype per state: result_type of the typed float inputs (NumPy/JAX arrays and the body);
+# Python numbers and lists take it (weakly typed); none typed: the default float (float64 here, x64)
+
+_KINDS = {
+    "list": lambda v: np.asarray(v).tolist(),
+    "np32": lambda v: np.asarray(v, np.float32),
+    "np64": lambda v: np.asarray(v, np.float64),
+    "jnp32": lambda v: jnp.asarray(v, jnp.float32),
+    "jnp64": lambda v: jnp.asarray(v, jnp.float64),
+}
+_TYPED = {"list": None, "np32": np.float32, "np64": np.float64, "jnp32": np.float32, "jnp64": np.float64}
+
+
+def _made(cls: str, body_dtype, kinds: dict[str, str]):
+    """``cls`` built from arguments of the given kinds, and the dtype the rule says it must have."""
+    values = {
+        "position": [0.1, 0.2, 0.3],
+        "velocity": [1.0, 0.0, 0.0],
+        "angular_velocity": [0.0, 0.5, 0.0],
+        "orientation": [1.0, 0.0, 0.0, 0.0],
+        "angular_momentum": [0.0, 0.1, 0.0],
+        "rotation": np.eye(3),
+        "mass": 2.0,
+    }
+    args = {k: _KINDS[kind](values[k]) for k, kind in kinds.items()}
+    typed = [_TYPED[kind] for kind in kinds.values() if _TYPED[kind] is not None]
+    if cls == "ParticleState":
+        return rb.ParticleState.create(args.pop("mass", 2.0), **args), np.result_type(*typed or [np.float64])
+    body = rb.box(jnp.asarray(1.0, body_dtype), jnp.asarray([0.1, 0.2, 0.4], body_dtype))
+    want = np.result_type(body_dtype, *typed)
+    if cls == "State.direct":
+        full = {
+            k: args.get(k, np.asarray(values[k]).tolist())
+            for k in ("position", "velocity", "orientation", "angular_momentum")
+        }
+        return rb.State(body, **full), want
+    if cls == "MatrixState.direct":
+        full = {
+            k: args.get(k, np.asarray(values[k]).tolist())
+            for k in ("position", "velocity", "rotation", "angular_velocity")
+        }
+        return rb.MatrixState(body, **full), want
+    return getattr(rb, cls.split(".")[0]).create(body, **args), want
+
+
+_ARGS_OF = {
+    "State.create": ("position", "velocity", "orientation", "angular_velocity"),
+    "MatrixState.create": ("position", "velocity", "orientation", "angular_velocity"),
+    "ParticleState": ("mass", "position", "velocity"),
+    "State.direct": ("position", "velocity", "orientation", "angular_momentum"),
+    "MatrixState.direct": ("position", "velocity", "rotation", "angular_velocity"),
+}
+
+
+@pytest.mark.parametrize("cls", list(_ARGS_OF))
+@settings(max_examples=20, deadline=None)
+@given(data=st.data())
+def test_a_state_has_one_dtype_the_result_type_of_its_typed_inputs(cls, data):
+    """No mix of float32 and float64 leaves (a float32 body in a float64 state is cast with it)."""
+    assert jax.config.jax_enable_x64  # the mixes exist only under x64 (conftest)
+    body_dtype = data.draw(st.sampled_from([np.float32, np.float64]), label="body")
+    names = _ARGS_OF[cls]
+    kinds = {
+        n: k
+        for n, k in zip(
+            names, data.draw(st.lists(st.sampled_from([None, *_KINDS]), min_size=len(names), max_size=len(names)))
+        )
+        if k is not None and not (n == "mass" and k == "list")
+    }
+    state, want = _made(cls, body_dtype, kinds)
+    dtypes = {np.dtype(leaf.dtype) for leaf in jax.tree.leaves(state)}
+    assert dtypes == {np.dtype(want)}, (cls, body_dtype, kinds, dtypes)
+    assert state.dtype == want
