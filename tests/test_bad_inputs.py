@@ -771,3 +771,56 @@ def test_a_state_has_one_dtype_the_result_type_of_its_typed_inputs(cls, data):
     dtypes = {np.dtype(leaf.dtype) for leaf in jax.tree.leaves(state)}
     assert dtypes == {np.dtype(want)}, (cls, body_dtype, kinds, dtypes)
     assert state.dtype == want
+
+
+# ---- animate: a batch at one instant, the clock of a batch, labels, the L arrow on top
+
+
+@pytest.fixture(scope="module")
+def _batch_traj():
+    body = rb.box(jnp.array([1.0, 2.0, 1.5]), jnp.array([[0.1, 0.2, 0.4], [0.3, 0.2, 0.1], [0.2, 0.2, 0.3]]))
+    state = rb.State.create(body, position=np.eye(3), angular_velocity=np.ones((3, 3)), time=0.5)
+    return rb.simulate(state, None, 0.01, 8, "rk4", save_every=4)  # 3 frames of 3 bodies, t = 0.5, 0.54, 0.58
+
+
+def test_animate_draws_a_batch_at_one_instant_as_one_frame_of_all_bodies(_batch_traj):
+    pytest.importorskip("matplotlib")
+    from rbjax._animate import _frames_of
+
+    for instant in (_batch_traj[-1], jax.tree.map(lambda a: a[-1], _batch_traj), _batch_traj[0]):
+        data = _frames_of(instant)
+        assert data["pos"].shape == (1, 3, 3), data["pos"].shape  # was (3, 1, 3): three frames of one body
+        np.testing.assert_allclose(data["pos"][0], np.asarray(instant.position))
+    fresh = rb.State.create(rb.box(1.0, [0.1, 0.2, 0.4]), position=np.eye(3))  # a shared body
+    assert _frames_of(fresh)["pos"].shape == (1, 3, 3)
+    one = rb.State.create(rb.box(1.0, [0.1, 0.2, 0.4]))
+    assert _frames_of(one)["pos"].shape == (1, 1, 3)
+    assert _frames_of(_batch_traj)["pos"].shape == (3, 3, 3)  # a trajectory stays one
+
+
+def test_animate_clock_of_a_batch_uses_the_trajectory_time(_batch_traj):
+    pytest.importorskip("matplotlib")
+    from rbjax._animate import _clock, _frames_of
+
+    times = _frames_of(_batch_traj)["time"]
+    np.testing.assert_allclose(times, [0.5, 0.54, 0.58])
+    assert _clock(2, None, times) == "t = 0.580 s"  # was "frame 2"
+    assert _clock(2, 0.1, times) == "t = 0.200 s"
+
+
+def test_animate_labels_its_axes_and_draws_the_arrow_over_the_body(_batch_traj, tmp_path, monkeypatch):
+    pytest.importorskip("matplotlib")
+    from matplotlib import animation
+
+    figs = []
+    monkeypatch.setattr(animation.FuncAnimation, "save", lambda self, *a, **k: figs.append(self._fig))
+    (tmp_path / "a.gif").write_bytes(b"")
+    rb.animate(_batch_traj, tmp_path / "a.gif", dpi=20, panel_size=1.0)
+    axes = figs[0].axes
+    assert len(axes) == 3
+    for ax in axes:
+        assert (ax.get_xlabel(), ax.get_ylabel(), ax.get_zlabel()) == ("x (m)", "y (m)", "z (m)")
+        assert ax.computed_zorder is False  # zorder decides, not depth sorting
+        solid = ax.collections[0]
+        arrow = ax.lines[0]
+        assert arrow.get_zorder() > solid.get_zorder()
