@@ -18,7 +18,7 @@ from ._batching import _map_leaves, batch_last, batch_shape, lift, to_batch_firs
 from ._body import prepare
 from ._forces import ForceModel
 from ._pytree import replace
-from ._simulate_support import constant_fields
+from ._simulate_support import DEFAULT_METHOD, constant_fields
 from ._state import AnyState, ForceLike, Forces, ParticleState, StateT
 from ._trajectory import stack_frames
 from ._typing import ArrayLike
@@ -112,7 +112,7 @@ def step(
     state: StateT,
     forces: ForceLike,
     dt: Float[ArrayLike, ""],
-    method: str | Callable[..., Any] = "euler",
+    method: str | Callable[..., Any] = DEFAULT_METHOD,
     *,
     t: Float[ArrayLike, ""] | None = None,
 ) -> StateT:
@@ -125,7 +125,8 @@ def step(
             of mass), a callable ``(state, t) -> Forces`` evaluated by the method
             where it needs it, or ``None``.
         dt: step (s), > 0.
-        method: integrator name (static); see :func:`rbjax.methods`.
+        method: integrator name (static); see :func:`rbjax.methods`. Default
+            ``"splitting"`` (second order, symplectic), as :func:`simulate`.
         t: time (s) at the start of the step, passed to a callable ``forces``;
             default ``state.time``.
 
@@ -175,7 +176,7 @@ def simulate(
     forces: ForceLike,
     dt: Float[ArrayLike, ""],
     steps: int,
-    method: str | Callable[..., Any] = "euler",
+    method: str | Callable[..., Any] = DEFAULT_METHOD,
     *,
     save_every: int = 1,
     t0: Float[ArrayLike, ""] | None = None,
@@ -201,6 +202,14 @@ def simulate(
         steps: number of steps (static).
         method: integrator name (static), or a hashable batch step function
             ``(state, force_fn, t, dt) -> state`` such as a :class:`rbjax.Scene`'s kernel.
+            Default ``"splitting"``: Strang splitting, second order and symplectic
+            (energy error bounded, world ``L`` exact, exact for symmetric tops),
+            about 2.3x ``"euler"``'s cost per step. Measured 2026-12-02 on the
+            README's body (1 kg box 0.1 x 0.2 x 0.4 m, ``ω = (0.01, 5, 0.01)``
+            rad/s, ``dt = 1e-3``, 5 s) against :func:`rbjax.torque_free`: at most
+            2.1e-6 rad of attitude error and 2.1e-7 relative energy error, where
+            ``"euler"`` (the default before) was 3.09 rad off and gained 1.3%.
+            Pass ``"euler"`` for the lecture notes' update.
         save_every: keep every ``save_every``-th state (static); must divide ``steps``.
         t0: start time (s); default ``state.time``, so ``simulate(traj[-1], ...)``
             continues a run where it ended.
