@@ -264,7 +264,12 @@ def inertia_of(body: Body) -> Array:
 def _size(fn: str, name: str, x: ArrayLike, *, vector: bool = False) -> Array:
     """A length argument of a shape constructor as a float array: ``ValueError``
     unless (when concrete) finite and > 0, and for ``vector`` ending in (3,)."""
-    a = _as_float(x)
+    if isinstance(x, (bool, np.bool_)) or np.dtype(getattr(x, "dtype", None) or "f8") == np.bool_:
+        raise TypeError(f"{fn}: {name} must be lengths in m (real numbers), got a bool")
+    try:
+        a = _as_float(x)
+    except TypeError as e:
+        raise TypeError(f"{fn}: {name}: {e}") from None
     if vector and a.shape[-1:] != (3,):
         raise ValueError(f"{fn}: {name} must end in (3,) (one length per body axis x, y, z), got shape {a.shape}")
     if _is_concrete(a):

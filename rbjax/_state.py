@@ -17,7 +17,7 @@ from jax import Array
 from jaxtyping import Float
 
 from ._body import Body, _as_float, _floats, _is_concrete, inertia_of
-from ._math import cross, quat_rotate, quat_to_matrix
+from ._math import _arg, cross, quat_rotate, quat_to_matrix
 from ._pytree import field, pytree_dataclass
 from ._trajectory import BatchIndexing
 from ._typing import ArrayLike
@@ -481,9 +481,14 @@ class Forces:
 
     @classmethod
     def at_point(cls, force: Float[ArrayLike, "*B 3"], point: Float[ArrayLike, "*B 3"], state: AnyState) -> Forces:
-        """Force ``F`` applied at world point ``p``: torque ``τ = (p - x) × F``."""
-        f = _as_float(force)
-        return cls(force=f, torque=cross(jnp.asarray(point) - state.position, f))
+        """Force ``F`` (N, world) applied at world point ``p`` (m): torque ``τ = (p - x) × F`` (N m).
+
+        ``force``, ``point``: ``(*B, 3)`` or ``(3,)``, broadcast against the state's positions ``(*B, 3)``.
+        """
+        f = _arg("Forces.at_point", "force", force, (3,)).astype(state.dtype)
+        p = _arg("Forces.at_point", "point", point, (3,)).astype(state.dtype)
+        _batch("Forces.at_point", None, force=f.shape[:-1], point=p.shape[:-1], state=state.batch_shape)
+        return cls(force=f, torque=cross(p - state.position, f))
 
     @classmethod
     def gravity(
