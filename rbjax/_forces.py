@@ -20,8 +20,10 @@ naming the model and the argument): shapes and signs at construction
 damping, must be ``>= 0``; a body index must be a non-negative integer), and
 against the state when it is simulated (a per-body array must fit the batch;
 a body index must be ``< N``: ``simulate``, ``step`` and ``Scene`` check it
-before tracing). Values traced by a caller's ``jit`` cannot be read there and
-are not checked.
+before tracing). Values traced by a caller's ``jit`` cannot be read there:
+``simulate(..., checked=True)`` tests traced body indices and the signs of
+traced coefficients at run time (an ``equinox`` error carrying the message);
+unchecked runs compile no test.
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ from jaxtyping import Float, Int
 
 from ._body import _as_float, _floats
 from ._math import cross, quat_rotate, safe_norm
-from ._pytree import field, pytree_dataclass, static_field
+from ._pytree import field, pytree_dataclass, replace, static_field
 from ._quantities import angular_velocity
 from ._state import AnyState, Forces, MatrixState, ParticleState, RigidState, State, _apply
 from ._typing import ArrayLike
@@ -78,6 +80,37 @@ class ForceModel:
         :func:`rbjax.simulate`, :func:`rbjax.step` and :class:`rbjax.Scene`
         before tracing, and by each model while it is traced.
         """
+
+    # fields holding body indices, and coefficients that must be >= 0 (see _run_time_checked)
+    _INDEX_FIELDS: tuple[str, ...] = ()
+    _NON_NEGATIVE: tuple[str, ...] = ()
+
+    def _run_time_checked(self, state: AnyState, fn: str) -> ForceModel:
+        """This model with its *traced* indices and coefficients checked at run time (checked mode).
+
+        Concrete values were checked already (construction, :meth:`check`); a value
+        traced by a caller's ``jit`` gets an ``equinox`` run-time error carrying
+        rbjax's ``(checked=...)`` message when it is an index outside ``[0, N)``
+        or a negative coefficient. Without checked mode nothing is compiled.
+        """
+        import equinox as eqx
+
+        changes = {}
+        n = state.batch_shape[0] if len(state.batch_shape) == 1 else None
+        for name in self._INDEX_FIELDS:
+            i = getattr(self, name, None)
+            if isinstance(i, jax.core.Tracer) and n is not None:
+                msg = (
+                    f"{fn}(checked=...): {type(self).__name__}: {_ALIAS.get(name, name)} holds an index outside "
+                    f"the batch of {n} bodies (a traced index was; indices must be in 0..{n - 1})"
+                )
+                changes[name] = eqx.error_if(i, (i < 0) | (i >= n), msg)
+        for name in self._NON_NEGATIVE:
+            c = getattr(self, name, None)
+            if isinstance(c, jax.core.Tracer):
+                msg = f"{fn}(checked=...): {type(self).__name__}: {name} must be >= 0 (a traced value was negative)"
+                changes[name] = eqx.error_if(c, c < 0, msg)
+        return replace(self, **changes) if changes else self
 
     def __add__(self, other: ForceModel) -> ForceSum:
         if not isinstance(other, ForceModel):
@@ -168,6 +201,9 @@ class ForceSum(ForceModel):
         for term in self.terms:
             term.check(state)
 
+    def _run_time_checked(self, state: AnyState, fn: str) -> ForceModel:
+        return replace(self, terms=tuple(term._run_time_checked(state, fn) for term in self.terms))
+
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         total = Forces()
         for term in self.terms:
@@ -220,6 +256,7 @@ class LinearDrag(ForceModel):
 
     linear: Float[Array, "*B"] = field(default=0.0)
     angular: Float[Array, "*B"] | None = field(default=None)
+    _NON_NEGATIVE = ("linear", "angular")
 
     if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
 
@@ -255,6 +292,7 @@ class QuadraticDrag(ForceModel):
 
     linear: Float[Array, "*B"] = field(default=0.0)
     angular: Float[Array, "*B"] | None = field(default=None)
+    _NON_NEGATIVE = ("linear", "angular")
 
     if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
 
@@ -418,6 +456,8 @@ class Spring(ForceModel):
     other: Int[Array, " S"] | None = None
     rest_length: Float[Array, "*S"] = field(default=0.0)
     damping: Float[Array, "*S"] | None = None
+    _INDEX_FIELDS = ("body", "other")
+    _NON_NEGATIVE = ("stiffness", "rest_length", "damping")
 
     if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
 
@@ -548,6 +588,7 @@ class Thruster(ForceModel):
     direction: Float[Array, "S 3"]
     thrust: Float[Array, "*S"]
     point: Float[Array, "S 3"] | None = None
+    _INDEX_FIELDS = ("body",)
 
     if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
 

@@ -216,8 +216,9 @@ def simulate(
         checked: ``True`` or an :class:`rbjax.Checks` to test every step for a
             non-finite state or an orientation off the unit sphere, and every saved
             frame for an energy jump, raising an error that names the step and the
-            body's batch index (works under ``jit``; see :class:`rbjax.Checks`).
-            ``False`` (default) compiles no checks at all.
+            body's batch index (works under ``jit``; see :class:`rbjax.Checks`);
+            a force model's traced body indices and coefficient signs are tested
+            too. ``False`` (default) compiles no checks at all.
         checkpoint: segment length in steps for gradient checkpointing (static),
             or ``None``. Reverse mode then stores only the state at each segment
             boundary and recomputes one segment's forward pass while
@@ -285,6 +286,8 @@ def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoin
     checks = _checked.resolve(checked, state)
     if checks is not None:
         dt, t0 = traced_step_size(dt, t0, "simulate")
+        if isinstance(forces, ForceModel):  # traced body indices and coefficients, at run time
+            forces = forces._run_time_checked(state, "simulate")
     out = _simulate(
         state,
         forces,

@@ -894,3 +894,25 @@ def test_angular_momentum_about_one_point_per_body(kind):
     np.testing.assert_allclose(
         rb.Forces.at_point(np.eye(3), a, s).torque, np.cross(a - x, np.eye(3)), rtol=1e-13, atol=1e-15
     )
+
+
+def test_checked_mode_tests_traced_force_model_indices_and_signs():
+    """Under a caller's jit the values cannot be read before tracing: checked mode tests them at run time."""
+    s3 = _three()
+    run = eqx.filter_jit(
+        lambda idx, k, checked: (
+            rb.simulate(
+                s3, rb.Gravity() + rb.Spring.between(jnp.array([0]), idx, k), 0.01, 2, "euler", checked=checked
+            ).position
+        )
+    )
+    assert run(jnp.array([2]), jnp.asarray(1.0), True).shape == (3, 3, 3)
+    with pytest.raises(Exception, match=r"simulate\(checked=...\): Spring: other \(body_b of Spring.between\)"):
+        run(jnp.array([7]), jnp.asarray(1.0), True)
+    with pytest.raises(Exception, match=r"simulate\(checked=...\): Spring: stiffness must be >= 0"):
+        run(jnp.array([2]), jnp.asarray(-1.0), True)
+    thrust = eqx.filter_jit(
+        lambda idx: rb.simulate(s3, rb.Thruster(idx, _Z, 1.0), 0.01, 2, "euler", checked=True).position
+    )
+    with pytest.raises(Exception, match=r"simulate\(checked=...\): Thruster: body holds an index outside"):
+        thrust(jnp.array([-1]))
