@@ -351,10 +351,16 @@ def from_particles(masses: Float[ArrayLike, " P"], points: Float[ArrayLike, "P 3
     ``L = Σ r_i × m_i (ω × r_i)``. Collinear points give a singular inertia and
     raise ``ValueError``.
     """
-    m = _as_float(masses)
+    m = _arg("from_particles", "masses", masses)
+    p = _arg("from_particles", "points", points, (3,))
+    if m.shape[-1:] != p.shape[-2:-1] or p.ndim < 2:
+        raise ValueError(
+            f"from_particles: masses (P,) and points (P, 3) must name the same particles, got masses of shape "
+            f"{tuple(m.shape)} and points of shape {tuple(p.shape)}"
+        )
     if _is_concrete(m) and np.any(np.asarray(m) <= 0):
         raise ValueError(f"from_particles: every particle mass must be > 0, got {np.asarray(m)}")
-    total, com, inertia = particle_inertia(masses, points)
+    total, com, inertia = particle_inertia(m, p)
     return Body(total, inertia), com
 
 

@@ -916,3 +916,14 @@ def test_checked_mode_tests_traced_force_model_indices_and_signs():
     )
     with pytest.raises(Exception, match=r"simulate\(checked=...\): Thruster: body holds an index outside"):
         thrust(jnp.array([-1]))
+
+
+@pytest.mark.parametrize(
+    ("masses", "points", "arg"),
+    [([1.0, 1, 1], np.ones((3, 2)), "points"), ([1.0, 1], np.eye(3), "masses"), (1.0, np.ones(3), "masses")],
+)
+def test_from_particles_names_its_own_arguments(masses, points, arg):
+    """Points (P, 2) were reported as ``skew: a``; P masses for another number of points as JAX's ``mul``."""
+    with pytest.raises(ValueError) as info:
+        rb.from_particles(masses, points)
+    assert _from_rbjax(info.value) and f"from_particles: {arg}" in str(info.value), info.value
