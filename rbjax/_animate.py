@@ -69,12 +69,23 @@ def _frames_of(traj: Any) -> dict[str, Any]:
     if not hasattr(traj, "body"):
         raise TypeError(f"rbjax.animate needs a State or MatrixState trajectory (with a body), got {type(traj)}")
     pos = np.asarray(traj.position, np.float64)
-    if pos.ndim < 2:
-        raise ValueError(f"rbjax.animate: expected a trajectory with a leading time axis, got position {pos.shape}")
-    lead = pos.shape[:-1]  # (T, *B)
-    T, B = lead[0], lead[1:]
     body = traj.body
     mass, inertia = np.asarray(body.mass, np.float64), np.asarray(body.inertia, np.float64)
+    times = getattr(traj, "time", None)
+    times = None if times is None else np.asarray(times, np.float64)
+    first = 1 if pos.ndim == 1 else 0  # a time axis to add (1) or the leading axis (0)
+    # a batch at one instant (traj[-1], a fresh State.create batch) or a trajectory? Time tells: a
+    # trajectory's increases along its leading axis, the bodies of a batch share one clock. A body
+    # shaped like the axes after the first (1 <= ndim = pos.ndim - 2) marks a hand-built trajectory
+    # whose time was left at its default 0
+    if pos.ndim >= 2 and times is not None and times.shape == pos.shape[:-1] and not 1 <= mass.ndim == pos.ndim - 2:
+        t_lead = times.reshape(pos.shape[0], -1)[:, 0]
+        if t_lead.size > 1 and np.all(t_lead == t_lead[0]):
+            first = 1
+    if first:  # one instant: one frame of all its bodies
+        pos, times = pos[None], None if times is None else times[None]
+    lead = pos.shape[:-1]  # (T, *B)
+    T, B = lead[0], lead[1:]
     # the body may or may not carry the time axis: it never changes along it, so frame 0 is the body
     if mass.ndim > len(lead) - 1:
         mass, inertia = mass[0], inertia[0]
@@ -82,16 +93,16 @@ def _frames_of(traj: Any) -> dict[str, Any]:
     inertia = np.broadcast_to(inertia, (*B, 3, 3)).reshape(-1, 3, 3)
     n = mass.shape[0]
     pos = pos.reshape(T, n, 3)
+    field = lambda name, core: np.asarray(getattr(traj, name), np.float64).reshape(T, n, *core)  # noqa: E731
     if hasattr(traj, "orientation"):
-        R = _quat_to_matrix(np.asarray(traj.orientation, np.float64).reshape(T, n, 4))
-        L = np.asarray(traj.angular_momentum, np.float64).reshape(T, n, 3)
+        R = _quat_to_matrix(field("orientation", (4,)))
+        L = field("angular_momentum", (3,))
     else:  # MatrixState: L = R I_L Rᵀ ω
-        R = np.asarray(traj.rotation, np.float64).reshape(T, n, 3, 3)
-        w = np.asarray(traj.angular_velocity, np.float64).reshape(T, n, 3)
+        R = field("rotation", (3, 3))
         I_w = R @ inertia[None] @ np.swapaxes(R, -1, -2)
-        L = np.einsum("tnij,tnj->tni", I_w, w)
-    times = getattr(traj, "time", None)
-    times = np.asarray(times, np.float64).reshape(-1) if times is not None else None
+        L = np.einsum("tnij,tnj->tni", I_w, field("angular_velocity", (3,)))
+    # one clock per frame: the batch shares it (its first body's)
+    times = times.reshape(T, -1)[:, 0] if times is not None and times.size == pos.shape[0] * n else None
     return {"pos": pos, "R": R, "L": L, "mass": mass, "inertia": inertia, "time": times}
 
 
@@ -107,6 +118,15 @@ def _pick(n: int, bodies: int | Sequence[int] | None) -> np.ndarray:
     if idx.size == 0 or idx.min() < -n or idx.max() >= n:
         raise ValueError(f"rbjax.animate: body indices {idx.tolist()} out of range for a batch of {n}")
     return idx % n
+
+
+def _clock(k: int, dt: float | None, times: np.ndarray | None) -> str:
+    """The clock of saved frame ``k``: ``k dt`` if ``dt`` is given, else the trajectory's time, else the frame."""
+    if dt is not None:
+        return f"t = {k * dt:.3f} s"
+    if times is not None:
+        return f"t = {times[k]:.3f} s"
+    return f"frame {k}"
 
 
 def animate(
@@ -130,7 +150,11 @@ def animate(
         traj: a :class:`State` or :class:`MatrixState` trajectory as :func:`rbjax.simulate` returns
             it: fields ``(T, *B, ...)`` with the leading time axis (positions in m, world frame;
             quaternions body to world). Its ``body`` may be ``(*B)``-shaped, shared, or carry the
-            time axis too (frame 0 is used: mass properties do not change).
+            time axis too (frame 0 is used: mass properties do not change). A state without a
+            time axis (one body, or a batch at one instant such as ``traj[-1]``) is drawn as one
+            frame of all its bodies: a leading axis along which ``time`` does not change is a
+            batch axis, not time (unless the body has the shape of the other axes: a hand-built
+            trajectory whose time was left at 0).
         path: output file: ``.gif`` (matplotlib's Pillow writer) or ``.mp4`` (needs ``ffmpeg``).
         bodies: which bodies of the flattened batch ``*B`` to draw, one panel each: a list of flat
             indices, or a count ``k`` for ``k`` bodies spread evenly over the batch (default: all,
@@ -139,8 +163,8 @@ def animate(
             ``hᵢ² = 3/(2m) (Iⱼ + Iₖ − Iᵢ)``; ``"ellipsoid"``: the uniform ellipsoid with them,
             ``hᵢ² = 5/(2m) (Iⱼ + Iₖ − Iᵢ)``. Either is drawn along the principal axes, rotated by
             ``R`` and placed at the centre of mass.
-        dt: time between saved frames (s), for the clock in the title; default: the trajectory's
-            ``time`` field when it has one, else frame numbers.
+        dt: time between saved frames (s), for the clock under the panels; default: the
+            trajectory's ``time`` field (the batch's one clock), else frame numbers.
         frames: which saved frames to draw, e.g. ``slice(0, 200)`` for the first 200 (default: all).
         max_frames: at most this many frames are drawn (every ``ceil(T' / max_frames)``-th of the
             ``T'`` selected frames).
@@ -151,10 +175,11 @@ def animate(
         panel_size: side of each panel (inches).
         title: figure title (default: none; the clock is always shown).
 
-    Each panel is a cube in world coordinates (equal scales, no tick labels) holding the body's
-    path plus 1.4 times its largest half extent. The angular-momentum arrow starts at the centre of
-    mass; its length is ``1.3 · max h`` at the largest ``|L|`` the body reaches, so it shows
-    direction and relative size (its scale, kg m²/s per drawn metre, differs between panels).
+    Each panel is a cube in world coordinates (equal scales, axes labelled x, y, z in m, no tick
+    labels) holding the body's path plus 1.4 times its largest half extent. The angular-momentum
+    arrow starts at the centre of mass and is drawn over the solid; its length is ``1.3 · max h``
+    at the largest ``|L|`` the body reaches, so it shows direction and relative size (its scale,
+    kg m²/s per drawn metre, differs between panels).
 
     Returns:
         ``{"frames": F, "seconds": render time (s), "bytes": file size}``.
@@ -211,16 +236,21 @@ def animate(
             set_lim(c - span, c + span)
         ax.set_box_aspect((1, 1, 1))
         # equal scales on the three axes, so no tick labels: the panel's span is in the docstring
-        for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
+        for axis, name in zip((ax.xaxis, ax.yaxis, ax.zaxis), "xyz"):
             axis.set_ticklabels([])
+            axis.labelpad = -12
+            axis.set_label_text(f"{name} (m)", fontsize=6)
+        # draw in zorder, not by depth: the L arrow stays on top of the solid it starts inside
+        ax.computed_zorder = False
         if n > 1:
             ax.set_title(f"body {int(idx[j])}", fontsize=7, pad=0)
         solid = Poly3DCollection(
             [], facecolor=color(j % 10), edgecolor="k", linewidth=0.3 if shape == "box" else 0.1, alpha=0.75
         )
+        solid.set_zorder(1)
         ax.add_collection3d(solid)
-        (arrow,) = ax.plot([], [], [], color="crimson", lw=2.0)
-        (head,) = ax.plot([], [], [], "o", color="crimson", ms=3)
+        (arrow,) = ax.plot([], [], [], color="crimson", lw=2.0, zorder=3)
+        (head,) = ax.plot([], [], [], "o", color="crimson", ms=3, zorder=3)
         trail_lines = [ax.plot([], [], [], color="0.25", lw=1.0, alpha=a)[0] for a in np.linspace(0.08, 0.9, 6)]
         artists.append((solid, arrow, head, trail_lines))
     clock = fig.text(0.01, 0.01, "", fontsize=8)
@@ -244,13 +274,7 @@ def animate(
                 for line, p in zip(trail_lines, pieces):
                     piece = seg[p[0] : p[-1] + 2] if len(p) else seg[:0]
                     line.set_data_3d(piece[:, 0], piece[:, 1], piece[:, 2])
-        k = int(frames_idx[f])
-        if dt is not None:
-            clock.set_text(f"t = {k * dt:.3f} s")
-        elif times is not None and times.shape[0] == T:
-            clock.set_text(f"t = {times[k]:.3f} s")
-        else:
-            clock.set_text(f"frame {k}")
+        clock.set_text(_clock(int(frames_idx[f]), dt, times))
         return []
 
     anim = animation.FuncAnimation(fig, draw, frames=len(frames_idx), blit=False)

@@ -16,7 +16,7 @@ import numpy as np
 from jax import Array
 from jaxtyping import Float
 
-from ._math import skew
+from ._math import _arg, skew
 from ._pytree import field, new_unchecked, pytree_dataclass
 from ._trajectory import BatchIndexing
 from ._typing import ArrayLike
@@ -148,9 +148,7 @@ def symmetric_part(A: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 3 3"]:
     a function that reads an inertia through this has a symmetric gradient with
     respect to it, so one gradient step keeps the inertia symmetric.
     """
-    A = jnp.asarray(A)
-    if A.shape[-2:] != (3, 3):
-        raise ValueError(f"symmetric_part: A must end in (3, 3), got shape {A.shape}")
+    A = _arg("symmetric_part", "A", A, (3, 3))
     return 0.5 * (A + jnp.swapaxes(A, -1, -2))
 
 
@@ -266,7 +264,12 @@ def inertia_of(body: Body) -> Array:
 def _size(fn: str, name: str, x: ArrayLike, *, vector: bool = False) -> Array:
     """A length argument of a shape constructor as a float array: ``ValueError``
     unless (when concrete) finite and > 0, and for ``vector`` ending in (3,)."""
-    a = _as_float(x)
+    if isinstance(x, (bool, np.bool_)) or np.dtype(getattr(x, "dtype", None) or "f8") == np.bool_:
+        raise TypeError(f"{fn}: {name} must be lengths in m (real numbers), got a bool")
+    try:
+        a = _as_float(x)
+    except TypeError as e:
+        raise TypeError(f"{fn}: {name}: {e}") from None
     if vector and a.shape[-1:] != (3,):
         raise ValueError(f"{fn}: {name} must end in (3,) (one length per body axis x, y, z), got shape {a.shape}")
     if _is_concrete(a):
@@ -348,10 +351,16 @@ def from_particles(masses: Float[ArrayLike, " P"], points: Float[ArrayLike, "P 3
     ``L = Σ r_i × m_i (ω × r_i)``. Collinear points give a singular inertia and
     raise ``ValueError``.
     """
-    m = _as_float(masses)
+    m = _arg("from_particles", "masses", masses)
+    p = _arg("from_particles", "points", points, (3,))
+    if m.shape[-1:] != p.shape[-2:-1] or p.ndim < 2:
+        raise ValueError(
+            f"from_particles: masses (P,) and points (P, 3) must name the same particles, got masses of shape "
+            f"{tuple(m.shape)} and points of shape {tuple(p.shape)}"
+        )
     if _is_concrete(m) and np.any(np.asarray(m) <= 0):
         raise ValueError(f"from_particles: every particle mass must be > 0, got {np.asarray(m)}")
-    total, com, inertia = particle_inertia(masses, points)
+    total, com, inertia = particle_inertia(m, p)
     return Body(total, inertia), com
 
 
@@ -363,7 +372,15 @@ def parallel_axis(
     ``I_p = I_c + m (‖d‖² 1 - d dᵀ)``, all in the same frame (Steiner's theorem).
     ``inertia``: ``(..., 3, 3)``, ``mass``: ``(...)``, ``offset``: ``(..., 3)``.
     """
-    I, m, d = _as_float(inertia), _as_float(mass), _as_float(offset)
+    I = _arg("parallel_axis", "inertia", inertia, (3, 3))
+    m, d = _arg("parallel_axis", "mass", mass), _arg("parallel_axis", "offset", offset, (3,))
+    try:
+        jnp.broadcast_shapes(I.shape[:-2], m.shape, d.shape[:-1])
+    except ValueError:
+        raise ValueError(
+            f"parallel_axis: the batch shapes of inertia {I.shape[:-2]}, mass {m.shape} and offset "
+            f"{d.shape[:-1]} do not broadcast"
+        ) from None
     dd = jnp.sum(d * d, axis=-1)[..., None, None] * jnp.eye(3, dtype=d.dtype)
     return I + m[..., None, None] * (dd - d[..., :, None] * d[..., None, :])
 
@@ -376,5 +393,12 @@ def rotate_inertia(
     With ``R`` body to world this is the notes' world inertia ``I_w = R I_L R⁻¹``.
     ``inertia``, ``rotation``: ``(..., 3, 3)``.
     """
-    I, R = _as_float(inertia), _as_float(rotation)
+    I = _arg("rotate_inertia", "inertia", inertia, (3, 3))
+    R = _arg("rotate_inertia", "rotation", rotation, (3, 3))
+    try:
+        jnp.broadcast_shapes(I.shape[:-2], R.shape[:-2])
+    except ValueError:
+        raise ValueError(
+            f"rotate_inertia: the batch shapes of inertia {I.shape[:-2]} and rotation {R.shape[:-2]} do not broadcast"
+        ) from None
     return R @ I @ jnp.swapaxes(R, -1, -2)

@@ -21,6 +21,7 @@ from ._checked import Checks
 from ._chunk_dir import ChunkWriter, chunk_files, fingerprint
 from ._io import load
 from ._simulate import _is_time_series, _run, start_time
+from ._simulate_support import DEFAULT_METHOD
 from ._state import ForceLike, Forces, StateT
 from ._typing import ArrayLike
 from ._validate import check_count, check_dt, check_state
@@ -49,7 +50,7 @@ def simulate_chunked(
     forces: ForceLike,
     dt: Float[ArrayLike, ""],
     steps: int,
-    method: str = "euler",
+    method: str = DEFAULT_METHOD,
     *,
     save_every: int = 1,
     chunk_steps: int | None = None,

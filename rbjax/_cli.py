@@ -206,6 +206,15 @@ def _recording_help() -> str:
     return (doc or "").split("\n\n", 1)[1].split("\nEvery way")[0]
 
 
+def _fit_default(name: str) -> object:
+    """The default of ``fit_inertia``'s keyword ``name``: the help text quotes the code's value."""
+    import inspect
+
+    from .identification import fit_inertia
+
+    return inspect.signature(fit_inertia).parameters[name].default
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``argparse`` parser of ``python -m rbjax`` (subcommands demo, bench, fit)."""
     common = _Parser(add_help=False)
@@ -244,10 +253,19 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("recording", help="a .csv or .npz recording (see above)")
     fit.add_argument("--out", default=None, help="write the result as JSON to this path")
     fit.add_argument("--time-unit", choices=["s", "ms", "us"], default=None, help="unit of the t column (default s)")
-    fit.add_argument("--method", default=None, help="integrator of the model (see rbjax.methods(); default rk4)")
+    fit.add_argument(
+        "--method",
+        default=None,
+        help=f"integrator of the model (see rbjax.methods(); default {_fit_default('method')})",
+    )
     fit.add_argument("--segments", type=int, default=None, help="multiple-shooting segments (default: one per 2π)")
     fit.add_argument("--substeps", type=int, default=None, help="integrator steps per sample interval")
-    fit.add_argument("--max-steps", type=int, default=None, help="Levenberg–Marquardt step limit (default 100)")
+    fit.add_argument(
+        "--max-steps",
+        type=int,
+        default=None,
+        help=f"Levenberg–Marquardt step limit (default {_fit_default('max_steps')})",
+    )
     noise = fit.add_argument_group("noise levels (default: estimated from the data)")
     noise.add_argument("--orientation-std", type=float, default=None, metavar="RAD")
     noise.add_argument("--rate-std", type=float, default=None, metavar="RAD_S", help="gyro noise")

@@ -13,6 +13,17 @@ the state may be :class:`State`, :class:`MatrixState` or
 :class:`ParticleState` of batch shape ``B``; every model returns forces of
 shape ``(*B, 3)``. Models that name bodies by index (:class:`Spring`,
 :class:`Thruster`) need a one-dimensional batch ``(N,)``.
+
+Every model checks its arguments in rbjax's words (``TypeError``/``ValueError``
+naming the model and the argument): shapes and signs at construction
+(coefficients that dissipate or restore, such as drag, stiffness and
+damping, must be ``>= 0``; a body index must be a non-negative integer), and
+against the state when it is simulated (a per-body array must fit the batch;
+a body index must be ``< N``: ``simulate``, ``step`` and ``Scene`` check it
+before tracing). Values traced by a caller's ``jit`` cannot be read there:
+``simulate(..., checked=True)`` tests traced body indices and the signs of
+traced coefficients at run time (an ``equinox`` error carrying the message);
+unchecked runs compile no test.
 """
 
 from __future__ import annotations
@@ -21,14 +32,16 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import jax
+import jax.core
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
 from jax.sharding import NamedSharding, PartitionSpec
 from jaxtyping import Float, Int
 
-from ._body import _floats
+from ._body import _as_float, _floats
 from ._math import cross, quat_rotate, safe_norm
-from ._pytree import field, pytree_dataclass, static_field
+from ._pytree import field, pytree_dataclass, replace, static_field
 from ._quantities import angular_velocity
 from ._state import AnyState, Forces, MatrixState, ParticleState, RigidState, State, _apply
 from ._typing import ArrayLike
@@ -59,12 +72,96 @@ class ForceModel:
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def check(self, state: AnyState) -> None:
+        """``ValueError`` naming the argument unless this model's arrays fit ``state``'s batch.
+
+        Shapes are checked always (they are static), body indices against the
+        batch size ``N`` when their values are concrete. Called by
+        :func:`rbjax.simulate`, :func:`rbjax.step` and :class:`rbjax.Scene`
+        before tracing, and by each model while it is traced.
+        """
+
+    # fields holding body indices, and coefficients that must be >= 0 (see _run_time_checked)
+    _INDEX_FIELDS: tuple[str, ...] = ()
+    _NON_NEGATIVE: tuple[str, ...] = ()
+
+    def _run_time_checked(self, state: AnyState, fn: str) -> ForceModel:
+        """This model with its *traced* indices and coefficients checked at run time (checked mode).
+
+        Concrete values were checked already (construction, :meth:`check`); a value
+        traced by a caller's ``jit`` gets an ``equinox`` run-time error carrying
+        rbjax's ``(checked=...)`` message when it is an index outside ``[0, N)``
+        or a negative coefficient. Without checked mode nothing is compiled.
+        """
+        import equinox as eqx
+
+        changes = {}
+        n = state.batch_shape[0] if len(state.batch_shape) == 1 else None
+        for name in self._INDEX_FIELDS:
+            i = getattr(self, name, None)
+            if isinstance(i, jax.core.Tracer) and n is not None:
+                msg = (
+                    f"{fn}(checked=...): {type(self).__name__}: {_ALIAS.get(name, name)} holds an index outside "
+                    f"the batch of {n} bodies (a traced index was; indices must be in 0..{n - 1})"
+                )
+                changes[name] = eqx.error_if(i, (i < 0) | (i >= n), msg)
+        for name in self._NON_NEGATIVE:
+            c = getattr(self, name, None)
+            if isinstance(c, jax.core.Tracer):
+                msg = f"{fn}(checked=...): {type(self).__name__}: {name} must be >= 0 (a traced value was negative)"
+                changes[name] = eqx.error_if(c, c < 0, msg)
+        return replace(self, **changes) if changes else self
+
     def __add__(self, other: ForceModel) -> ForceSum:
         if not isinstance(other, ForceModel):
             return NotImplemented
         a = self.terms if isinstance(self, ForceSum) else (self,)
         b = other.terms if isinstance(other, ForceSum) else (other,)
         return ForceSum(a + b)
+
+
+def _concrete(a: Any) -> bool:
+    return a is not None and not isinstance(a, jax.core.Tracer) and getattr(a, "is_fully_addressable", True)
+
+
+def _core(model: Any, name: str, core: tuple[int, ...], extra: str = "") -> None:
+    """``ValueError`` unless field ``name`` (if given) ends in ``core``, e.g. ``(3,)`` for a vector."""
+    a = getattr(model, name)
+    if a is None:
+        return
+    if tuple(a.shape[a.ndim - len(core) :]) != core or a.ndim < len(core):
+        dims = ", ".join(str(c) for c in core)
+        raise ValueError(
+            f"{type(model).__name__}: {name} must have shape (..., {dims}){extra}, got shape {tuple(a.shape)}"
+        )
+
+
+def _non_negative(model: Any, *names: str) -> None:
+    """``ValueError`` for a concrete negative coefficient (it would add energy, not take it)."""
+    for name in names:
+        a = getattr(model, name)
+        if _concrete(a) and np.any(np.asarray(a) < 0):
+            raise ValueError(
+                f"{type(model).__name__}: {name} must be >= 0 (a negative coefficient adds energy instead of "
+                f"removing or restoring it), got {np.asarray(a).ravel()[:4]}; pass its magnitude"
+            )
+
+
+def _fits(model: Any, name: str, core: int, shape: tuple[int, ...], what: str) -> None:
+    """``ValueError`` unless field ``name``'s leading shape (all but ``core`` axes) broadcasts to ``shape``."""
+    a = getattr(model, name)
+    if a is None:
+        return
+    lead = tuple(a.shape[: a.ndim - core])
+    try:
+        ok = jnp.broadcast_shapes(lead, tuple(shape)) == tuple(shape)
+    except ValueError:
+        ok = False
+    if not ok:
+        raise ValueError(
+            f"{type(model).__name__}: {name} of shape {tuple(a.shape)} does not fit {what} {tuple(shape)}; give it "
+            f"the shape {tuple(shape) + tuple(a.shape[a.ndim - core :])} or a broadcastable one"
+        )
 
 
 def _mass(state: AnyState) -> Array:
@@ -95,6 +192,18 @@ class ForceSum(ForceModel):
 
     terms: tuple = ()
 
+    def __post_init__(self) -> None:
+        for term in self.terms:
+            if not isinstance(term, ForceModel):
+                raise TypeError(f"ForceSum: terms must be force models, got {type(term).__name__}")
+
+    def check(self, state: AnyState) -> None:
+        for term in self.terms:
+            term.check(state)
+
+    def _run_time_checked(self, state: AnyState, fn: str) -> ForceModel:
+        return replace(self, terms=tuple(term._run_time_checked(state, fn) for term in self.terms))
+
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         total = Forces()
         for term in self.terms:
@@ -107,7 +216,8 @@ class Gravity(ForceModel):
     """Uniform gravity ``F = m g`` on the centre of mass; no torque.
 
     ``g``: ``(3,)`` (or ``(*B, 3)``) acceleration, world frame, m/s²; default
-    ``(0, 0, -9.81)``.
+    ``(0, 0, -9.81)``. A scalar is refused (``ValueError``): it would broadcast
+    to ``(g, g, g)``; give the vector, e.g. ``(0, 0, -9.81)``.
     """
 
     g: Float[Array, "*B 3"] = field(core_ndim=1, default=(0.0, 0.0, -9.81))
@@ -117,9 +227,21 @@ class Gravity(ForceModel):
         def __init__(self, g: Float[ArrayLike, "*B 3"] | tuple[float, float, float] = (0.0, 0.0, -9.81)) -> None: ...
 
     def __post_init__(self) -> None:
+        if self.g is None:
+            raise TypeError("Gravity: g must be a (3,) acceleration vector in m/s², e.g. (0, 0, -9.81); got None")
         _floats(self, "g")
+        if self.g.ndim == 0:
+            raise ValueError(
+                f"Gravity: g must be a (3,) acceleration vector in m/s² (world frame), got the scalar {self.g}; "
+                "for gravity of that magnitude downward pass g=(0, 0, -magnitude)"
+            )
+        _core(self, "g", (3,), " (an acceleration vector, m/s²)")
+
+    def check(self, state: AnyState) -> None:
+        _fits(self, "g", 1, state.batch_shape, "the batch shape")
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
+        self.check(state)
         return Forces(force=_full(_mass(state)[..., None] * _cast(self.g, state), state))
 
 
@@ -127,13 +249,14 @@ class Gravity(ForceModel):
 class LinearDrag(ForceModel):
     """Viscous drag ``F = -b v`` and, if ``angular`` is given, ``τ = -b_r ω``.
 
-    ``linear`` ``b``: scalar or ``(*B,)``, N s/m. ``angular`` ``b_r``: scalar or
-    ``(*B,)``, N m s, or ``None`` (no torque: the step compiles none). ``v`` is the
+    ``linear`` ``b``: scalar or ``(*B,)``, N s/m, ``>= 0``. ``angular`` ``b_r``: scalar or
+    ``(*B,)``, N m s, ``>= 0``, or ``None`` (no torque: the step compiles none). ``v`` is the
     centre-of-mass velocity and ``ω`` the angular velocity, both world frame.
     """
 
     linear: Float[Array, "*B"] = field(default=0.0)
     angular: Float[Array, "*B"] | None = field(default=None)
+    _NON_NEGATIVE = ("linear", "angular")
 
     if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
 
@@ -143,8 +266,14 @@ class LinearDrag(ForceModel):
 
     def __post_init__(self) -> None:
         _floats(self, "linear", "angular")
+        _non_negative(self, "linear", "angular")
+
+    def check(self, state: AnyState) -> None:
+        for name in ("linear", "angular"):
+            _fits(self, name, 0, state.batch_shape, "the batch shape")
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
+        self.check(state)
         f = -_cast(self.linear, state)[..., None] * state.velocity
         if self.angular is None:
             return Forces(force=f)
@@ -156,13 +285,14 @@ class LinearDrag(ForceModel):
 class QuadraticDrag(ForceModel):
     """Quadratic drag ``F = -c ‖v‖ v`` and, if ``angular`` is given, ``τ = -c_r ‖ω‖ ω``.
 
-    ``linear`` ``c``: scalar or ``(*B,)``, kg/m (``½ ρ C_d A``). ``angular``
-    ``c_r``: kg m², or ``None`` (no torque). World frame. Terminal speed under
+    ``linear`` ``c``: scalar or ``(*B,)``, kg/m (``½ ρ C_d A``), ``>= 0``. ``angular``
+    ``c_r``: kg m², ``>= 0``, or ``None`` (no torque). World frame. Terminal speed under
     gravity: ``√(m g / c)``.
     """
 
     linear: Float[Array, "*B"] = field(default=0.0)
     angular: Float[Array, "*B"] | None = field(default=None)
+    _NON_NEGATIVE = ("linear", "angular")
 
     if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
 
@@ -172,8 +302,14 @@ class QuadraticDrag(ForceModel):
 
     def __post_init__(self) -> None:
         _floats(self, "linear", "angular")
+        _non_negative(self, "linear", "angular")
+
+    def check(self, state: AnyState) -> None:
+        for name in ("linear", "angular"):
+            _fits(self, name, 0, state.batch_shape, "the batch shape")
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
+        self.check(state)
         v = state.velocity
         f = -_cast(self.linear, state)[..., None] * safe_norm(v, keepdims=True) * v
         if self.angular is None:
@@ -240,11 +376,49 @@ def _scatter(n: int, state: AnyState, idx: Array, values: Array) -> Array:
     return _add_at(jnp.zeros_like(state.position), idx, values)
 
 
-def _as_index(x: ArrayLike) -> Array:
-    i = jnp.asarray(x)
+def _as_index(model: str, name: str, x: ArrayLike) -> Array:
+    """Body indices ``(S,)``: integers ``>= 0`` (a negative one would count from the end: refused)."""
+    try:
+        i = jnp.asarray(x)
+    except (TypeError, ValueError):
+        raise TypeError(f"{model}: {name} must be body indices (integers), got {type(x).__name__}") from None
     if not jnp.issubdtype(i.dtype, jnp.integer):
-        raise ValueError(f"body indices must be integers, got dtype {i.dtype}")
-    return jnp.atleast_1d(i)
+        raise ValueError(f"{model}: {name} must be body indices (integers), got dtype {i.dtype}")
+    i = jnp.atleast_1d(i)
+    if i.ndim != 1:
+        raise ValueError(f"{model}: {name} must be a 1-D array of body indices (S,), got shape {tuple(i.shape)}")
+    if _concrete(i) and np.any(np.asarray(i) < 0):
+        raise ValueError(
+            f"{model}: {name} must be body indices >= 0 (a negative index would count from the end), got "
+            f"{np.asarray(i)[np.asarray(i) < 0][:4]}"
+        )
+    return i
+
+
+_ALIAS = {"other": "other (body_b of Spring.between)"}
+
+
+def _indices_in(model: Any, name: str, n: int) -> None:
+    """``ValueError`` unless the (concrete) indices of field ``name`` are ``< n``, the batch size."""
+    i = getattr(model, name)
+    if i is None or not _concrete(i) or i.size == 0:
+        return
+    top = int(np.max(np.asarray(i)))
+    if top >= n:
+        raise ValueError(
+            f"{type(model).__name__}: {_ALIAS.get(name, name)} index {top} is outside the batch of {n} bodies "
+            f"(indices 0..{n - 1}); an index past the end would be dropped or clamped silently"
+        )
+
+
+def _per_item(model: Any, s: int, vectors: tuple[str, ...], scalars: tuple[str, ...]) -> None:
+    """Shapes of a model of ``s`` items: ``vectors`` ``(S, 3)`` or ``(3,)``, ``scalars`` ``(S,)`` or ``()``."""
+    items = f"the number of {type(model).__name__.lower()}s S (the length of body)"
+    for name in vectors:
+        _core(model, name, (3,), " (a 3-vector each)")
+        _fits(model, name, 1, (s,), items)
+    for name in scalars:
+        _fits(model, name, 0, (s,), items)
 
 
 @pytree_dataclass
@@ -261,11 +435,16 @@ class Spring(ForceModel):
 
     so a zero-length spring is ``F_a = k d``. ``v = v_com + ω × r`` is the point
     velocity; the damper is a vector dashpot on the relative velocity. Equal and
-    opposite forces conserve total linear and angular momentum.
+    opposite forces conserve total linear momentum; the spring force is central
+    (along ``d``), so without damping total angular momentum is conserved too.
+    The dashpot is not central (``v_b - v_a`` need not be along ``d``): with
+    ``damping`` the springs exert a net torque ``(p_a - p_b) × F_a`` on the
+    pair and total angular momentum changes.
 
-    Shapes (``S`` springs): ``body``, ``other``: ``(S,)`` int; ``point``,
-    ``anchor``: ``(S, 3)`` m; ``stiffness`` ``k`` N/m, ``rest_length`` ``l₀`` m,
-    ``damping`` ``c`` N s/m: ``(S,)`` or scalars. Build with :meth:`to_anchor`
+    Shapes (``S`` springs): ``body``, ``other``: ``(S,)`` int, each ``>= 0`` and
+    ``< N`` (checked when simulated); ``point``, ``anchor``: ``(S, 3)`` or
+    ``(3,)`` m; ``stiffness`` ``k`` N/m, ``rest_length`` ``l₀`` m, ``damping``
+    ``c`` N s/m: ``(S,)`` or scalars, each ``>= 0``. Build with :meth:`to_anchor`
     or :meth:`between`. Points at the centre of mass (``None``) add no torque
     and no rotation work; with both ends there the model returns ``torque=None``.
     """
@@ -277,6 +456,8 @@ class Spring(ForceModel):
     other: Int[Array, " S"] | None = None
     rest_length: Float[Array, "*S"] = field(default=0.0)
     damping: Float[Array, "*S"] | None = None
+    _INDEX_FIELDS = ("body", "other")
+    _NON_NEGATIVE = ("stiffness", "rest_length", "damping")
 
     if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
 
@@ -292,12 +473,24 @@ class Spring(ForceModel):
         ) -> None: ...
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "body", _as_index(self.body))
+        object.__setattr__(self, "body", _as_index("Spring", "body", self.body))
         if self.other is not None:
-            object.__setattr__(self, "other", _as_index(self.other))
+            object.__setattr__(self, "other", _as_index("Spring", "other", self.other))
+            if self.other.shape != self.body.shape:
+                raise ValueError(
+                    f"Spring: body {tuple(self.body.shape)} and other {tuple(self.other.shape)} must name the same "
+                    "number of springs"
+                )
         elif self.anchor is None:
             raise ValueError("Spring: a world anchor is required when other is None")
         _floats(self, "stiffness", "point", "anchor", "rest_length", "damping")
+        _per_item(self, self.body.shape[0], ("point", "anchor"), ("stiffness", "rest_length", "damping"))
+        _non_negative(self, "stiffness", "rest_length", "damping")
+
+    def check(self, state: AnyState) -> None:
+        n = _check_flat("Spring", state)
+        _indices_in(self, "body", n)
+        _indices_in(self, "other", n)
 
     @classmethod
     def to_anchor(
@@ -344,6 +537,7 @@ class Spring(ForceModel):
         )
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
+        self.check(state)
         n = _check_flat("Spring", state)
         rotating = self.point is not None or (self.other is not None and self.anchor is not None)
         omega = angular_velocity(_no_torque_for_particles("Spring(point=...)", state)) if rotating else None
@@ -384,14 +578,17 @@ class Thruster(ForceModel):
     along the body-frame ``direction`` ``d`` (unit, not renormalised) at the
     body-frame ``point`` ``p`` (m; ``None`` = centre of mass, no torque). World
     force ``F = T R d``, torque about the centre of mass ``τ = (R p) × F``.
-    Shapes (``S`` thrusters): ``body`` ``(S,)`` int, ``direction``, ``point``
-    ``(S, 3)``, ``thrust`` ``(S,)`` or scalar. Rigid states only.
+    Shapes (``S`` thrusters): ``body`` ``(S,)`` int, each ``>= 0`` and ``< N``
+    (checked when simulated); ``direction`` (unit: checked when concrete),
+    ``point``: ``(S, 3)`` or ``(3,)``; ``thrust`` ``(S,)`` or scalar, of either
+    sign (a negative thrust pushes along ``-d``). Rigid states only.
     """
 
     body: Int[Array, " S"]
     direction: Float[Array, "S 3"]
     thrust: Float[Array, "*S"]
     point: Float[Array, "S 3"] | None = None
+    _INDEX_FIELDS = ("body",)
 
     if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
 
@@ -404,10 +601,24 @@ class Thruster(ForceModel):
         ) -> None: ...
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "body", _as_index(self.body))
+        object.__setattr__(self, "body", _as_index("Thruster", "body", self.body))
         _floats(self, "direction", "thrust", "point")
+        _per_item(self, self.body.shape[0], ("direction", "point"), ("thrust",))
+        d = self.direction
+        if _concrete(d) and d.size:
+            err = np.max(np.abs(np.linalg.norm(np.asarray(d, np.float64), axis=-1) - 1))
+            tol = max(1e-6, 128 * float(np.finfo(d.dtype).eps))
+            if err > tol:
+                raise ValueError(
+                    f"Thruster: direction must be unit vectors (the thrust gives the magnitude); |‖d‖ - 1| = "
+                    f"{err:.3g} exceeds {tol:.3g}: normalise it, d / ‖d‖"
+                )
+
+    def check(self, state: AnyState) -> None:
+        _indices_in(self, "body", _check_flat("Thruster", state))
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
+        self.check(state)
         n = _check_flat("Thruster", state)
         if isinstance(state, ParticleState):
             raise ValueError("Thruster: a body-fixed direction needs rigid bodies, not ParticleState")
@@ -440,8 +651,15 @@ class ConstantForce(ForceModel):
 
     def __post_init__(self) -> None:
         _floats(self, "force", "torque")
+        _core(self, "force", (3,), " (a force vector, N)")
+        _core(self, "torque", (3,), " (a torque vector, N m)")
+
+    def check(self, state: AnyState) -> None:
+        for name in ("force", "torque"):
+            _fits(self, name, 1, state.batch_shape, "the batch shape")
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
+        self.check(state)
         f = None if self.force is None else _full(_cast(self.force, state), state)
         if self.torque is None:
             return Forces(force=f)
@@ -491,7 +709,11 @@ class TimeSeriesForce(ForceModel):
         if self.interpolation not in ("linear", "hold"):
             raise ValueError(f"TimeSeriesForce: interpolation must be 'linear' or 'hold', got {self.interpolation!r}")
         _floats(self, "times")
-        k = self.times.shape[0] if self.times.ndim == 1 else -1
+        if self.times.ndim != 1 or self.times.shape[0] < 1:
+            raise ValueError(f"TimeSeriesForce: times must have shape (K,) with K >= 1, got {tuple(self.times.shape)}")
+        if _concrete(self.times) and np.any(np.diff(np.asarray(self.times)) <= 0):
+            raise ValueError("TimeSeriesForce: times must be strictly increasing (s); sort them with their samples")
+        k = self.times.shape[0]
         for name in ("force", "torque"):
             v = getattr(self, name)
             if v is not None:
@@ -503,7 +725,24 @@ class TimeSeriesForce(ForceModel):
                     )
                 object.__setattr__(self, name, v)
 
+    def check(self, state: AnyState) -> None:
+        want = tuple(state.position.shape)
+        for name in ("force", "torque"):
+            a = getattr(self, name)
+            if a is None:
+                continue
+            try:
+                ok = jnp.broadcast_shapes(tuple(a.shape[1:]), want) == want
+            except ValueError:
+                ok = False
+            if not ok:
+                raise ValueError(
+                    f"TimeSeriesForce: {name} samples of shape {tuple(a.shape[1:])} do not fit the batch: each must "
+                    f"broadcast to {want} (give {name} the shape (K, 3) or (K, *batch shape, 3))"
+                )
+
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
+        self.check(state)
         times = _cast(self.times, state)
         t = _cast(t, state)
 
@@ -526,12 +765,36 @@ class ExternalForce(ForceModel):
     force: Callable[[Any], Float[ArrayLike, "*B 3"]] | None = static_field(default=None)
     torque: Callable[[Any], Float[ArrayLike, "*B 3"]] | None = static_field(default=None)
 
+    def __post_init__(self) -> None:
+        for name in ("force", "torque"):
+            fn = getattr(self, name)
+            if fn is not None and not callable(fn):
+                raise TypeError(f"ExternalForce: {name} must be a callable t -> (3,) or (*B, 3) array, or None")
+
+    def _value(self, name: str, state: AnyState, t: Any) -> Array:
+        fn = getattr(self, name)
+        try:
+            a = _as_float(fn(t)).astype(state.dtype)
+        except TypeError as e:
+            raise TypeError(f"ExternalForce: {name}(t) must return a real (3,) or (*B, 3) array: {e}") from None
+        want = tuple(state.position.shape)
+        try:
+            ok = jnp.broadcast_shapes(tuple(a.shape), want) == want
+        except ValueError:
+            ok = False
+        if not ok:
+            raise ValueError(
+                f"ExternalForce: {name}(t) returned shape {tuple(a.shape)}, which does not broadcast to the "
+                f"state's {want}; return a (3,) or (*batch shape, 3) array"
+            )
+        return jnp.broadcast_to(a, want)
+
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
-        f = None if self.force is None else _full(_cast(self.force(t), state), state)
+        f = None if self.force is None else self._value("force", state, t)
         if self.torque is None:
             return Forces(force=f)
         _no_torque_for_particles("ExternalForce(torque=...)", state)
-        return Forces(force=f, torque=_full(_cast(self.torque(t), state), state))
+        return Forces(force=f, torque=self._value("torque", state, t))
 
 
 @pytree_dataclass
@@ -545,6 +808,10 @@ class CustomForce(ForceModel):
 
     fn: Callable[..., Forces] = static_field()
     params: Any = None
+
+    def __post_init__(self) -> None:
+        if not callable(self.fn):
+            raise TypeError(f"CustomForce: fn must be a callable fn(state, t[, params]) -> Forces, got {self.fn!r:.60}")
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         return self.fn(state, t) if self.params is None else self.fn(state, t, self.params)

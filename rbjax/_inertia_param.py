@@ -23,6 +23,7 @@ from jax import Array
 from jaxtyping import Float
 
 from ._body import TRIANGLE_RTOL, _is_concrete
+from ._math import _arg
 from ._typing import ArrayLike
 
 __all__ = ["inertia_from_params", "params_from_inertia", "second_moment"]
@@ -42,9 +43,7 @@ def inertia_from_params(theta: Float[ArrayLike, "... 6"]) -> Float[Array, "... 3
     ``I = tr(Σ) 1 - Σ``. Always symmetric positive definite with strict triangle
     inequalities (for finite ``θ``); smooth, so gradients flow to ``θ``.
     """
-    theta = jnp.asarray(theta)
-    if theta.shape[-1:] != (6,):
-        raise ValueError(f"inertia_from_params: theta must end in (6,), got shape {theta.shape}")
+    theta = _arg("inertia_from_params", "theta", theta, (6,))
     L = _lower(theta)
     sigma = L @ jnp.swapaxes(L, -1, -2)
     tr = jnp.trace(sigma, axis1=-2, axis2=-1)
@@ -53,7 +52,7 @@ def inertia_from_params(theta: Float[ArrayLike, "... 6"]) -> Float[Array, "... 3
 
 def second_moment(inertia: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 3 3"]:
     """Second-moment matrix ``Σ = ½ tr(I) 1 - I`` ``(..., 3, 3)`` of an inertia tensor."""
-    I = jnp.asarray(inertia)
+    I = _arg("second_moment", "inertia", inertia, (3, 3))
     tr = jnp.trace(I, axis1=-2, axis2=-1)
     return 0.5 * tr[..., None, None] * jnp.eye(3, dtype=I.dtype) - I
 
@@ -74,11 +73,7 @@ def params_from_inertia(inertia: Float[ArrayLike, "... 3 3"], rtol: float = TRIA
     :data:`rbjax.TRIANGLE_RTOL`) are floored too. A concrete inertia that breaks
     the triangle inequality by more raises ``ValueError``; a traced one gives NaN.
     """
-    I = jnp.asarray(inertia)
-    if I.shape[-2:] != (3, 3):
-        raise ValueError(f"params_from_inertia: inertia must end in (3, 3), got shape {I.shape}")
-    if not jnp.issubdtype(I.dtype, jnp.floating):
-        I = I.astype(jnp.result_type(float))
+    I = _arg("params_from_inertia", "inertia", inertia, (3, 3))
     S = second_moment(0.5 * (I + jnp.swapaxes(I, -1, -2)))
     tr = jnp.trace(I, axis1=-2, axis2=-1)
     floor, worst = 16 * jnp.finfo(I.dtype).eps * tr, -rtol * tr

@@ -10,11 +10,21 @@ Every function broadcasts over leading batch dimensions and is written with
 explicit components, so that under ``vmap`` and inside ``lax.scan`` XLA sees
 elementwise arithmetic it can fuse rather than small batched matmuls.
 Functions that take a norm are NaN-safe: values and gradients are finite at zero.
+
+Arguments are checked while tracing (shapes and dtypes are static): a last axis
+of the wrong size (a 3-vector where a quaternion belongs, a fifth component)
+raises ``ValueError`` naming the argument, a non-real argument ``TypeError``;
+integer arrays are computed in the default float dtype, as everywhere in rbjax.
 """
 
 from __future__ import annotations
 
+from typing import Any
+
+import jax
+import jax.core
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
 from jaxtyping import Float
 
@@ -37,6 +47,47 @@ __all__ = [
 ]
 
 
+_WHAT = {(3,): "3-vectors", (4,): "quaternions [w, x, y, z]", (3, 3): "3x3 matrices", (6,): "6-vectors"}
+
+
+def _arg(fn: str, name: str, x: Any, core: tuple[int, ...] = ()) -> Array:
+    """``x`` as a float array whose shape ends in ``core``; ``TypeError``/``ValueError`` naming ``fn``'s ``name``.
+
+    Runs while tracing (shape and dtype are static), so it costs nothing in a
+    compiled step. Integers are cast to the default float dtype (as rbjax's
+    constructors do); booleans, complex numbers and 16-bit floats are refused.
+    """
+    if x is None or isinstance(x, (str, bytes, dict, bool, np.bool_)):
+        raise TypeError(f"{fn}: {name} must be a real float array, got {type(x).__name__} {x!r:.60}")
+    try:
+        a = jnp.asarray(x)
+    except (TypeError, ValueError):
+        raise TypeError(f"{fn}: {name} must be a real float array, got {type(x).__name__}: {x!r:.60}") from None
+    dt = a.dtype
+    if jnp.issubdtype(dt, jnp.integer):
+        a = a.astype(jnp.result_type(float))
+    elif not jnp.issubdtype(dt, jnp.floating):
+        raise TypeError(f"{fn}: {name} must be a real float array, got dtype {dt}")
+    elif jnp.finfo(dt).bits < 32:
+        raise TypeError(f"{fn}: {name} has dtype {dt}; rbjax computes in float32 or float64: convert with .astype")
+    if core and tuple(a.shape[-len(core) :]) != core:
+        dims = ", ".join(str(c) for c in core)
+        raise ValueError(
+            f"{fn}: {name} must have shape (..., {dims}) ({_WHAT.get(core, 'arrays')}), got shape {tuple(a.shape)}"
+        )
+    return a
+
+
+def _batches(fn: str, **named: tuple[Array, int]) -> None:
+    """``ValueError`` naming ``fn``'s arguments unless their batch shapes (all but ``core`` trailing axes) broadcast."""
+    shapes = {k: tuple(a.shape[: a.ndim - core]) for k, (a, core) in named.items()}
+    try:
+        jnp.broadcast_shapes(*shapes.values())
+    except ValueError:
+        listed = ", ".join(f"{k} {v}" for k, v in shapes.items())
+        raise ValueError(f"{fn}: the batch shapes do not broadcast ({listed})") from None
+
+
 def _eps(x: Array) -> Array:
     return jnp.asarray(jnp.finfo(x.dtype).eps, x.dtype)
 
@@ -47,7 +98,11 @@ def safe_norm(x: Float[ArrayLike, " ..."], axis: int = -1, keepdims: bool = Fals
     Uses the double-``where`` pattern: the square root never sees a zero that
     would be differentiated. ``x``: ``(..., n, ...)``; returns ``x``'s shape without ``axis``.
     """
-    x = jnp.asarray(x)
+    x = _arg("safe_norm", "x", x)
+    if isinstance(axis, (bool, np.bool_)) or not isinstance(axis, (int, np.integer)) or not -x.ndim <= axis < x.ndim:
+        raise ValueError(
+            f"safe_norm: axis must be an int in [-{x.ndim}, {x.ndim}) for x of shape {x.shape}, got {axis!r}"
+        )
     sq = jnp.sum(x * x, axis=axis, keepdims=keepdims)
     zero = sq == 0
     return jnp.where(zero, 0.0, jnp.sqrt(jnp.where(zero, 1.0, sq)))
@@ -62,7 +117,7 @@ def skew(a: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3 3"]:
              [ az,  0, -ax],
              [-ay, ax,   0]]
     """
-    a = jnp.asarray(a)
+    a = _arg("skew", "a", a, (3,))
     ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
     z = jnp.zeros_like(ax)
     return jnp.stack(
@@ -77,7 +132,9 @@ def skew(a: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3 3"]:
 
 def cross(a: Float[ArrayLike, "... 3"], b: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3"]:
     """Cross product ``a × b`` of ``(..., 3)`` vectors, written by components."""
-    return jnp.stack(_cross(_unstack(jnp.asarray(a)), _unstack(jnp.asarray(b))), axis=-1)
+    a, b = _arg("cross", "a", a, (3,)), _arg("cross", "b", b, (3,))
+    _batches("cross", a=(a, 1), b=(b, 1))
+    return jnp.stack(_cross(_unstack(a), _unstack(b)), axis=-1)
 
 
 # Component helpers: the vector functions here index single components and stack
@@ -140,7 +197,8 @@ def quat_multiply(p: Float[ArrayLike, "... 4"], q: Float[ArrayLike, "... 4"]) ->
 
     ``(pw, pv) ⊗ (qw, qv) = (pw qw - pv·qv, pw qv + qw pv + pv × qv)``.
     """
-    p, q = jnp.asarray(p), jnp.asarray(q)
+    p, q = _arg("quat_multiply", "p", p, (4,)), _arg("quat_multiply", "q", q, (4,))
+    _batches("quat_multiply", p=(p, 1), q=(q, 1))
     pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
     qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     return jnp.stack(
@@ -159,7 +217,7 @@ def quat_conjugate(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
 
     ``q``: ``(..., 4)``; returns ``(..., 4)``.
     """
-    q = jnp.asarray(q)
+    q = _arg("quat_conjugate", "q", q, (4,))
     return jnp.stack([q[..., 0], -q[..., 1], -q[..., 2], -q[..., 3]], axis=-1)
 
 
@@ -169,7 +227,8 @@ def quat_rotate(q: Float[ArrayLike, "... 4"], v: Float[ArrayLike, "... 3"]) -> F
     Evaluated as ``v + w t + u × t`` with ``t = 2 u × v`` (``q = [w, u]``): 18
     multiplies, no rotation matrix.
     """
-    q, v = jnp.asarray(q), jnp.asarray(v)
+    q, v = _arg("quat_rotate", "q", q, (4,)), _arg("quat_rotate", "v", v, (3,))
+    _batches("quat_rotate", q=(q, 1), v=(v, 1))
     w, u = q[..., 0], (q[..., 1], q[..., 2], q[..., 3])
     t = tuple(2 * c for c in _cross(u, _unstack(v)))
     ut = _cross(u, t)
@@ -178,7 +237,7 @@ def quat_rotate(q: Float[ArrayLike, "... 4"], v: Float[ArrayLike, "... 3"]) -> F
 
 def quat_normalize(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
     """``q / ‖q‖`` for ``(..., 4)`` quaternions (finite gradient; ``q = 0`` is invalid)."""
-    q = jnp.asarray(q)
+    q = _arg("quat_normalize", "q", q, (4,))
     # explicit components, not a reduce: a reduction ends an XLA:CPU loop fusion
     w, x, y, z = _unstack(q)
     inv = 1 / jnp.sqrt(w * w + x * x + y * y + z * z)
@@ -191,7 +250,7 @@ def quat_to_matrix(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 3 3"]:
     ``R = (w² - u·u) 1 + 2 u uᵀ + 2 w ũ``. Columns of ``R`` are the body axes
     expressed in the world frame, as in the notes.
     """
-    q = jnp.asarray(q)
+    q = _arg("quat_to_matrix", "q", q, (4,))
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     xx, yy, zz = x * x, y * y, z * z
     xy, xz, yz = x * y, x * z, y * z
@@ -214,7 +273,7 @@ def matrix_to_quat(R: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 4"]:
     every rotation, including half turns. The square roots of the unused
     candidates are clamped, so gradients carry no NaN from branches not taken.
     """
-    R = jnp.asarray(R)
+    R = _arg("matrix_to_quat", "R", R, (3, 3))
     r00, r01, r02 = R[..., 0, 0], R[..., 0, 1], R[..., 0, 2]
     r10, r11, r12 = R[..., 1, 0], R[..., 1, 1], R[..., 1, 2]
     r20, r21, r22 = R[..., 2, 0], R[..., 2, 1], R[..., 2, 2]
@@ -244,7 +303,7 @@ def quat_exp(rotvec: Float[ArrayLike, "... 3"]) -> Float[Array, "... 4"]:
         ``sin(θ/2)/θ``, so the value and every gradient are finite at zero rotation.
     ``rotvec``: ``(..., 3)``; returns ``(..., 4)``.
     """
-    v = jnp.asarray(rotvec)
+    v = _arg("quat_exp", "rotvec", rotvec, (3,))
     th2 = _dot3(v, v)[..., None]
     small = th2 < jnp.sqrt(_eps(v))
     th = jnp.sqrt(jnp.where(small, 1.0, th2))
@@ -260,7 +319,7 @@ def quat_log(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 3"]:
     ``q`` and ``-q`` give the same result (the shorter rotation). Finite
     gradients at the identity. ``q``: ``(..., 4)``; returns ``(..., 3)``.
     """
-    q = jnp.asarray(q)
+    q = _arg("quat_log", "q", q, (4,))
     q = jnp.where(q[..., :1] < 0, -q, q)
     w, u = q[..., :1], q[..., 1:]
     s = safe_norm(u, keepdims=True)
@@ -278,22 +337,78 @@ def quat_angle(p: Float[ArrayLike, "... 4"], q: Float[ArrayLike, "... 4"]) -> Fl
         quaternion, accurate for small angles (unlike ``arccos``). ``p``, ``q``:
     ``(..., 4)``, broadcast; returns ``(...)``.
     """
+    p, q = _arg("quat_angle", "p", p, (4,)), _arg("quat_angle", "q", q, (4,))
+    _batches("quat_angle", p=(p, 1), q=(q, 1))
     d = quat_multiply(quat_conjugate(p), q)
     return 2 * jnp.arctan2(safe_norm(d[..., 1:]), jnp.abs(d[..., 0]))
 
 
-def orthonormalize(R: Float[ArrayLike, "... 3 3"], iterations: int = 2) -> Float[Array, "... 3 3"]:
-    """Nearest rotation matrix to a nearly orthogonal ``R`` ``(..., 3, 3)``.
+def _orthonormalize(R: Array, iterations: int = 2) -> Array:
+    """Newton–Schulz polar iterations ``R ← R (3·1 - RᵀR) / 2`` (the integrators' projection).
 
-    Newton–Schulz iteration for the polar factor, ``R ← R (3·1 - RᵀR) / 2``,
-    which converges quadratically: an ``R`` with ``‖RᵀR - 1‖ = ε`` comes out
-    with ``O(ε^(2^k))`` after ``k`` iterations. Unlike Gram–Schmidt it treats the
-    three axes alike (no drift toward the first column). Valid while
-    ``‖RᵀR - 1‖ < 1``, which an integrator step keeps with a wide margin.
+    Unchecked and unscaled: for the nearly orthogonal matrices of a step
+    (``‖RᵀR - 1‖ ≪ 1``); :func:`orthonormalize` is the public, checked form.
     """
-    R = jnp.asarray(R)
     eye = jnp.eye(3, dtype=R.dtype)
     for _ in range(iterations):
         RtR = _matmul3(jnp.swapaxes(R, -1, -2), R)
         R = 0.5 * _matmul3(R, 3 * eye - RtR)
     return R
+
+
+def _det3(R: Array) -> Array:
+    c = _cross(_unstack(R[..., 1, :]), _unstack(R[..., 2, :]))
+    return R[..., 0, 0] * c[0] + R[..., 0, 1] * c[1] + R[..., 0, 2] * c[2]
+
+
+def orthonormalize(R: Float[ArrayLike, "... 3 3"], iterations: int = 2) -> Float[Array, "... 3 3"]:
+    """Nearest rotation matrix (the polar factor) of ``R`` ``(..., 3, 3)``, a near-rotation up to a positive scale.
+
+    ``R`` is first divided by ``∛det R``, so any positive multiple ``c Q``
+    (``c > 0``) of a rotation ``Q`` returns ``Q``; then Newton–Schulz iterations
+    for the polar factor, ``R ← R (3·1 - RᵀR) / 2``, converge quadratically:
+    an ``R`` with ``‖RᵀR - 1‖ = ε`` (after the scaling) comes out with
+    ``O(ε^(2^k))`` after ``k = iterations`` iterations. Unlike Gram–Schmidt it
+    treats the three axes alike (no drift toward the first column).
+
+    Range: ``det R > 0`` and, after the scaling, ``‖RᵀR - 1‖ < 1`` (singular
+    values within ``(0, √2)``); more iterations for inputs farther off. A
+    concrete ``R`` outside it, or one the ``iterations`` did not bring within
+    ``max(1e-6, 128 eps)`` of orthogonal, raises ``ValueError``; under ``jit``
+    an ``R`` with ``det R ≤ 0`` (a reflection: no nearest rotation in this
+    sense) gives NaN. Dimensionless; returns ``(..., 3, 3)``.
+    """
+    R = _arg("orthonormalize", "R", R, (3, 3))
+    if isinstance(iterations, (bool, np.bool_)) or not isinstance(iterations, (int, np.integer)) or iterations < 0:
+        raise ValueError(f"orthonormalize: iterations must be a non-negative int, got {iterations!r}")
+    det = _det3(R)
+    positive = det > 0
+    scale = jnp.cbrt(jnp.where(positive, det, 1.0))
+    out = _orthonormalize(R / scale[..., None, None], int(iterations))
+    out = jnp.where(positive[..., None, None], out, jnp.nan)
+    if not isinstance(out, jax.core.Tracer):
+        _check_rotation_out(R, out, int(iterations))
+    return out
+
+
+def _check_rotation_out(R: Array, out: Array, iterations: int) -> None:
+    """``ValueError`` unless ``orthonormalize`` produced rotations (concrete values only)."""
+    if not (isinstance(out, jax.Array) and out.is_fully_addressable):
+        return
+    R64, Q = np.asarray(R, np.float64), np.asarray(out, np.float64)
+    if Q.size == 0:
+        return
+    if not np.all(np.linalg.det(R64) > 0):
+        raise ValueError(
+            "orthonormalize: R must have det R > 0 (a rotation up to a positive scale and a small error); "
+            f"got det R = {np.min(np.linalg.det(R64)):.3g}: a reflection or a singular matrix has no nearest "
+            "rotation here"
+        )
+    err = np.max(np.abs(np.swapaxes(Q, -1, -2) @ Q - np.eye(3))) if np.all(np.isfinite(Q)) else np.inf
+    tol = max(1e-6, 128 * float(np.finfo(R.dtype).eps))
+    if not err <= tol:
+        raise ValueError(
+            f"orthonormalize: R is too far from a rotation for {iterations} iteration(s): the result is off "
+            f"orthogonal by {err:.3g} (tolerance {tol:.3g}). Pass more iterations (valid while "
+            "‖RᵀR/∛det(R)² - 1‖ < 1), or build the rotation another way (e.g. matrix_to_quat of an SVD's U Vᵀ)"
+        )

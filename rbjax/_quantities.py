@@ -12,7 +12,7 @@ from jaxtyping import Float
 
 from ._batching import lift
 from ._body import inertia_of
-from ._math import _dot3, _matmul3, cross, matrix_to_quat, quat_conjugate, quat_rotate, quat_to_matrix
+from ._math import _arg, _dot3, _matmul3, cross, matrix_to_quat, quat_conjugate, quat_rotate, quat_to_matrix
 from ._pytree import new_unchecked
 from ._state import AnyState, MatrixState, ParticleState, RigidState, State, _apply
 from ._typing import ArrayLike
@@ -127,8 +127,28 @@ def angular_momentum(state: AnyState, about: Float[ArrayLike, "*B 3"] | None = N
     ``L = r × p`` about ``about`` (default the world origin), as in the notes.
     """
     _expect(state, "angular_momentum", _ANY)
-    a = None if about is None else jnp.asarray(about, state.dtype)
-    return lift(lambda s: _one_angular_momentum(s, a))(state)
+    a = None if about is None else _arg("angular_momentum", "about", about, (3,)).astype(state.dtype)
+    if a is not None:
+        want = tuple(state.position.shape)
+        try:
+            ok = jnp.broadcast_shapes(tuple(a.shape), want) == want
+        except ValueError:
+            ok = False
+        if not ok:
+            raise ValueError(
+                f"angular_momentum: about of shape {tuple(a.shape)} does not fit the state's positions {want}; "
+                "give one world point (3,) or one per body (*B, 3)"
+            )
+    if a is None:
+        return lift(lambda s: _one_angular_momentum(s, None))(state)
+    # the orbital term (x - a) × m v outside the per-body map: a per-body point (*B, 3) is then
+    # paired with its own body (closed over in the map, it met every body: a (*B, *B, 3) result)
+    if isinstance(state, ParticleState):
+        m, spin = state.mass, 0.0
+    else:
+        m, spin = state.body.mass, lift(lambda s: _one_angular_momentum(s, None))(state)
+    m = jnp.broadcast_to(m, state.batch_shape)
+    return spin + cross(state.position - a, m[..., None] * state.velocity)
 
 
 def _one_linear_momentum(s: AnyState) -> Array:

@@ -40,6 +40,7 @@ from ._forces import ForceModel, ForceSum
 from ._pytree import pytree_dataclass, static_field
 from ._simulate import simulate as _simulate_fn
 from ._simulate import step as _step_fn
+from ._simulate_support import DEFAULT_METHOD
 from ._state import AnyState, MatrixState, ParticleState, State, StateT
 from ._typing import ArrayLike
 
@@ -141,7 +142,9 @@ class Scene:
             to :meth:`step` / :meth:`simulate` must carry bodies of this kind.
         forces: a :class:`ForceModel` (e.g. ``Gravity() + LinearDrag(0.1)``); its
             arrays are leaves, its composition is static.
-        method: integrator name (static).
+        method: integrator name (static); default ``"splitting"``, the house default
+            (see :func:`rbjax.simulate`). Specialised kernels exist for ``"euler"`` and
+            ``"rk4"``; other methods step through their generic batch step.
         kind: ``"particles"``, ``"isotropic"``, ``"axisymmetric"`` or ``"general"`` (static).
         torque_free: the forces never produce a torque (static).
 
@@ -150,7 +153,7 @@ class Scene:
 
     body: Body | None
     forces: ForceModel
-    method: str = static_field(default="rk4")
+    method: str = static_field(default=DEFAULT_METHOD)
     kind: str = static_field(default="general")
     torque_free: bool = static_field(default=False)
 
@@ -159,7 +162,7 @@ class Scene:
         cls,
         state: AnyState,
         forces: ForceModel | None = None,
-        method: str = "rk4",
+        method: str = DEFAULT_METHOD,
         *,
         kind: str | None = None,
     ) -> Scene:

@@ -38,7 +38,7 @@ from ._batching import _in_axes, batch_shape
 from ._math import quat_conjugate, quat_log, quat_multiply
 from ._pytree import replace
 from ._simulate import as_force_fn, simulate, start_time
-from ._simulate_support import constant_fields
+from ._simulate_support import DEFAULT_METHOD, constant_fields
 from ._state import AnyState, ForceLike, Forces, State
 from ._trajectory import stack_frames
 from ._validate import check_dt, check_state
@@ -75,7 +75,7 @@ def shoot(
     forces: ForceLike,
     dt: Float[ArrayLike, ""] | Float[ArrayLike, "S steps"],
     steps: int,
-    method: str = "rk4",
+    method: str = DEFAULT_METHOD,
     *,
     save_every: int | None = None,
     t0: Float[ArrayLike, ""] | Float[ArrayLike, " S"] = 0.0,
@@ -97,7 +97,8 @@ def shoot(
         dt: step (s): a scalar, or ``(S, steps)`` per-segment per-step sizes
             (irregular sampling; ``dt = 0`` steps are no-ops, for padding).
         steps: steps per segment (static).
-        method: integrator name (see :func:`rbjax.methods`).
+        method: integrator name (see :func:`rbjax.methods`); default ``"splitting"``,
+            the house default (see :func:`rbjax.simulate`; it was ``"rk4"`` before 2026-12-02).
         save_every: keep every ``save_every``-th state (must divide ``steps``);
             default ``steps``: start and end only.
         t0: scalar start time of segment 0, the segments tiling
@@ -192,7 +193,7 @@ def simulate_truncated(
     forces: ForceLike,
     dt: Float[ArrayLike, ""],
     steps: int,
-    method: str = "rk4",
+    method: str = DEFAULT_METHOD,
     *,
     truncate_every: int,
     save_every: int = 1,
@@ -217,7 +218,8 @@ def simulate_truncated(
             :class:`rbjax.Forces` with a leading ``(steps, ...)`` axis.
         dt: step (s), > 0.
         steps: total steps (static), a multiple of ``truncate_every``.
-        method: integrator name.
+        method: integrator name; default ``"splitting"``, the house default (see
+            :func:`rbjax.simulate`; it was ``"rk4"`` before 2026-12-02).
         truncate_every: chunk length in steps (static); must be a multiple of ``save_every``.
         save_every: keep every ``save_every``-th state.
         t0: start time (s); default ``state.time``.

@@ -18,7 +18,7 @@ from ._batching import _map_leaves, batch_last, batch_shape, lift, to_batch_firs
 from ._body import prepare
 from ._forces import ForceModel
 from ._pytree import replace
-from ._simulate_support import constant_fields
+from ._simulate_support import DEFAULT_METHOD, constant_fields
 from ._state import AnyState, ForceLike, Forces, ParticleState, StateT
 from ._trajectory import stack_frames
 from ._typing import ArrayLike
@@ -50,9 +50,12 @@ def start_time(state: AnyState) -> Array:
     """The one time ``t`` (s) of a state or batch, from ``state.time``.
 
     A batch is stepped on one clock: concrete times must all be equal; traced
-    ones (inside ``jit``) are taken from the first body.
+    ones (inside ``jit``) are taken from the first body. An empty batch
+    (``N = 0``) has no clock: its time is 0 (pass ``t0`` to choose another).
     """
     t = state.time
+    if jnp.size(t) == 0:  # static shape: no body, no clock to read
+        return jnp.zeros((), jnp.result_type(t))
     if not isinstance(t, jax.core.Tracer) and isinstance(t, jax.Array) and not t.is_fully_addressable:
         # a batch split over processes: its clock from a reduction (replicated), not a host copy
         lo, hi = _time_range(t)
@@ -109,7 +112,7 @@ def step(
     state: StateT,
     forces: ForceLike,
     dt: Float[ArrayLike, ""],
-    method: str | Callable[..., Any] = "euler",
+    method: str | Callable[..., Any] = DEFAULT_METHOD,
     *,
     t: Float[ArrayLike, ""] | None = None,
 ) -> StateT:
@@ -122,7 +125,8 @@ def step(
             of mass), a callable ``(state, t) -> Forces`` evaluated by the method
             where it needs it, or ``None``.
         dt: step (s), > 0.
-        method: integrator name (static); see :func:`rbjax.methods`.
+        method: integrator name (static); see :func:`rbjax.methods`. Default
+            ``"splitting"`` (second order, symplectic), as :func:`simulate`.
         t: time (s) at the start of the step, passed to a callable ``forces``;
             default ``state.time``.
 
@@ -141,6 +145,8 @@ def step(
     if isinstance(forces, Forces):
         forces = cast_forces(forces, dtype)
         batch_shape(state, forces)
+    elif isinstance(forces, ForceModel):
+        forces.check(state)
     dt = jnp.asarray(dt, dtype)
     t = start_time(state) if t is None else jnp.asarray(t, dtype)
     new = fn(_prepared(_canonical(state)), checked_force_fn(as_force_fn(forces)), t, dt)
@@ -170,7 +176,7 @@ def simulate(
     forces: ForceLike,
     dt: Float[ArrayLike, ""],
     steps: int,
-    method: str | Callable[..., Any] = "euler",
+    method: str | Callable[..., Any] = DEFAULT_METHOD,
     *,
     save_every: int = 1,
     t0: Float[ArrayLike, ""] | None = None,
@@ -197,14 +203,23 @@ def simulate(
         steps: number of steps (static).
         method: integrator name (static), or a hashable batch step function
             ``(state, force_fn, t, dt) -> state`` such as a :class:`rbjax.Scene`'s kernel.
+            Default ``"splitting"``: Strang splitting, second order and symplectic
+            (energy error bounded, world ``L`` exact, exact for symmetric tops),
+            about 2.3x ``"euler"``'s cost per step. Measured 2026-12-02 on the
+            README's body (1 kg box 0.1 x 0.2 x 0.4 m, ``ω = (0.01, 5, 0.01)``
+            rad/s, ``dt = 1e-3``, 5 s) against :func:`rbjax.torque_free`: at most
+            2.1e-6 rad of attitude error and 2.1e-7 relative energy error, where
+            ``"euler"`` (the default before) was 3.09 rad off and gained 1.3%.
+            Pass ``"euler"`` for the lecture notes' update.
         save_every: keep every ``save_every``-th state (static); must divide ``steps``.
         t0: start time (s); default ``state.time``, so ``simulate(traj[-1], ...)``
             continues a run where it ended.
         checked: ``True`` or an :class:`rbjax.Checks` to test every step for a
             non-finite state or an orientation off the unit sphere, and every saved
             frame for an energy jump, raising an error that names the step and the
-            body's batch index (works under ``jit``; see :class:`rbjax.Checks`).
-            ``False`` (default) compiles no checks at all.
+            body's batch index (works under ``jit``; see :class:`rbjax.Checks`);
+            a force model's traced body indices and coefficient signs are tested
+            too. ``False`` (default) compiles no checks at all.
         checkpoint: segment length in steps for gradient checkpointing (static),
             or ``None``. Reverse mode then stores only the state at each segment
             boundary and recomputes one segment's forward pass while
@@ -297,6 +312,7 @@ def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoin
         if not series:
             batch_shape(state, forces)
     elif isinstance(forces, ForceModel):
+        forces.check(state)  # shapes and body indices against the batch, before they are traced
         series, force_fn = False, None  # a pytree: its arrays are traced data, not static
     elif forces is None or callable(forces):
         series, force_fn, forces = False, forces, None
@@ -305,6 +321,8 @@ def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoin
     checks = _checked.resolve(checked, state)
     if checks is not None:
         dt, t0 = traced_step_size(dt, t0, "simulate")
+        if isinstance(forces, ForceModel):  # traced body indices and coefficients, at run time
+            forces = forces._run_time_checked(state, "simulate")
     # a force callable (force_fn) is not a force law the kernel knows: it names one, so pass it on
     native = _native_path(
         native,

@@ -17,7 +17,7 @@ from jax import Array
 from jaxtyping import Float
 
 from ._body import Body, _as_float, _floats, _is_concrete, inertia_of
-from ._math import cross, quat_rotate, quat_to_matrix
+from ._math import _arg, cross, quat_rotate, quat_to_matrix
 from ._pytree import field, pytree_dataclass
 from ._trajectory import BatchIndexing
 from ._typing import ArrayLike
@@ -74,7 +74,7 @@ def _check_rotation(cls: str, R: Array) -> None:
     if not _is_concrete(R):
         return
     R64 = np.asarray(R, dtype=np.float64)
-    err = np.max(np.abs(np.swapaxes(R64, -1, -2) @ R64 - np.eye(3)))
+    err = np.max(np.abs(np.swapaxes(R64, -1, -2) @ R64 - np.eye(3)), initial=0.0)
     tol = quat_tolerance(R.dtype)
     if err > tol or np.any(np.linalg.det(R64) <= 0):
         raise ValueError(
@@ -84,39 +84,80 @@ def _check_rotation(cls: str, R: Array) -> None:
 
 
 def _convert(obj: Any, *names: str) -> None:
-    """In ``__post_init__``: array-likes (nested lists too) as float arrays of one dtype, and ``time`` with them.
+    """In ``__post_init__``: array-likes (nested lists too) as float arrays of one dtype, with ``time`` and ``body``.
 
-    The dtype is that of the state's arrays (and body), so a float32 state built
-    from Python lists stays float32 rather than taking ``time``'s default.
+    The dtype follows :func:`_dtype_of` (the rule of :class:`State`): a float32
+    state built from float32 arrays and Python lists stays float32, and a
+    float32 body in a float64 state is cast to float64, so every leaf shares it.
     """
-    _floats(obj, *names)
     body = getattr(obj, "body", None)
     dtype = _dtype_of(body, *(getattr(obj, n) for n in names))
+    _floats(obj, *names)
     for n in names:
         a = getattr(obj, n)
         if a.dtype != dtype and not isinstance(a, jax.core.Tracer):
             object.__setattr__(obj, n, a.astype(dtype))
-    t = obj.time
+    if body is not None:
+        object.__setattr__(obj, "body", _body_as(body, dtype))
     batch = getattr(obj, names[0]).shape[:-1]
-    t = jnp.asarray(t).astype(dtype)
-    if _is_concrete(t) and not np.all(np.isfinite(np.asarray(t))):
-        raise ValueError(f"{type(obj).__name__}: time must be finite")
-    try:
-        # one clock per body, so that slicing every leaf of a batch (jax.tree.map) keeps it
-        t = jnp.broadcast_to(t, batch)
-    except ValueError:
-        raise ValueError(
-            f"{type(obj).__name__}: time of shape {jnp.shape(t)} does not broadcast to the batch shape {batch}"
-        ) from None
+    # one clock per body, so that slicing every leaf of a batch (jax.tree.map) keeps it
+    t = _time(type(obj).__name__, obj.time, dtype, batch)
     object.__setattr__(obj, "time", t)
 
 
+def _typed(x: Any) -> Any:
+    """The float dtype ``x`` asserts, or ``None``.
+
+    NumPy and JAX float arrays (and NumPy float scalars) assert theirs; Python
+    numbers, (nested) lists and tuples, integer arrays and weakly typed JAX
+    values do not: they take the dtype of the arrays they are combined with.
+    """
+    if isinstance(x, (np.ndarray, np.generic)):
+        return x.dtype if np.issubdtype(x.dtype, np.floating) else None
+    if isinstance(x, (jax.Array, jax.core.Tracer)):
+        weak = getattr(x, "weak_type", False) or getattr(getattr(x, "aval", None), "weak_type", False)
+        return None if weak or not jnp.issubdtype(x.dtype, jnp.floating) else x.dtype
+    return None
+
+
 def _dtype_of(body: Body | None, *xs: Any) -> Any:
-    arrays = [_as_float(x) for x in xs if x is not None]
+    """The one float dtype of a state: ``result_type`` of the float arrays among ``xs`` and the body's.
+
+    Python numbers and lists are weakly typed (see :func:`_typed`); with no
+    typed array at all, the default float dtype (float64 under x64, else
+    float32). ``TypeError`` for an argument that is not a real number or array.
+    """
+    for x in xs:
+        if x is not None:
+            _as_float(x)  # TypeError in rbjax's words for strings, complex, float16, ...
+    typed = [d for d in (_typed(x) for x in xs if x is not None) if d is not None]
     if body is not None:
-        arrays.append(body.mass)
-    floats = [a for a in arrays if jnp.issubdtype(a.dtype, jnp.floating)]
-    return jnp.result_type(*floats) if floats else jnp.result_type(float)
+        typed.append(body.mass.dtype)
+    # NumPy's promotion of the dtypes themselves (float32 with float64 is float64), which JAX's strict
+    # promotion mode would refuse; canonical, so float64 means float32 without x64
+    return jax.dtypes.canonicalize_dtype(np.result_type(*typed)) if typed else jnp.result_type(float)
+
+
+def _body_as(body: Body, dtype: Any) -> Body:
+    """``body`` with its arrays in ``dtype`` (the state's): one dtype per state."""
+    return body if body.mass.dtype == dtype else jax.tree.map(lambda a: a.astype(dtype), body)
+
+
+def _time(cls: str, time: Any, dtype: Any, shape: tuple[int, ...]) -> Array:
+    """``time`` (s) as ``dtype`` broadcast to the batch ``shape``; ``TypeError``/``ValueError`` naming it otherwise."""
+    try:
+        t = _as_float(time)
+    except TypeError as e:
+        raise TypeError(f"{cls}: time: {e}") from None
+    if _is_concrete(t) and not np.all(np.isfinite(np.asarray(t))):
+        raise ValueError(f"{cls}: time must be finite, got non-finite entries")
+    try:
+        return jnp.broadcast_to(t.astype(dtype), shape)
+    except ValueError:
+        raise ValueError(
+            f"{cls}: time of shape {t.shape} does not broadcast to the batch shape {shape}; give one time "
+            "(a scalar, in seconds) or one per body"
+        ) from None
 
 
 def _vec(x: ArrayLike | None, default: tuple[float, ...], dtype: Any) -> Array:
@@ -154,6 +195,15 @@ class State(BatchIndexing):
     Direct construction takes array-likes (nested lists too) and validates shapes,
     finiteness and ``‖q‖ = 1`` (tolerance :func:`quat_tolerance`) when values
     are concrete.
+
+    One dtype: every leaf (the body's too) has the state's dtype, the NumPy
+    promotion (``result_type``) of the float arrays given (NumPy or JAX, the
+    body's included); Python numbers and lists, integer arrays and ``time``
+    take it. So a float32 body with float32 arrays and Python lists is a
+    float32 state, and a float32 body with a float64 array (under x64) a
+    float64 state with its body cast. With no float array at all, the default
+    float dtype (float64 under x64, else float32). The same rule holds for
+    :class:`MatrixState` and :class:`ParticleState` and their ``create``.
     """
 
     body: Body
@@ -204,6 +254,7 @@ class State(BatchIndexing):
         body's batch shape; ``time`` (s) is the state's ``t``.
         """
         dtype = _dtype_of(body, position, velocity, orientation, angular_velocity)
+        body = _body_as(body, dtype)
         q = _vec(orientation, (1.0, 0.0, 0.0, 0.0), dtype)
         w = _vec(angular_velocity, (0.0, 0.0, 0.0), dtype)
         x = _vec(position, (0.0, 0.0, 0.0), dtype)
@@ -220,7 +271,7 @@ class State(BatchIndexing):
         _check_unit_quaternion("State.create", q)
         L = quat_rotate(q, _apply(inertia_of(body), quat_rotate(_conj(q), w)))
         bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])  # noqa: E731
-        return cls(body, bc(x), bc(v), bc(q), bc(L), jnp.broadcast_to(jnp.asarray(time, dtype), shape))
+        return cls(body, bc(x), bc(v), bc(q), bc(L), _time("State.create", time, dtype, shape))
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
@@ -294,6 +345,7 @@ class MatrixState(BatchIndexing):
         rotation matrix; ``angular_velocity`` is world-frame ``ω`` (rad/s).
         """
         dtype = _dtype_of(body, position, velocity, orientation, angular_velocity)
+        body = _body_as(body, dtype)
         o = _vec(orientation, (1.0, 0.0, 0.0, 0.0), dtype)
         if o.shape[-1:] == (4,):
             _check_unit_quaternion("MatrixState.create", o)
@@ -314,7 +366,7 @@ class MatrixState(BatchIndexing):
         )
         bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])  # noqa: E731
         R = jnp.broadcast_to(R, shape + (3, 3))
-        return cls(body, bc(x), bc(v), R, bc(w), jnp.broadcast_to(jnp.asarray(time, dtype), shape))
+        return cls(body, bc(x), bc(v), R, bc(w), _time("MatrixState.create", time, dtype, shape))
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
@@ -372,7 +424,7 @@ class ParticleState(BatchIndexing):
     ) -> ParticleState:
         """Particles from mass (kg), optional position and velocity (zeros) and time (s)."""
         m = _as_float(mass)
-        dtype = _dtype_of(None, m, position, velocity)
+        dtype = _dtype_of(None, mass, position, velocity)
         x = _vec(position, (0.0, 0.0, 0.0), dtype)
         v = _vec(velocity, (0.0, 0.0, 0.0), dtype)
         _check_vectors("ParticleState.create", position=x, velocity=v)
@@ -381,7 +433,7 @@ class ParticleState(BatchIndexing):
             jnp.broadcast_to(x, shape + (3,)),
             jnp.broadcast_to(v, shape + (3,)),
             jnp.broadcast_to(m.astype(dtype), shape),
-            jnp.broadcast_to(jnp.asarray(time, dtype), shape),
+            _time("ParticleState.create", time, dtype, shape),
         )
 
     @property
@@ -429,17 +481,38 @@ class Forces:
 
     @classmethod
     def at_point(cls, force: Float[ArrayLike, "*B 3"], point: Float[ArrayLike, "*B 3"], state: AnyState) -> Forces:
-        """Force ``F`` applied at world point ``p``: torque ``τ = (p - x) × F``."""
-        f = _as_float(force)
-        return cls(force=f, torque=cross(jnp.asarray(point) - state.position, f))
+        """Force ``F`` (N, world) applied at world point ``p`` (m): torque ``τ = (p - x) × F`` (N m).
+
+        ``force``, ``point``: ``(*B, 3)`` or ``(3,)``, broadcast against the state's positions ``(*B, 3)``.
+        """
+        f = _arg("Forces.at_point", "force", force, (3,)).astype(state.dtype)
+        p = _arg("Forces.at_point", "point", point, (3,)).astype(state.dtype)
+        _batch("Forces.at_point", None, force=f.shape[:-1], point=p.shape[:-1], state=state.batch_shape)
+        return cls(force=f, torque=cross(p - state.position, f))
 
     @classmethod
     def gravity(
         cls, state: AnyState, g: Float[ArrayLike, " 3"] | tuple[float, float, float] = (0.0, 0.0, -9.81)
     ) -> Forces:
-        """Uniform gravity ``F = m g`` (world frame, m/s²), no torque."""
+        """Uniform gravity ``F = m g`` (world frame, m/s²), no torque.
+
+        ``g``: ``(3,)`` or ``(*B, 3)`` acceleration vector (a scalar is refused, as by
+        :class:`rbjax.Gravity`); returns ``force`` ``(*B, 3)`` in N.
+        """
         m = state.mass if isinstance(state, ParticleState) else state.body.mass
-        g = jnp.asarray(g, dtype=state.dtype)
+        try:
+            g = _as_float(g).astype(state.dtype)
+        except TypeError as e:
+            raise TypeError(f"Forces.gravity: g: {e}") from None
+        if g.shape[-1:] != (3,):
+            raise ValueError(
+                f"Forces.gravity: g must be a (3,) acceleration vector in m/s² (e.g. (0, 0, -9.81)), got shape "
+                f"{tuple(g.shape)}"
+            )
+        if _batch("Forces.gravity", None, state=state.batch_shape, g=g.shape[:-1]) != state.batch_shape:
+            raise ValueError(
+                f"Forces.gravity: g of shape {tuple(g.shape)} does not fit the state's batch shape {state.batch_shape}"
+            )
         return cls(force=jnp.broadcast_to(m[..., None] * g, state.position.shape))
 
     def __add__(self, other: Forces) -> Forces:

@@ -55,7 +55,7 @@ def test_body_with_a_time_axis_and_matrix_state_draw_the_same(traj, tmp_path):
         traj.orientation,
         traj.angular_momentum,
     )
-    kw = dict(dpi=30, panel_size=2.0, max_frames=3, bodies=[0])
+    kw = dict(dpi=30, panel_size=2.0, max_frames=3, bodies=[0], dt=0.1)  # one clock (timed has time 0)
     rb.animate(traj, tmp_path / "a.gif", **kw)
     rb.animate(timed, tmp_path / "b.gif", **kw)
     rb.animate(rb.to_matrix_state(traj), tmp_path / "c.gif", **kw)

@@ -20,6 +20,8 @@ with its reason.
 from __future__ import annotations
 
 import dataclasses
+import inspect
+import re
 import traceback
 from collections.abc import Callable
 from pathlib import Path
@@ -242,7 +244,8 @@ EXCUSED: dict[str, str] = {
     # jax.numpy-level building blocks used inside traced kernels: they follow jax.numpy's shape and
     # type conventions (its errors are JAX's) and cannot test values, which are traced there
     **{
-        n: "jax.numpy-level array function used inside traced kernels: NaN in gives NaN out by design"
+        n: "array function used inside traced kernels: NaN in gives NaN out by design; its shapes and "
+        "dtypes are checked while tracing (HELPERS, test_helpers_*)"
         for n in (
             "cross",
             "matrix_to_quat",
@@ -262,9 +265,11 @@ EXCUSED: dict[str, str] = {
             "inertia_from_params",
             "params_from_inertia",
             "second_moment",
-            "derivative",
-            "defects",
         )
+    },
+    **{
+        n: "jax.numpy-level function of states used inside traced kernels: NaN in gives NaN out by design"
+        for n in ("derivative", "defects")
     },
     "TRIANGLE_RTOL": "a constant",
     "methods": "no argument but an optional state type; returns the registry",
@@ -366,3 +371,561 @@ def test_state_create_refuses_in_rbjax_words(name):
     with pytest.raises((ValueError, TypeError)) as info:
         FIXED_GAPS[name]()
     assert _from_rbjax(info.value), info.value
+
+
+# ------------------------------------------------------------------ issue 26: silent wrong answers, third round
+
+
+def test_cli_fit_help_quotes_the_defaults_fit_inertia_uses():
+    """Every ``(default X)`` in ``fit``'s help for an option passed to fit_inertia is fit_inertia's default."""
+    import argparse
+    import inspect
+    import re
+
+    from rbjax import _cli
+
+    parser = _cli.build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    fit = sub.choices["fit"]
+    defaults = inspect.signature(rb.fit_inertia).parameters
+    checked = 0
+    for action in fit._actions:
+        kw = _cli._FIT_OPTIONS.get(action.dest)
+        said = re.search(r"default ([^()\s]+)\)", action.help or "")
+        if kw is None or said is None:
+            continue
+        assert said.group(1) == str(defaults[kw].default), (action.dest, action.help, defaults[kw].default)
+        checked += 1
+    assert checked >= 2  # --method and --max-steps at least
+
+
+def _empty(kind: str):
+    """An empty batch (N = 0) of ``kind``."""
+    if kind == "ParticleState":
+        return rb.ParticleState.create(jnp.ones(0))
+    body = rb.box(jnp.ones(0), jnp.ones((0, 3)))
+    return getattr(rb, kind).create(body)
+
+
+@pytest.mark.parametrize("kind", ["State", "MatrixState", "ParticleState"])
+@pytest.mark.parametrize("method", ["euler", "rk4", "splitting"])
+def test_an_empty_batch_simulates_to_empty_results(kind, method):
+    """N = 0 has no clock to read (the time was read from body 0): it simulates to empty frames."""
+    state = _empty(kind)
+    traj = rb.simulate(state, rb.Gravity() + rb.LinearDrag(0.1), 0.01, 4, method, save_every=2)
+    assert traj.position.shape == (3, 0, 3)
+    assert traj.time.shape == (3, 0)
+    assert rb.step(state, None, 0.01, method).position.shape == (0, 3)
+    chunked = rb.simulate_chunked(state, None, 0.01, 4, method, chunk_steps=2, progress=False)
+    assert chunked.position.shape == (5, 0, 3)
+
+
+_BAD_TIMES = {
+    "two times, one body": [0.0, 1.0],
+    "(2, 3) times": np.zeros((2, 3)),
+    "a string": "x",
+    "NaN": np.nan,
+    "inf in a list": [np.inf],
+}
+_TIME_TAKERS = {
+    "State.create": lambda t: rb.State.create(_body(), time=t),
+    "MatrixState.create": lambda t: rb.MatrixState.create(_body(), time=t),
+    "ParticleState.create": lambda t: rb.ParticleState.create(1.0, time=t),
+    "State": lambda t: rb.State(_body(), [0.0, 0, 0], [0.0, 0, 0], [1.0, 0, 0, 0], [0.0, 0, 0], time=t),
+    "MatrixState": lambda t: rb.MatrixState(_body(), [0.0, 0, 0], [0.0, 0, 0], np.eye(3), [0.0, 0, 0], time=t),
+    "ParticleState": lambda t: rb.ParticleState([0.0, 0, 0], [0.0, 0, 0], 1.0, time=t),
+}
+
+
+@pytest.mark.parametrize("bad", list(_BAD_TIMES))
+@pytest.mark.parametrize("taker", list(_TIME_TAKERS))
+def test_a_time_that_does_not_fit_the_batch_is_refused_naming_time(taker, bad):
+    with pytest.raises((ValueError, TypeError)) as info:
+        _TIME_TAKERS[taker](_BAD_TIMES[bad])
+    assert _from_rbjax(info.value), info.value
+    assert "time" in str(info.value) and taker.split(".")[0] in str(info.value)
+
+
+# ---- math helpers: every public function taking (..., 3), (..., 4), (..., 3, 3) or (..., 6) arrays
+
+_CORE = re.compile(r"""["'](?:\.\.\.|\*B) ?(3 3|3|4|6)["']""")
+_EXTRA_ARGS = {  # required arguments without a core shape
+    "parallel_axis": {"mass": 1.0},
+    "angular_momentum": {"state": rb.State.create(rb.box(1.0, [0.1, 0.2, 0.4]), velocity=[1.0, 0.0, 0.0])},
+    "box": {"mass": 1.0},
+    "ellipsoid": {"mass": 1.0},
+}
+
+
+def _core_args() -> dict[str, dict[str, tuple[int, ...]]]:
+    """``{helper: {argument: core shape}}`` of every public function, read from its annotations."""
+    out = {}
+    for name in rb.__all__:
+        fn = getattr(rb, name)
+        if not inspect.isfunction(fn):
+            continue
+        args = {}
+        for p in inspect.signature(fn).parameters.values():
+            m = _CORE.search(str(p.annotation))
+            if m:
+                args[p.name] = tuple(int(c) for c in m.group(1).split())
+        if args:
+            out[name] = args
+    return out
+
+
+HELPERS = _core_args()
+
+
+def _good(core: tuple[int, ...], dtype=np.float64) -> np.ndarray:
+    """A valid argument of ``core`` shape for every helper: a vector, a unit quaternion, the identity."""
+    return {
+        (3,): np.array([1, 2, 3]),
+        (4,): np.array([1, 0, 0, 0]),
+        (3, 3): np.eye(3, dtype=int),
+        (6,): np.array([0, 1, 0, 1, 0, 1]),
+    }[core].astype(dtype)
+
+
+def _helper_call(name: str, **override):
+    kwargs = {a: _good(c) for a, c in HELPERS[name].items()} | _EXTRA_ARGS.get(name, {}) | override
+    return getattr(rb, name)(**kwargs)
+
+
+def test_the_helper_list_is_complete():
+    """The introspected list holds the helpers the issue named (so the regex still reads the annotations)."""
+    for name in ("quat_multiply", "quat_exp", "skew", "quat_to_matrix", "orthonormalize", "cross", "quat_rotate"):
+        assert name in HELPERS, name
+    assert HELPERS["quat_rotate"] == {"q": (4,), "v": (3,)}
+
+
+@pytest.mark.parametrize("slot", [f"{n}.{a}" for n, args in HELPERS.items() for a in args])
+@settings(max_examples=8, deadline=None)
+@given(data=st.data())
+def test_helpers_refuse_a_wrong_last_axis_naming_the_argument(slot, data):
+    """A 3-vector for a quaternion, a fifth component, ``[1, 2]`` for ``skew``: ``ValueError`` naming it."""
+    name, arg = slot.split(".")
+    core = HELPERS[name][arg]
+    batch = data.draw(st.sampled_from([(), (2,)]), label="batch")
+    axis = data.draw(st.integers(0, len(core) - 1), label="axis")
+    size = data.draw(st.integers(1, 7).filter(lambda k: k != core[axis]), label="size")
+    shape = batch + core[:axis] + (size,) + core[axis + 1 :]
+    with pytest.raises(ValueError) as info:
+        jax.block_until_ready(_helper_call(name, **{arg: np.full(shape, 0.5)}))
+    assert _from_rbjax(info.value), info.value
+    assert f"{name}: {arg} " in str(info.value), info.value
+
+
+@pytest.mark.parametrize("name", list(HELPERS))
+def test_helpers_compute_integer_inputs_in_floats(name):
+    """Integers are cast to the default float dtype (as the constructors do): same values as float input."""
+    as_int = {a: _good(c, np.int32) for a, c in HELPERS[name].items()}
+    got = jax.tree.leaves(_helper_call(name, **as_int))
+    want = jax.tree.leaves(_helper_call(name))
+    assert got and len(got) == len(want)
+    for g, w in zip(got, want):
+        assert jnp.issubdtype(g.dtype, jnp.floating)
+        np.testing.assert_allclose(g, w, rtol=1e-12)
+
+
+@pytest.mark.parametrize("name", list(HELPERS))
+def test_helpers_refuse_bool_and_complex_arguments_in_rbjax_words(name):
+    for bad in (np.full(_good(next(iter(HELPERS[name].values()))).shape, 0.5 + 0.5j), True):
+        arg = next(iter(HELPERS[name]))
+        with pytest.raises(TypeError) as info:
+            _helper_call(name, **{arg: bad})
+        assert _from_rbjax(info.value) and re.search(rf"{name}: {arg}\b", str(info.value)), info.value
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    rotvec=st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3),
+    scale=st.floats(0.05, 20.0),
+    noise=st.lists(st.floats(-1e-3, 1e-3), min_size=9, max_size=9),
+)
+def test_orthonormalize_returns_the_rotation_of_any_positive_multiple(rotvec, scale, noise):
+    """``orthonormalize(c (Q + E))`` is ``Q`` (to ``O(E)``) with ``det = +1`` for every ``c > 0``; 2 R gave -R."""
+    Q = np.asarray(rb.quat_to_matrix(rb.quat_exp(np.asarray(rotvec))))
+    R = scale * (Q + np.reshape(noise, (3, 3)))
+    out = np.asarray(rb.orthonormalize(R))
+    assert abs(np.linalg.det(out) - 1) < 1e-9
+    np.testing.assert_allclose(out.T @ out, np.eye(3), atol=1e-9)
+    np.testing.assert_allclose(out, Q, atol=1e-2)
+    np.testing.assert_allclose(np.asarray(rb.orthonormalize(scale * Q)), Q, atol=1e-12)
+
+
+def test_orthonormalize_refuses_what_it_cannot_do():
+    Q = np.asarray(rb.quat_to_matrix(rb.quat_normalize(np.array([1.0, 0.2, 0.3, 0.4]))))
+    with pytest.raises(ValueError, match=r"orthonormalize: R must have det R > 0"):
+        rb.orthonormalize(-Q)  # a reflection
+    with pytest.raises(ValueError, match=r"orthonormalize: R is too far .* more iterations"):
+        rb.orthonormalize(Q @ np.diag([1.3, 1.0, 0.8]))  # 2 iterations do not get there
+    far = np.asarray(rb.orthonormalize(Q @ np.diag([1.3, 1.0, 0.8]), iterations=8))
+    assert abs(np.linalg.det(far) - 1) < 1e-12
+    assert np.isnan(np.asarray(jax.jit(rb.orthonormalize)(-Q))).all()  # traced: NaN, not a wrong rotation
+
+
+# ---- force models: every public ForceModel class refuses what it cannot mean, naming the argument
+
+
+def _three():
+    """Three rigid bodies in a row (a 1-D batch of N = 3)."""
+    return rb.State.create(rb.box(jnp.ones(3), jnp.ones((3, 3))), position=np.eye(3), angular_velocity=np.ones(3))
+
+
+_Z = [[0.0, 0.0, 1.0]]
+
+# model class -> {case: (what the message names, build at construction, or None if refused when simulated)}
+FORCE_MODEL_CASES: dict[str, dict[str, tuple[str, Callable[[], Any]]]] = {
+    "Gravity": {
+        "scalar g": ("g", lambda: rb.Gravity(9.81)),
+        "2-vector g": ("g", lambda: rb.Gravity([0.0, -9.81])),
+        "4-vector g": ("g", lambda: rb.Gravity([0.0, 0.0, -9.81, 0.0])),
+        "g per body, wrong batch": ("g", lambda: _sim3(rb.Gravity(np.zeros((2, 3))))),
+    },
+    "LinearDrag": {
+        "negative linear": ("linear", lambda: rb.LinearDrag(-0.1)),
+        "negative angular": ("angular", lambda: rb.LinearDrag(0.1, angular=[-0.2])),
+        "linear per body, wrong batch": ("linear", lambda: _sim3(rb.LinearDrag(np.ones(2)))),
+    },
+    "QuadraticDrag": {
+        "negative linear": ("linear", lambda: rb.QuadraticDrag(-0.1)),
+        "negative angular": ("angular", lambda: rb.QuadraticDrag(0.1, angular=-1.0)),
+        "angular per body, wrong batch": ("angular", lambda: _sim3(rb.QuadraticDrag(0.1, angular=np.ones(4)))),
+    },
+    "Spring": {
+        "negative stiffness": ("stiffness", lambda: rb.Spring.between([0], [1], -1.0)),
+        "negative damping": ("damping", lambda: rb.Spring.to_anchor([0], [0.0, 0, 0], 1.0, damping=-0.5)),
+        "negative rest length": ("rest_length", lambda: rb.Spring.between([0], [1], 1.0, rest_length=-1.0)),
+        "negative body index": ("body", lambda: rb.Spring.between([-1], [1], 1.0)),
+        "float body index": ("body", lambda: rb.Spring.to_anchor([0.0], [0.0, 0, 0], 1.0)),
+        "2-D body indices": ("body", lambda: rb.Spring.to_anchor([[0]], [0.0, 0, 0], 1.0)),
+        "body past the batch": ("body", lambda: _sim3(rb.Spring.to_anchor([3], [0.0, 0, 0], 1.0))),
+        "body_b past the batch": ("body_b", lambda: _sim3(rb.Spring.between([0], [7], 1.0))),
+        "body_b past the batch, step": ("body_b", lambda: rb.step(_three(), rb.Spring.between([0], [7], 1.0), 0.01)),
+        "body_b past the batch, Scene": ("body_b", lambda: rb.Scene.build(_three(), rb.Spring.between([0], [7], 1.0))),
+        "stiffness per spring, wrong count": ("stiffness", lambda: rb.Spring.between([0, 1], [1, 2], [1.0, 2, 3])),
+        "2-vector anchor": ("anchor", lambda: rb.Spring.to_anchor([0], [[0.0, 0]], 1.0)),
+        "body and other of different lengths": ("other", lambda: rb.Spring.between([0, 1], [2], 1.0)),
+    },
+    "Thruster": {
+        "body past the batch": ("body", lambda: _sim3(rb.Thruster(jnp.array([5]), _Z, 1.0))),
+        "body past the batch, step": ("body", lambda: rb.step(_three(), rb.Thruster([3], _Z, 1.0), 0.01)),
+        "negative body index": ("body", lambda: rb.Thruster([-1], _Z, 1.0)),
+        "float body index": ("body", lambda: rb.Thruster([1.0], _Z, 1.0)),
+        "non-unit direction": ("direction", lambda: rb.Thruster([0], [[0.0, 0, 2]], 1.0)),
+        "4-vector direction": ("direction", lambda: rb.Thruster([0], [[0.0, 0, 1, 0]], 1.0)),
+        "thrust per thruster, wrong count": ("thrust", lambda: rb.Thruster([0, 1], _Z, [1.0, 2, 3])),
+    },
+    "ConstantForce": {
+        "2-vector force": ("force", lambda: rb.ConstantForce([0.0, 1.0])),
+        "4-vector torque": ("torque", lambda: rb.ConstantForce(torque=[0.0, 0, 1, 0])),
+        "force per body, wrong batch": ("force", lambda: _sim3(rb.ConstantForce(np.ones((2, 3))))),
+    },
+    "TimeSeriesForce": {
+        "decreasing times": ("times", lambda: rb.TimeSeriesForce([1.0, 0.0], force=np.ones((2, 3)))),
+        "2-D times": ("times", lambda: rb.TimeSeriesForce(np.zeros((2, 2)), force=np.ones((2, 3)))),
+        "(K, 2) force": ("force", lambda: rb.TimeSeriesForce([0.0, 1.0], force=np.ones((2, 2)))),
+        "force per body, wrong batch": (
+            "force",
+            lambda: _sim3(rb.TimeSeriesForce([0.0, 1.0], force=np.ones((2, 2, 3)))),
+        ),
+    },
+    "ExternalForce": {
+        "force not callable": ("force", lambda: rb.ExternalForce(force=np.ones(3))),
+        "force(t) of the wrong shape": ("force", lambda: _sim3(rb.ExternalForce(force=lambda t: jnp.ones(2)))),
+        "torque(t) a string": ("torque", lambda: _sim3(rb.ExternalForce(torque=lambda t: "x"))),
+    },
+    "CustomForce": {
+        "fn not callable": ("fn", lambda: rb.CustomForce(3.0)),
+        "fn returning a wrong shape": ("force", lambda: _sim3(rb.CustomForce(lambda s, t: rb.Forces(np.ones((2, 3)))))),
+    },
+    "ForceSum": {
+        "a term that is not a model": ("terms", lambda: rb.ForceSum((rb.Gravity(), 3.0))),
+        "a bad term inside a sum": ("Thruster: body", lambda: _sim3(rb.Gravity() + rb.Thruster([4], _Z, 1.0))),
+    },
+}
+
+
+def _sim3(model):
+    return rb.simulate(_three(), model, 0.01, 2, "euler")
+
+
+def test_every_public_force_model_has_bad_input_cases():
+    models = sorted(
+        n for n in rb.__all__ if isinstance(getattr(rb, n), type) and issubclass(getattr(rb, n), rb.ForceModel)
+    )
+    models.remove("ForceModel")  # the abstract base
+    assert sorted(FORCE_MODEL_CASES) == models
+
+
+@pytest.mark.parametrize(
+    "case", [f"{m}: {c}" for m, cases in FORCE_MODEL_CASES.items() for c in cases], ids=lambda c: c
+)
+def test_force_models_refuse_what_they_cannot_mean_naming_the_argument(case):
+    model, name = case.split(": ", 1)
+    arg, build = FORCE_MODEL_CASES[model][name]
+    with pytest.raises((ValueError, TypeError)) as info:
+        jax.block_until_ready(build())
+    msg = str(info.value)
+    assert _from_rbjax(info.value), f"{case}: raw error {type(info.value).__name__}: {msg}"
+    assert arg in msg, f"{case}: the message does not name {arg!r}: {msg}"
+    assert model in msg or "force callable" in msg or ": " in arg, f"{case}: the message does not name {model}: {msg}"
+
+
+@settings(max_examples=15, deadline=None)
+@given(
+    pairs=st.lists(st.tuples(st.integers(0, 3), st.integers(0, 3)), min_size=1, max_size=4),
+    k=st.floats(0.0, 50.0),
+    c=st.floats(0.0, 5.0),
+)
+def test_springs_between_bodies_in_the_batch_conserve_momentum(pairs, k, c):
+    """Σ F = 0 and Σ (τ + x × F) = 0 over the batch for any valid index pairs (equal and opposite forces)."""
+    n = 4
+    rng = np.random.default_rng(len(pairs))
+    q = rng.normal(size=(n, 4))
+    s = rb.State.create(
+        rb.box(jnp.ones(n), jnp.ones((n, 3))),
+        position=rng.normal(size=(n, 3)),
+        velocity=rng.normal(size=(n, 3)),
+        orientation=q / np.linalg.norm(q, axis=-1, keepdims=True),
+        angular_velocity=rng.normal(size=(n, 3)),
+    )
+    a, b = (np.array(x) for x in zip(*pairs))
+    points = dict(point_a=rng.normal(size=(len(a), 3)), point_b=rng.normal(size=(len(a), 3)))
+    # the spring force is central (along d): linear and angular momentum are conserved
+    out = rb.Spring.between(a, b, k, rest_length=0.3, **points)(s, 0.0)
+    F, tau = np.asarray(out.force), np.asarray(out.torque)
+    np.testing.assert_allclose(F.sum(0), 0.0, atol=1e-10 * (1 + np.abs(F).max()))
+    L_rate = tau + np.cross(np.asarray(s.position), F)
+    np.testing.assert_allclose(L_rate.sum(0), 0.0, atol=1e-10 * (1 + np.abs(L_rate).max()))
+    # the vector dashpot is equal and opposite but not central: linear momentum only
+    F = np.asarray(rb.Spring.between(a, b, k, rest_length=0.3, damping=c, **points)(s, 0.0).force)
+    np.testing.assert_allclose(F.sum(0), 0.0, atol=1e-10 * (1 + np.abs(F).max()))
+    # and one index past the batch is refused, not dropped (the reaction would vanish)
+    with pytest.raises(ValueError, match="outside the batch of 4 bodies"):
+        rb.simulate(s, rb.Spring.between(a, b + n, k), 0.01, 1, "euler")
+
+
+# ---- one dtype per state: result_type of the typed float inputs (NumPy/JAX arrays and the body);
+# Python numbers and lists take it (weakly typed); none typed: the default float (float64 here, x64)
+
+_KINDS = {
+    "list": lambda v: np.asarray(v).tolist(),
+    "np32": lambda v: np.asarray(v, np.float32),
+    "np64": lambda v: np.asarray(v, np.float64),
+    "jnp32": lambda v: jnp.asarray(v, jnp.float32),
+    "jnp64": lambda v: jnp.asarray(v, jnp.float64),
+}
+_TYPED = {"list": None, "np32": np.float32, "np64": np.float64, "jnp32": np.float32, "jnp64": np.float64}
+
+
+def _made(cls: str, body_dtype, kinds: dict[str, str]):
+    """``cls`` built from arguments of the given kinds, and the dtype the rule says it must have."""
+    values = {
+        "position": [0.1, 0.2, 0.3],
+        "velocity": [1.0, 0.0, 0.0],
+        "angular_velocity": [0.0, 0.5, 0.0],
+        "orientation": [1.0, 0.0, 0.0, 0.0],
+        "angular_momentum": [0.0, 0.1, 0.0],
+        "rotation": np.eye(3),
+        "mass": 2.0,
+    }
+    args = {k: _KINDS[kind](values[k]) for k, kind in kinds.items()}
+    typed = [_TYPED[kind] for kind in kinds.values() if _TYPED[kind] is not None]
+    if cls == "ParticleState":
+        return rb.ParticleState.create(args.pop("mass", 2.0), **args), np.result_type(*typed or [np.float64])
+    body = rb.box(jnp.asarray(1.0, body_dtype), jnp.asarray([0.1, 0.2, 0.4], body_dtype))
+    want = np.result_type(body_dtype, *typed)
+    if cls == "State.direct":
+        full = {
+            k: args.get(k, np.asarray(values[k]).tolist())
+            for k in ("position", "velocity", "orientation", "angular_momentum")
+        }
+        return rb.State(body, **full), want
+    if cls == "MatrixState.direct":
+        full = {
+            k: args.get(k, np.asarray(values[k]).tolist())
+            for k in ("position", "velocity", "rotation", "angular_velocity")
+        }
+        return rb.MatrixState(body, **full), want
+    return getattr(rb, cls.split(".")[0]).create(body, **args), want
+
+
+_ARGS_OF = {
+    "State.create": ("position", "velocity", "orientation", "angular_velocity"),
+    "MatrixState.create": ("position", "velocity", "orientation", "angular_velocity"),
+    "ParticleState": ("mass", "position", "velocity"),
+    "State.direct": ("position", "velocity", "orientation", "angular_momentum"),
+    "MatrixState.direct": ("position", "velocity", "rotation", "angular_velocity"),
+}
+
+
+@pytest.mark.parametrize("cls", list(_ARGS_OF))
+@settings(max_examples=20, deadline=None)
+@given(data=st.data())
+def test_a_state_has_one_dtype_the_result_type_of_its_typed_inputs(cls, data):
+    """No mix of float32 and float64 leaves (a float32 body in a float64 state is cast with it)."""
+    assert jax.config.jax_enable_x64  # the mixes exist only under x64 (conftest)
+    body_dtype = data.draw(st.sampled_from([np.float32, np.float64]), label="body")
+    names = _ARGS_OF[cls]
+    kinds = {
+        n: k
+        for n, k in zip(
+            names, data.draw(st.lists(st.sampled_from([None, *_KINDS]), min_size=len(names), max_size=len(names)))
+        )
+        if k is not None and not (n == "mass" and k == "list")
+    }
+    state, want = _made(cls, body_dtype, kinds)
+    dtypes = {np.dtype(leaf.dtype) for leaf in jax.tree.leaves(state)}
+    assert dtypes == {np.dtype(want)}, (cls, body_dtype, kinds, dtypes)
+    assert state.dtype == want
+
+
+# ---- animate: a batch at one instant, the clock of a batch, labels, the L arrow on top
+
+
+@pytest.fixture(scope="module")
+def _batch_traj():
+    body = rb.box(jnp.array([1.0, 2.0, 1.5]), jnp.array([[0.1, 0.2, 0.4], [0.3, 0.2, 0.1], [0.2, 0.2, 0.3]]))
+    state = rb.State.create(body, position=np.eye(3), angular_velocity=np.ones((3, 3)), time=0.5)
+    return rb.simulate(state, None, 0.01, 8, "rk4", save_every=4)  # 3 frames of 3 bodies, t = 0.5, 0.54, 0.58
+
+
+def test_animate_draws_a_batch_at_one_instant_as_one_frame_of_all_bodies(_batch_traj):
+    pytest.importorskip("matplotlib")
+    from rbjax._animate import _frames_of
+
+    for instant in (_batch_traj[-1], jax.tree.map(lambda a: a[-1], _batch_traj), _batch_traj[0]):
+        data = _frames_of(instant)
+        assert data["pos"].shape == (1, 3, 3), data["pos"].shape  # was (3, 1, 3): three frames of one body
+        np.testing.assert_allclose(data["pos"][0], np.asarray(instant.position))
+    fresh = rb.State.create(rb.box(1.0, [0.1, 0.2, 0.4]), position=np.eye(3))  # a shared body
+    assert _frames_of(fresh)["pos"].shape == (1, 3, 3)
+    one = rb.State.create(rb.box(1.0, [0.1, 0.2, 0.4]))
+    assert _frames_of(one)["pos"].shape == (1, 1, 3)
+    assert _frames_of(_batch_traj)["pos"].shape == (3, 3, 3)  # a trajectory stays one
+
+
+def test_animate_clock_of_a_batch_uses_the_trajectory_time(_batch_traj):
+    pytest.importorskip("matplotlib")
+    from rbjax._animate import _clock, _frames_of
+
+    times = _frames_of(_batch_traj)["time"]
+    np.testing.assert_allclose(times, [0.5, 0.54, 0.58])
+    assert _clock(2, None, times) == "t = 0.580 s"  # was "frame 2"
+    assert _clock(2, 0.1, times) == "t = 0.200 s"
+
+
+def test_animate_labels_its_axes_and_draws_the_arrow_over_the_body(_batch_traj, tmp_path, monkeypatch):
+    pytest.importorskip("matplotlib")
+    from matplotlib import animation
+
+    figs = []
+    monkeypatch.setattr(animation.FuncAnimation, "save", lambda self, *a, **k: figs.append(self._fig))
+    (tmp_path / "a.gif").write_bytes(b"")
+    rb.animate(_batch_traj, tmp_path / "a.gif", dpi=20, panel_size=1.0)
+    axes = figs[0].axes
+    assert len(axes) == 3
+    for ax in axes:
+        assert (ax.get_xlabel(), ax.get_ylabel(), ax.get_zlabel()) == ("x (m)", "y (m)", "z (m)")
+        assert ax.computed_zorder is False  # zorder decides, not depth sorting
+        solid = ax.collections[0]
+        arrow = ax.lines[0]
+        assert arrow.get_zorder() > solid.get_zorder()
+
+
+# ---- one default method across the house (issue 26: "euler" was 3.09 rad off on the README's body)
+
+
+def test_every_public_method_default_is_the_house_default():
+    """Every public function or constructor with a ``method`` parameter defaults to ``"splitting"``
+    (``fit_inertia`` excepted: rbjax/identification keeps ``"rk4"``)."""
+    from rbjax._simulate_support import DEFAULT_METHOD
+
+    assert DEFAULT_METHOD == "splitting"
+    seen = []
+    for name in rb.__all__:
+        obj = getattr(rb, name)
+        for fn in (obj, getattr(obj, "build", None)) if isinstance(obj, type) else (obj,):
+            if not callable(fn) or name == "fit_inertia":
+                continue
+            try:
+                params = inspect.signature(fn).parameters
+            except (TypeError, ValueError):
+                continue
+            # (None: a record of the method used, e.g. ChunkWriter's metadata, not an integrator default)
+            if "method" in params and params["method"].default not in (inspect.Parameter.empty, None):
+                assert params["method"].default == DEFAULT_METHOD, (name, params["method"].default)
+                seen.append(name)
+    assert {"simulate", "step", "simulate_chunked", "Scene", "shoot", "simulate_truncated"} <= set(seen), seen
+
+
+def test_the_default_method_keeps_the_readme_body_on_the_exact_solution():
+    """The README's body over 5 s at dt = 1e-3 (measured 2026-12-02: splitting 2.1e-6 rad, euler 3.09 rad)."""
+    body = rb.box(mass=1.0, size=[0.1, 0.2, 0.4])
+    state = rb.State.create(body, angular_velocity=[0.01, 5.0, 0.01])
+    exact = rb.torque_free(state, 1e-3 * np.arange(0, 5001, 50))
+    traj = rb.simulate(state, None, 1e-3, 5000, save_every=50)  # the default method
+    assert float(rb.quat_angle(traj.orientation, exact.orientation).max()) < 1e-5
+    energy = np.asarray(rb.kinetic_energy(traj))
+    assert np.abs(energy / energy[0] - 1).max() < 1e-6
+    euler = rb.simulate(state, None, 1e-3, 5000, "euler", save_every=50)
+    assert float(rb.quat_angle(euler.orientation[-1], exact.orientation[-1])) > 1.0  # why it is not the default
+
+
+@pytest.mark.parametrize("kind", ["State", "ParticleState"])
+def test_angular_momentum_about_one_point_per_body(kind):
+    """``about`` of shape (N, 3) pairs point i with body i (it met every body: an (N, N, 3) result)."""
+    rng = np.random.default_rng(7)
+    x, v, a = (rng.normal(size=(3, 3)) for _ in range(3))
+    if kind == "State":
+        s = rb.State.create(
+            rb.box(jnp.ones(3), jnp.ones((3, 3))), position=x, velocity=v, angular_velocity=rng.normal(size=(3, 3))
+        )
+    else:
+        s = rb.ParticleState.create(jnp.ones(3), position=x, velocity=v)
+    got = np.asarray(rb.angular_momentum(s, about=a))
+    assert got.shape == (3, 3)
+    for i in range(3):
+        np.testing.assert_allclose(got[i], np.asarray(rb.angular_momentum(s[i], about=a[i])), rtol=1e-13)
+    with pytest.raises(ValueError, match=r"angular_momentum: about of shape \(2, 3\)"):
+        rb.angular_momentum(s, about=a[:2])
+    with pytest.raises(ValueError, match=r"Forces.at_point: the batch shapes"):
+        rb.Forces.at_point(np.ones(3), np.ones((2, 3)), s)
+    np.testing.assert_allclose(
+        rb.Forces.at_point(np.eye(3), a, s).torque, np.cross(a - x, np.eye(3)), rtol=1e-13, atol=1e-15
+    )
+
+
+def test_checked_mode_tests_traced_force_model_indices_and_signs():
+    """Under a caller's jit the values cannot be read before tracing: checked mode tests them at run time."""
+    s3 = _three()
+    run = eqx.filter_jit(
+        lambda idx, k, checked: (
+            rb.simulate(
+                s3, rb.Gravity() + rb.Spring.between(jnp.array([0]), idx, k), 0.01, 2, "euler", checked=checked
+            ).position
+        )
+    )
+    assert run(jnp.array([2]), jnp.asarray(1.0), True).shape == (3, 3, 3)
+    with pytest.raises(Exception, match=r"simulate\(checked=...\): Spring: other \(body_b of Spring.between\)"):
+        run(jnp.array([7]), jnp.asarray(1.0), True)
+    with pytest.raises(Exception, match=r"simulate\(checked=...\): Spring: stiffness must be >= 0"):
+        run(jnp.array([2]), jnp.asarray(-1.0), True)
+    thrust = eqx.filter_jit(
+        lambda idx: rb.simulate(s3, rb.Thruster(idx, _Z, 1.0), 0.01, 2, "euler", checked=True).position
+    )
+    with pytest.raises(Exception, match=r"simulate\(checked=...\): Thruster: body holds an index outside"):
+        thrust(jnp.array([-1]))
+
+
+@pytest.mark.parametrize(
+    ("masses", "points", "arg"),
+    [([1.0, 1, 1], np.ones((3, 2)), "points"), ([1.0, 1], np.eye(3), "masses"), (1.0, np.ones(3), "masses")],
+)
+def test_from_particles_names_its_own_arguments(masses, points, arg):
+    """Points (P, 2) were reported as ``skew: a``; P masses for another number of points as JAX's ``mul``."""
+    with pytest.raises(ValueError) as info:
+        rb.from_particles(masses, points)
+    assert _from_rbjax(info.value) and f"from_particles: {arg}" in str(info.value), info.value

@@ -49,7 +49,7 @@ def _numpy_euler_R(x, v, R, w, m, I, F, tau, dt):
 def test_euler_state_is_the_notes_update():
     s = _generic_state()
     F, tau, dt = np.array([1.0, 0, -2.0]), np.array([0.3, 0.1, -0.2]), 0.01
-    out = rb.step(s, rb.Forces(F, tau), dt)
+    out = rb.step(s, rb.Forces(F, tau), dt, "euler")
     ref = _numpy_euler_L(
         *(np.asarray(a) for a in (s.position, s.velocity, s.orientation, s.angular_momentum)),
         1.5,
@@ -65,7 +65,7 @@ def test_euler_state_is_the_notes_update():
 def test_euler_matrix_state_is_the_notes_update():
     s = _generic_state(rb.MatrixState)
     F, tau, dt = np.array([1.0, 0, -2.0]), np.array([0.3, 0.1, -0.2]), 0.01
-    out = rb.step(s, rb.Forces(F, tau), dt)
+    out = rb.step(s, rb.Forces(F, tau), dt, "euler")
     x, v, R2, w = _numpy_euler_R(
         *(np.asarray(a) for a in (s.position, s.velocity, s.rotation, s.angular_velocity)),
         1.5,
@@ -85,7 +85,7 @@ def test_particles_euler_has_the_discrete_closed_form():
     # x_n = x0 + n dt v0 + n(n-1)/2 dt² g exactly for explicit Euler under constant g
     p = rb.ParticleState.create(jnp.array([1.0, 2.0]), velocity=jnp.array([[1.0, 0, 5.0], [0, 1, 0]]))
     n, dt = 50, 0.02
-    traj = rb.simulate(p, rb.Forces.gravity(p), dt, n)
+    traj = rb.simulate(p, rb.Forces.gravity(p), dt, n, "euler")
     g = np.array([0, 0, -9.81])
     expect = p.position + n * dt * p.velocity + n * (n - 1) / 2 * dt**2 * g
     np.testing.assert_allclose(traj.position[-1], expect, rtol=1e-12, atol=1e-12)
@@ -104,7 +104,7 @@ def test_euler_is_first_order_against_dop853(cls):
     errs = []
     dts = [1e-2 / 2**k for k in range(4)]
     for dt in dts:
-        traj = rb.simulate(s, None, dt, int(round(t_end / dt)), save_every=int(round(t_end / dt)))
+        traj = rb.simulate(s, None, dt, int(round(t_end / dt)), "euler", save_every=int(round(t_end / dt)))
         errs.append(
             float(rb.quat_angle(rb.orientation(traj)[-1], q_ref[-1]))
             + float(np.linalg.norm(rb.angular_velocity(traj)[-1] - w_ref[-1]))
@@ -115,7 +115,7 @@ def test_euler_is_first_order_against_dop853(cls):
 
 def test_euler_keeps_world_L_exactly_and_gains_energy():
     s = _generic_state()
-    traj = rb.simulate(s, None, 0.01, 2000, save_every=100)
+    traj = rb.simulate(s, None, 0.01, 2000, "euler", save_every=100)
     np.testing.assert_array_equal(
         traj.angular_momentum, np.broadcast_to(s.angular_momentum, traj.angular_momentum.shape)
     )
@@ -139,8 +139,8 @@ def test_time_series_and_callable_forces():
     n, dt = 20, 0.1
     ts = dt * np.arange(n)
     series = rb.Forces(force=np.stack([ts, 0 * ts, 0 * ts], axis=-1))
-    a = rb.simulate(s, series, dt, n)
-    b = rb.simulate(s, lambda state, t: rb.Forces(force=jnp.stack([t, 0.0 * t, 0.0 * t])), dt, n)
+    a = rb.simulate(s, series, dt, n, "euler")
+    b = rb.simulate(s, lambda state, t: rb.Forces(force=jnp.stack([t, 0.0 * t, 0.0 * t])), dt, n, "euler")
     # Euler: v_n = Σ_k F(t_k)/m dt with t_k = k dt
     np.testing.assert_allclose(a.velocity[-1, 0], ts.sum() / 2.0 * dt, rtol=1e-13)
     np.testing.assert_allclose(b.velocity, a.velocity, rtol=1e-13, atol=1e-15)

@@ -12,7 +12,7 @@ from jax import Array
 from jax.extend.core import Literal
 
 from .._batching import lift
-from .._math import _dot3, _kick3, cross, matrix_to_quat, orthonormalize, quat_multiply, quat_normalize
+from .._math import _dot3, _kick3, _orthonormalize, cross, matrix_to_quat, quat_multiply, quat_normalize
 from .._pytree import replace
 from .._quantities import to_matrix_state, to_state
 from .._simulate_support import constant_fields
@@ -123,7 +123,7 @@ def _project_one(s):
     if isinstance(s, State):
         return replace(s, orientation=quat_normalize(s.orientation))
     if isinstance(s, MatrixState):
-        return replace(s, rotation=orthonormalize(s.rotation))
+        return replace(s, rotation=_orthonormalize(s.rotation))
     return s
 
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 
 from .._batching import lift
-from .._math import _kick3, _matmul3, _pure_quat_multiply, cross, orthonormalize, quat_normalize, skew
+from .._math import _kick3, _matmul3, _orthonormalize, _pure_quat_multiply, cross, quat_normalize, skew
 from .._pytree import replace
 from .._quantities import _omega_world
 from .._state import Forces, MatrixState, ParticleState, State, _apply
@@ -48,7 +48,7 @@ def euler_matrix(s: MatrixState, f: Forces, dt) -> MatrixState:
     I_w = _matmul3(_matmul3(R, s.body.inertia), R.T)
     I_w_inv = _matmul3(_matmul3(R, s.body.inverse_inertia), R.T)
     tau = -cross(w, _apply(I_w, w)) if f.torque is None else f.torque - cross(w, _apply(I_w, w))
-    R_new = orthonormalize(R + _matmul3(skew(w), R) * dt)
+    R_new = _orthonormalize(R + _matmul3(skew(w), R) * dt)
     w_new = w + _apply(I_w_inv, tau) * dt
     return replace(s, position=x, velocity=v, rotation=R_new, angular_velocity=w_new)
 

@@ -27,7 +27,7 @@ import math
 from .._math import (
     _kick3,
     _matmul3,
-    orthonormalize,
+    _orthonormalize,
     quat_conjugate,
     quat_exp,
     quat_multiply,
@@ -59,7 +59,7 @@ def semi_implicit_matrix(s: MatrixState, f: Forces, dt) -> MatrixState:
         L = L + f.torque * dt
     w = _apply(R, _apply(I_inv, _apply(R.T, L)))
     # one Newton–Schulz pass stops round-off in the product from accumulating
-    R = orthonormalize(_matmul3(quat_to_matrix(quat_exp(w * dt)), R), iterations=1)
+    R = _orthonormalize(_matmul3(quat_to_matrix(quat_exp(w * dt)), R), iterations=1)
     w = _apply(R, _apply(I_inv, _apply(R.T, L)))
     return replace(s, position=s.position + v * dt, velocity=v, rotation=R, angular_velocity=w)
 
