@@ -66,6 +66,7 @@ import jax.core
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
+from jax.custom_derivatives import SymbolicZero
 from jaxtyping import Float
 
 from . import _elliptic as ell
@@ -299,7 +300,6 @@ def _attitudes(inertia: Array, q0: Array, L: Array, ts: Array) -> Array:
     return _orientations(moments, axes * jnp.sign(jnp.linalg.det(axes)), q0, L, ts)
 
 
-@_attitudes.defjvp
 def _attitudes_jvp(primals, tangents):
     """Tangent of the exact motion, written through the principal frame.
 
@@ -312,10 +312,13 @@ def _attitudes_jvp(primals, tangents):
     45° in the ``(i, j)`` plane, an eigenframe too (see ``_PAIRS``).
     """
     inertia, q0, L, ts = primals
-    dI, dq0, dL, dts = tangents
+    # tangents arrive as SymbolicZero where nothing is differentiated: then no inertia work at all
+    dq0, dL, dts = (jnp.zeros_like(x) if isinstance(t, SymbolicZero) else t for x, t in zip(primals[1:], tangents[1:]))
     d0, P0 = jnp.linalg.eigh(inertia)
     P0 = P0 * jnp.sign(jnp.linalg.det(P0))
-    dM = P0.T @ dI @ P0
+    if isinstance(tangents[0], SymbolicZero):
+        return jax.jvp(_orientations, (d0, P0, q0, L, ts), (jnp.zeros_like(d0), jnp.zeros_like(P0), dq0, dL, dts))
+    dM = P0.T @ tangents[0] @ P0
     gap = d0[None, :] - d0[:, None]
     tiny = jnp.abs(gap) <= 64 * jnp.finfo(d0.dtype).eps * jnp.max(jnp.abs(d0))
     A = jnp.where(tiny, 0.0, dM / jnp.where(tiny, 1.0, gap))
@@ -330,6 +333,9 @@ def _attitudes_jvp(primals, tangents):
         _, extra = jax.jvp(lambda d, frame=frame: _orientations(d, frame, q0, L, ts), (d0,), (dd,))
         dout = dout + extra
     return out, dout
+
+
+_attitudes.defjvp(_attitudes_jvp, symbolic_zeros=True)
 
 
 def _one_body(s: State, ts: Array) -> Array:
