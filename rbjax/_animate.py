@@ -42,7 +42,7 @@ def _ellipsoid_mesh(n_lon: int = 14, n_lat: int = 8) -> np.ndarray:
     """Quads ``(F, 4, 3)`` on the unit sphere (scaled per body into its inertia ellipsoid)."""
     lon = np.linspace(0, 2 * np.pi, n_lon + 1)
     lat = np.linspace(-np.pi / 2, np.pi / 2, n_lat + 1)
-    p = lambda a, b: np.stack([np.cos(b) * np.cos(a), np.cos(b) * np.sin(a), np.sin(b)], -1)  # noqa: E731
+    p = lambda a, b: np.stack([np.cos(b) * np.cos(a), np.cos(b) * np.sin(a), np.sin(b)], -1)
     quads = [
         [p(lon[i], lat[j]), p(lon[i + 1], lat[j]), p(lon[i + 1], lat[j + 1]), p(lon[i], lat[j + 1])]
         for i in range(n_lon)
@@ -93,7 +93,7 @@ def _frames_of(traj: Any) -> dict[str, Any]:
     inertia = np.broadcast_to(inertia, (*B, 3, 3)).reshape(-1, 3, 3)
     n = mass.shape[0]
     pos = pos.reshape(T, n, 3)
-    field = lambda name, core: np.asarray(getattr(traj, name), np.float64).reshape(T, n, *core)  # noqa: E731
+    field = lambda name, core: np.asarray(getattr(traj, name), np.float64).reshape(T, n, *core)
     if hasattr(traj, "orientation"):
         R = _quat_to_matrix(field("orientation", (4,)))
         L = field("angular_momentum", (3,))

@@ -88,8 +88,8 @@ def params_from_inertia(inertia: Float[ArrayLike, "... 3 3"], rtol: float = TRIA
             )
     # Cholesky of the 3x3 by hand, each pivot floored (jnp.linalg.cholesky gives NaN at a zero
     # pivot); a pivot below -rtol tr I is an impossible inertia: NaN, never a silent other one
-    s = lambda i, j: S[..., i, j]  # noqa: E731
-    root = lambda d: jnp.sqrt(jnp.where(d < worst, jnp.nan, jnp.maximum(d, floor)))  # noqa: E731
+    s = lambda i, j: S[..., i, j]
+    root = lambda d: jnp.sqrt(jnp.where(d < worst, jnp.nan, jnp.maximum(d, floor)))
     l00 = root(s(0, 0))
     l10, l20 = s(1, 0) / l00, s(2, 0) / l00
     l11 = root(s(1, 1) - l10**2)

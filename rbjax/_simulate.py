@@ -40,7 +40,7 @@ def as_force_fn(forces: ForceLike) -> Callable[[Any, Array], Forces]:
 
 def cast_forces(forces: Forces, dtype: Any) -> Forces:
     """``forces`` with its arrays in the state's ``dtype`` (a float64 force must not promote a float32 state)."""
-    cast = lambda a: None if a is None else a.astype(dtype)  # noqa: E731
+    cast = lambda a: None if a is None else a.astype(dtype)
     if all(a is None or a.dtype == dtype for a in (forces.force, forces.torque)):
         return forces
     return replace(forces, force=cast(forces.force), torque=cast(forces.torque))
@@ -378,8 +378,8 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
     # force callables see the usual batch-first layout.
     agnostic = getattr(method, "layout_agnostic", None)
     soa = not callable(method) or (agnostic is not None and agnostic(type(state)))
-    to_soa = to_batch_last if soa else (lambda x: x)  # noqa: E731
-    to_aos = to_batch_first if soa else (lambda x: x)  # noqa: E731
+    to_soa = to_batch_last if soa else (lambda x: x)
+    to_aos = to_batch_first if soa else (lambda x: x)
 
     initial = state
     consts = {k: getattr(state, k) for k in constant_fields(state)}
@@ -389,7 +389,7 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
         with batch_last(soa):
             consts_soa["body"] = lift(prepare)(consts_soa["body"])
     # the time rides outside the carry too: one scalar per step, not one per body
-    strip = lambda s: replace(s, **{k: None for k in consts})  # noqa: E731
+    strip = lambda s: replace(s, **{k: None for k in consts})
     # wrapped here, not by the caller: force_fn is static, and a new wrapper per call would recompile;
     # it checks the callable's output while tracing and casts it to the state's dtype
     user_fn = checked_force_fn(force_fn if force_fn is not None else as_force_fn(forces))
@@ -411,13 +411,13 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
         s = replace(dyn, **consts_soa)
         if series:
             f = to_soa(f)
-            fn = lambda state, t: f  # noqa: E731
+            fn = lambda state, t: f
         elif const_forces is not None:
-            fn = lambda state, t: const_forces  # noqa: E731
+            fn = lambda state, t: const_forces
         elif soa:
             fn = soa_forces
         else:
-            fn = lambda state, t: user_fn(replace(state, time=t), t)  # noqa: E731
+            fn = lambda state, t: user_fn(replace(state, time=t), t)
         with batch_last(soa):
             new = strip(step_fn(s, fn, t0 + (k0 + k).astype(dtype) * dt, dt))
         if checks is not None:
@@ -477,7 +477,7 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
             i, xs = xs
             inner_carry, buf = carry
             inner_carry = advance(inner_carry, xs)
-            put = lambda b, a: jax.lax.dynamic_update_index_in_dim(b, a, i + 1, 0)  # noqa: E731
+            put = lambda b, a: jax.lax.dynamic_update_index_in_dim(b, a, i + 1, 0)
             return (inner_carry, jax.tree.map(put, buf, to_aos(inner_carry[0]))), None
 
         ((_, rec), traj), _ = jax.lax.scan(chunk, (carry0, buf0), (jnp.arange(n_out), (ks, fs)))
@@ -521,7 +521,7 @@ def _checkpointed_scan(f, carry, xs, segment: int | None):
     if segment is None:
         return jax.lax.scan(f, carry, xs)
     n = jax.tree.leaves(xs)[0].shape[0]
-    split = lambda a: a.reshape((n // segment, segment) + a.shape[1:])  # noqa: E731
+    split = lambda a: a.reshape((n // segment, segment) + a.shape[1:])
 
     @jax.checkpoint
     def run_segment(c, seg_xs):

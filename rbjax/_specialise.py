@@ -123,7 +123,7 @@ def euler(state: Any, force_fn: Any, t: Any, dt: Any, kind: str, torque_free: bo
 
 def rk4(state: Any, force_fn: Any, t: Any, dt: Any, kind: str, torque_free: bool) -> Any:
     """Classical RK4 as :mod:`rbjax._methods.rk4`, with the kind's rates."""
-    f = lambda s, tt: _rates_batch(s, _drop_torque(force_fn(s, tt), torque_free), kind)  # noqa: E731
+    f = lambda s, tt: _rates_batch(s, _drop_torque(force_fn(s, tt), torque_free), kind)
     k1 = f(state, t)
     k2 = f(_axpy(state, dt / 2, k1), t + dt / 2)
     k3 = f(_axpy(state, dt / 2, k2), t + dt / 2)

@@ -270,7 +270,7 @@ class State(BatchIndexing):
         )
         _check_unit_quaternion("State.create", q)
         L = quat_rotate(q, _apply(inertia_of(body), quat_rotate(_conj(q), w)))
-        bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])  # noqa: E731
+        bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])
         return cls(body, bc(x), bc(v), bc(q), bc(L), _time("State.create", time, dtype, shape))
 
     @property
@@ -364,7 +364,7 @@ class MatrixState(BatchIndexing):
             orientation=R.shape[:-2],
             angular_velocity=w.shape[:-1],
         )
-        bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])  # noqa: E731
+        bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])
         R = jnp.broadcast_to(R, shape + (3, 3))
         return cls(body, bc(x), bc(v), R, bc(w), _time("MatrixState.create", time, dtype, shape))
 

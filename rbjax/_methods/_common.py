@@ -142,7 +142,7 @@ def via_state(state_step):
     """
 
     def step(state: MatrixState, force_fn, t, dt) -> MatrixState:
-        fn = lambda s, tt: force_fn(to_matrix_state(s), tt)  # noqa: E731
+        fn = lambda s, tt: force_fn(to_matrix_state(s), tt)
         return to_matrix_state(state_step(to_state(state), fn, t, dt))
 
     return step
@@ -194,6 +194,6 @@ def materialise(tree, dt):
     fold the conditional away. Under ``vmap`` over ``dt`` it becomes a
     ``select``: one more pass, no value changed.
     """
-    keep = lambda u: u  # noqa: E731
-    nan = lambda u: jax.tree.map(lambda a: jnp.full_like(a, jnp.nan), u)  # noqa: E731
+    keep = lambda u: u
+    nan = lambda u: jax.tree.map(lambda a: jnp.full_like(a, jnp.nan), u)
     return jax.lax.cond(dt == dt, keep, nan, tree)

@@ -113,7 +113,7 @@ def _residual(y, pi0, I_inv, h):
     w = _apply(I_inv, y)
     c = cross(y, w)
     G = y - pi0 - 0.5 * h * c
-    norm = lambda v: jnp.sqrt(_dot3(v, v))  # noqa: E731
+    norm = lambda v: jnp.sqrt(_dot3(v, v))
     eps = jnp.finfo(y.dtype).eps
     return norm(G), 256 * eps * (norm(pi0) + norm(y) + 0.5 * jnp.abs(h) * norm(y) * norm(w))
 

@@ -66,7 +66,7 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
     instead of being stepped until the slowest one stops.
     """
     opts = dict(model_opts)
-    member = lambda tree, i: jax.tree.map(lambda a: a[i], tree)  # noqa: E731
+    member = lambda tree, i: jax.tree.map(lambda a: a[i], tree)
     # one recording keeps J in its slot, so the model is compiled once (see `summary`)
     lm = LMMember(functools.partial(_model, **opts), rtol, atol, max_steps, keep_jacobian=unbatch)
     kw = {k: opts[k] for k in _SUMMARY_OPTS}

@@ -138,7 +138,7 @@ def _segments(
         return out.orientation, out.angular_momentum
 
     def advance(r, dr, body, dbody, t, dt, d):
-        push = lambda tr, tb: jax.jvp(lambda r, b: rotation_step(r, b, t, dt, d), (r, body), (tr, tb))  # noqa: E731
+        push = lambda tr, tb: jax.jvp(lambda r, b: rotation_step(r, b, t, dt, d), (r, body), (tr, tb))
         return jax.vmap(push, out_axes=(None, 0))(dr, dbody)
 
     body, dbody = s0.body, ds0.body
@@ -160,7 +160,7 @@ def _segments(
 
     def observe(r, dr, obs):  # every segment's observations of one sample, tangents (S, n, ...)
         def one(r, dr, inv, dinv, obs, c):
-            look = lambda tr, ti: jax.jvp(lambda r, i: _observe(r[0], r[1], i, obs, c), (r, inv), (tr, ti))  # noqa: E731
+            look = lambda tr, ti: jax.jvp(lambda r, i: _observe(r[0], r[1], i, obs, c), (r, inv), (tr, ti))
             return jax.vmap(look, out_axes=(None, 0))(dr, dinv)
 
         return jax.vmap(one)(r, dr, inv, dinv, obs, const)
@@ -217,7 +217,7 @@ def _segments(
         def accel(th, w, ra, ba):
             return accelerometer_reading(_inertia(th, scale_fixed), w, ra, ba)
 
-        each = lambda f: jax.vmap(jax.vmap(f))(w)  # noqa: E731
+        each = lambda f: jax.vmap(jax.vmap(f))(w)
         a_pred = each(lambda w: accel(th, w, ra, ba))
         Fth, Fw, Fr, Fb = each(lambda w: jax.jacfwd(accel, argnums=(0, 1, 2, 3))(th, w, ra, ba))
         a_meas = jnp.concatenate([seg["a_first"][:, None], seg["a_meas"]], 1)
@@ -300,7 +300,7 @@ def _model(
     cj = jax.jacfwd(lambda e, pn, dn: (c(e, pn, dn),) * 2, argnums=(0, 1), has_aux=True)
     (Dc_end, Dc_p), r_c = jax.vmap(cj)(ends[:-1], P[1:], nxt)
     eye = jnp.eye(S, dtype=y.dtype)
-    blocks = lambda B, E: jnp.einsum("sra,st->srta", B, E).reshape(B.shape[0] * B.shape[1], -1)  # noqa: E731
+    blocks = lambda B, E: jnp.einsum("sra,st->srta", B, E).reshape(B.shape[0] * B.shape[1], -1)
     J_top = jnp.concatenate([J_seg[..., :n_theta].reshape(S * m, n_theta), blocks(J_seg[..., n_theta:], eye)], -1)
     Je = J_end[:-1]  # chain rule through the end state of segment s
     Jc_theta = jnp.einsum("sre,sea->sra", Dc_end, Je[..., :n_theta]).reshape(-1, n_theta)

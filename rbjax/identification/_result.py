@@ -284,7 +284,7 @@ def summarise(
     # where the flat direction is a small singular value of J_c with an O(1) G_c: σ finite or inf
     n_I = 6 if scale_fixed else 5
     pick = jnp.array([0, 4, 8, 1, 2, 5]) if scale_fixed else jnp.array([0, 4, 1, 2, 5])
-    c_of = lambda th: _normalised_moments(jnp.concatenate([th, y[n_I:]]), scale_fixed)[0].reshape(-1)[pick]  # noqa: E731
+    c_of = lambda th: _normalised_moments(jnp.concatenate([th, y[n_I:]]), scale_fixed)[0].reshape(-1)[pick]
     M = jax.jacfwd(c_of)(y[:n_I])  # (n_I, n_I)
     J_c = jnp.concatenate([jnp.linalg.solve(M.T, J[:, :n_I].T).T, J[:, n_I:]], 1)
 
