@@ -39,11 +39,11 @@ from jax import Array
 from jax.sharding import NamedSharding, PartitionSpec
 from jaxtyping import Float, Int
 
-from ._body import _as_float, _floats
-from ._math import cross, quat_rotate, safe_norm
+from ._body import as_float, floats
+from ._math import cross, matvec3, quat_rotate, safe_norm
 from ._pytree import field, pytree_dataclass, replace, static_field
 from ._quantities import angular_velocity
-from ._state import AnyState, Forces, MatrixState, ParticleState, RigidState, State, _apply
+from ._state import AnyState, Forces, MatrixState, ParticleState, RigidState, State
 from ._typing import ArrayLike
 
 __all__ = [
@@ -229,7 +229,7 @@ class Gravity(ForceModel):
     def __post_init__(self) -> None:
         if self.g is None:
             raise TypeError("Gravity: g must be a (3,) acceleration vector in m/s², e.g. (0, 0, -9.81); got None")
-        _floats(self, "g")
+        floats(self, "g")
         if self.g.ndim == 0:
             raise ValueError(
                 f"Gravity: g must be a (3,) acceleration vector in m/s² (world frame), got the scalar {self.g}; "
@@ -265,7 +265,7 @@ class LinearDrag(ForceModel):
         ) -> None: ...
 
     def __post_init__(self) -> None:
-        _floats(self, "linear", "angular")
+        floats(self, "linear", "angular")
         _non_negative(self, "linear", "angular")
 
     def check(self, state: AnyState) -> None:
@@ -301,7 +301,7 @@ class QuadraticDrag(ForceModel):
         ) -> None: ...
 
     def __post_init__(self) -> None:
-        _floats(self, "linear", "angular")
+        floats(self, "linear", "angular")
         _non_negative(self, "linear", "angular")
 
     def check(self, state: AnyState) -> None:
@@ -341,7 +341,7 @@ def _to_world(state: AnyState, idx: Array, point: Array) -> Array:
     if isinstance(state, State):
         return quat_rotate(_gather(state.orientation, idx), p)
     if isinstance(state, MatrixState):
-        return _apply(_gather(state.rotation, idx), p)
+        return matvec3(_gather(state.rotation, idx), p)
     raise ValueError("a body-frame attachment point needs rigid bodies; ParticleState has no rotation")
 
 
@@ -483,7 +483,7 @@ class Spring(ForceModel):
                 )
         elif self.anchor is None:
             raise ValueError("Spring: a world anchor is required when other is None")
-        _floats(self, "stiffness", "point", "anchor", "rest_length", "damping")
+        floats(self, "stiffness", "point", "anchor", "rest_length", "damping")
         _per_item(self, self.body.shape[0], ("point", "anchor"), ("stiffness", "rest_length", "damping"))
         _non_negative(self, "stiffness", "rest_length", "damping")
 
@@ -602,7 +602,7 @@ class Thruster(ForceModel):
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "body", _as_index("Thruster", "body", self.body))
-        _floats(self, "direction", "thrust", "point")
+        floats(self, "direction", "thrust", "point")
         _per_item(self, self.body.shape[0], ("direction", "point"), ("thrust",))
         d = self.direction
         if _concrete(d) and d.size:
@@ -650,7 +650,7 @@ class ConstantForce(ForceModel):
         ) -> None: ...
 
     def __post_init__(self) -> None:
-        _floats(self, "force", "torque")
+        floats(self, "force", "torque")
         _core(self, "force", (3,), " (a force vector, N)")
         _core(self, "torque", (3,), " (a torque vector, N m)")
 
@@ -708,7 +708,7 @@ class TimeSeriesForce(ForceModel):
     def __post_init__(self) -> None:
         if self.interpolation not in ("linear", "hold"):
             raise ValueError(f"TimeSeriesForce: interpolation must be 'linear' or 'hold', got {self.interpolation!r}")
-        _floats(self, "times")
+        floats(self, "times")
         if self.times.ndim != 1 or self.times.shape[0] < 1:
             raise ValueError(f"TimeSeriesForce: times must have shape (K,) with K >= 1, got {tuple(self.times.shape)}")
         if _concrete(self.times) and np.any(np.diff(np.asarray(self.times)) <= 0):
@@ -717,7 +717,7 @@ class TimeSeriesForce(ForceModel):
         for name in ("force", "torque"):
             v = getattr(self, name)
             if v is not None:
-                _floats(self, name)
+                floats(self, name)
                 v = getattr(self, name)
                 if v.ndim < 2 or v.shape[0] != k or v.shape[-1] != 3:
                     raise ValueError(
@@ -774,7 +774,7 @@ class ExternalForce(ForceModel):
     def _value(self, name: str, state: AnyState, t: Any) -> Array:
         fn = getattr(self, name)
         try:
-            a = _as_float(fn(t)).astype(state.dtype)
+            a = as_float(fn(t)).astype(state.dtype)
         except TypeError as e:
             raise TypeError(f"ExternalForce: {name}(t) must return a real (3,) or (*B, 3) array: {e}") from None
         want = tuple(state.position.shape)

@@ -34,7 +34,7 @@ from jax import Array
 from jaxtyping import ArrayLike, Float
 
 from . import _methods
-from ._batching import _in_axes, batch_shape
+from ._batching import batch_shape, in_axes_of
 from ._math import quat_conjugate, quat_log, quat_multiply
 from ._pytree import replace
 from ._simulate import as_force_fn, simulate, start_time
@@ -139,7 +139,7 @@ def shoot(
     force_fn = as_force_fn(forces)
     n_save = steps // save_every
     run = lambda s, d, t: _scan_segment(s, force_fn, d.reshape(n_save, save_every), t, step_fn)
-    traj = jax.vmap(run, in_axes=(_in_axes(starts, 0, nd, last=False), 0, 0))(starts, dts, t0)
+    traj = jax.vmap(run, in_axes=(in_axes_of(starts, 0, nd, last=False), 0, 0))(starts, dts, t0)
     consts = constant_fields(starts)
     # vmap put segments first; time leads in rbjax trajectories
     moved = {

@@ -14,7 +14,7 @@ from jax import Array
 from jaxtyping import Float
 
 from . import _checked, _methods, _native
-from ._batching import _map_leaves, batch_last, batch_shape, lift, to_batch_first, to_batch_last
+from ._batching import batch_last, batch_shape, lift, map_leaves, to_batch_first, to_batch_last
 from ._body import prepare
 from ._forces import ForceModel
 from ._pytree import replace
@@ -98,7 +98,7 @@ def _canonical(state: Any) -> Any:
             drop += 1
         return a.reshape(a.shape[drop:])
 
-    return replace(state, body=_map_leaves(state.body, squeeze))
+    return replace(state, body=map_leaves(state.body, squeeze))
 
 
 def _prepared(state: Any) -> Any:
@@ -154,7 +154,7 @@ def step(
     return replace(new, **keep, time=jnp.broadcast_to(t + dt, jnp.shape(state.time)).astype(dtype))
 
 
-def _is_time_series(forces: Forces, state: AnyState, steps: int) -> bool:
+def is_time_series(forces: Forces, state: AnyState, steps: int) -> bool:
     leaves = [a for a in (forces.force, forces.torque) if a is not None]
     if not leaves:
         return False
@@ -255,7 +255,7 @@ def simulate(
     eagerly; inside a caller's ``jax.jit`` it arrives wrapped in JAX's
     ``JaxRuntimeError`` (use ``equinox.filter_jit`` to unwrap it).
     """
-    return _run(
+    return run_simulation(
         state,
         forces,
         dt,
@@ -285,7 +285,9 @@ def _native_path(native: bool | None, state, forces, method, *, series: bool, ch
     return not reason
 
 
-def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoint=None, step_offset=0, native=None):
+def run_simulation(
+    state, forces, dt, steps, method, *, save_every, t0, checked, checkpoint=None, step_offset=0, native=None
+):
     """``simulate`` after its signature.
 
     ``step_offset`` is the number of steps already done from ``t0`` (a chunked
@@ -308,7 +310,7 @@ def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoin
     t0 = start_time(state) if t0 is None else t0
     if isinstance(forces, Forces):
         forces = cast_forces(forces, state.dtype)
-        series = _is_time_series(forces, state, steps)
+        series = is_time_series(forces, state, steps)
         if not series:
             batch_shape(state, forces)
     elif isinstance(forces, ForceModel):

@@ -52,9 +52,9 @@ import jax
 import jax.numpy as jnp
 
 from .._batching import lift
-from .._math import _dot3, _matmul3, cross, quat_conjugate, quat_multiply, quat_normalize, quat_rotate, skew
+from .._math import cross, dot3, matmul3, matvec3, quat_conjugate, quat_multiply, quat_normalize, quat_rotate, skew
 from .._pytree import replace
-from .._state import MatrixState, State, _apply
+from .._state import MatrixState, State
 from ._common import kick, solve3, via_state
 from ._registry import Method, register
 
@@ -83,9 +83,9 @@ def _newton_iterations(dtype) -> int:
 
 
 def _newton(y, pi0, I_inv, h):
-    w = _apply(I_inv, y)
+    w = matvec3(I_inv, y)
     G = y - pi0 - 0.5 * h * cross(y, w)
-    J = jnp.eye(3, dtype=y.dtype) - 0.5 * h * (_matmul3(skew(y), I_inv) - skew(w))
+    J = jnp.eye(3, dtype=y.dtype) - 0.5 * h * (matmul3(skew(y), I_inv) - skew(w))
     # one materialised (4, 3) block per body: otherwise each entry of the solve
     # re-evaluates J and G inside the fused loop
     JG = jax.lax.optimization_barrier(jnp.concatenate([J, G[None]]))
@@ -110,10 +110,10 @@ def _body_momentum(s: State):
 def _residual(y, pi0, I_inv, h):
     """``‖G(y)‖`` and the tolerance it must meet: a few hundred ulp of the
     equation's largest term (``h/2 ‖Π_½ × ω_½‖`` can exceed ``‖Π‖`` when ``h|ω| > 2``)."""
-    w = _apply(I_inv, y)
+    w = matvec3(I_inv, y)
     c = cross(y, w)
     G = y - pi0 - 0.5 * h * c
-    norm = lambda v: jnp.sqrt(_dot3(v, v))
+    norm = lambda v: jnp.sqrt(dot3(v, v))
     eps = jnp.finfo(y.dtype).eps
     return norm(G), 256 * eps * (norm(pi0) + norm(y) + 0.5 * jnp.abs(h) * norm(y) * norm(w))
 
@@ -161,10 +161,10 @@ def _finish(s: State, guess: State, h) -> State:
     I_inv = s.body.inverse_inertia
     y = _newton(jax.lax.stop_gradient(guess.angular_momentum), pi0, I_inv, h)
     res, tol = _residual(jax.lax.stop_gradient(y), jax.lax.stop_gradient(pi0), jax.lax.stop_gradient(I_inv), h)
-    w = _apply(I_inv, y)
+    w = matvec3(I_inv, y)
     # (1, a)/‖(1, a)‖, a = h ω/2, by components (no unbatched constant 1 stacked in)
     a = 0.5 * h * w
-    n = 1 / jnp.sqrt(1 + _dot3(a, a))
+    n = 1 / jnp.sqrt(1 + dot3(a, a))
     cay = jnp.stack([n, a[0] * n, a[1] * n, a[2] * n])
     q = quat_normalize(quat_multiply(s.orientation, cay))
     # not converged: NaN, the documented flag (checked mode names the step and body),

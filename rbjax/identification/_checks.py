@@ -11,7 +11,7 @@ import jax.core
 import numpy as np
 
 from .._state import quat_tolerance
-from ._rotations_np import _CONJ, _np_qlog, _np_qmul
+from ._rotations_np import CONJ, np_qlog, np_qmul
 
 
 def _positive_finite(name: str, value, remedy: str) -> float:
@@ -73,7 +73,7 @@ def check_options(
         _positive_int("substeps", substeps, "or omit it for the default")
 
 
-def _gyro_frame_check(times: np.ndarray, q: np.ndarray, w: np.ndarray, k: int, ratio: float = 3.0) -> None:
+def gyro_frame_check(times: np.ndarray, q: np.ndarray, w: np.ndarray, k: int, ratio: float = 3.0) -> None:
     """Raise ``ValueError`` when gyro rates ``w (T, 3)`` look world-frame rather than body-frame.
 
     Over windows of ``k`` samples the orientations ``q (T, 4)`` give the mean
@@ -88,8 +88,8 @@ def _gyro_frame_check(times: np.ndarray, q: np.ndarray, w: np.ndarray, k: int, r
     if T <= k:
         return
     dt = (times[k:] - times[:-k])[:, None]
-    w_body = _np_qlog(_np_qmul(q[:-k] * _CONJ, q[k:])) / dt
-    w_world = _np_qlog(_np_qmul(q[k:], q[:-k] * _CONJ)) / dt
+    w_body = np_qlog(np_qmul(q[:-k] * CONJ, q[k:])) / dt
+    w_world = np_qlog(np_qmul(q[k:], q[:-k] * CONJ)) / dt
     cum = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * np.diff(times)[:, None] * (w[1:] + w[:-1]), 0)])
     w_mean = (cum[k:] - cum[:-k]) / dt
     r_body = np.median(np.linalg.norm(w_mean - w_body, axis=-1))
@@ -136,7 +136,7 @@ def check_arrays(**arrays) -> None:
             raise TypeError(f"fit_inertia: {name} must be real numbers (float32 or float64), got dtype {dtype.name}")
 
 
-def _check_inputs(times, orientations, body_rates, torques, body_torques=None):
+def check_inputs(times, orientations, body_rates, torques, body_torques=None):
     """Checked NumPy copies ``(t, q, ω, τ, τ_b)``; ``q`` is None for a gyro-only recording.
 
     The batch shape ``(N,)`` or ``()`` comes from ``orientations``, or from

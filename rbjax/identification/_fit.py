@@ -35,7 +35,7 @@ from .._pytree import new_unchecked
 from .._typing import ArrayLike
 from . import _robust
 from ._checks import check_arrays, check_options
-from ._model import _model
+from ._model import model_residuals
 from ._problem import prepare
 from ._queue import run_queue, stage_widths
 from ._result import FitResult, summarise
@@ -68,7 +68,7 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
     opts = dict(model_opts)
     member = lambda tree, i: jax.tree.map(lambda a: a[i], tree)
     # one recording keeps J in its slot, so the model is compiled once (see `summary`)
-    lm = LMMember(functools.partial(_model, **opts), rtol, atol, max_steps, keep_jacobian=unbatch)
+    lm = LMMember(functools.partial(model_residuals, **opts), rtol, atol, max_steps, keep_jacobian=unbatch)
     kw = {k: opts[k] for k in _SUMMARY_OPTS}
     outlier_weight = _robust.outlier_weight(loss)
     zero = jnp.zeros((), jnp.int32)

@@ -15,9 +15,9 @@ from jax import Array
 from .. import _methods
 from .._body import Body, inverse_3x3
 from .._inertia_param import inertia_from_params
-from .._math import quat_conjugate, quat_exp, quat_log, quat_multiply, quat_rotate
+from .._math import matvec3, quat_conjugate, quat_exp, quat_log, quat_multiply, quat_rotate
 from .._pytree import new_unchecked
-from .._state import Forces, State, _apply
+from .._state import Forces, State
 from ._flow import flow
 from ._sensors import accelerometer_reading, gyro_reading
 
@@ -36,7 +36,7 @@ def _inertia(theta: Array, scale_fixed: bool) -> Array:
     return inertia_from_params(theta)
 
 
-def _unpack(y: Array, n_theta: int, S: int):
+def unpack(y: Array, n_theta: int, S: int):
     return y[:n_theta], y[n_theta:].reshape(S, 6)
 
 
@@ -49,7 +49,7 @@ def _start(x, d, *, n_theta, scale_fixed):
     one = jnp.ones((), I.dtype)
     body = new_unchecked(Body, mass=one, inertia=I, _inverse=inverse_3x3(I))
     zero = jnp.zeros(3, I.dtype)
-    L0 = quat_rotate(q0, _apply(I, w0))
+    L0 = quat_rotate(q0, matvec3(I, w0))
     return new_unchecked(
         State, body=body, position=zero, velocity=zero, orientation=q0, angular_momentum=L0, time=zero[0]
     )
@@ -62,7 +62,7 @@ def _observe(q, L, inv, o, c):
     ``inv``: body-frame ``I⁻¹``; ``o``: the sample (``q_meas``, ``w_meas``,
     ``weight``); ``c``: the segment's inverse noise levels (``wq``, ``ww``).
     """
-    w = _apply(inv, quat_rotate(quat_conjugate(q), L))
+    w = matvec3(inv, quat_rotate(quat_conjugate(q), L))
     r_q = o["weight"] * c["wq"] * quat_log(quat_multiply(quat_conjugate(q), o["q_meas"]))
     return r_q, o["weight"] * c["ww"] * (w - o["w_meas"]), w
 
@@ -253,7 +253,7 @@ def _continuity(end, p_next, d_next, continuity_weight):
     return continuity_weight * jnp.concatenate([d_next["wcq"] * gap, d_next["wc"] * (end[4:] - p_next[3:])])
 
 
-def _model(
+def model_residuals(
     y,
     data,
     *,
@@ -275,7 +275,7 @@ def _model(
     seg = data["seg"]
     S = seg["dt"].shape[0]
     n_theta = (6 if scale_fixed else 5) + 3 * gyro_bias + 3 * gyro_rotation + 6 * use_accel  # shared block
-    theta, P = _unpack(y, n_theta, S)
+    theta, P = unpack(y, n_theta, S)
     X = jnp.concatenate([jnp.broadcast_to(theta, (S, n_theta)), P], -1)  # x_s = (θ, p_s)
     kw = dict(n_theta=n_theta, scale_fixed=scale_fixed, method=method, substeps=substeps, use_rates=use_rates)
     r_seg, ends, J_seg, J_end = _segments(
@@ -309,7 +309,7 @@ def _model(
     return jnp.concatenate([r_seg.reshape(-1), r_c.reshape(-1)]), J
 
 
-def _normalised_moments(y, scale_fixed):
+def normalised_moments(y, scale_fixed):
     I = _inertia(y[: 6 if scale_fixed else 5], scale_fixed)
     if not scale_fixed:
         I = I / jnp.trace(I)
