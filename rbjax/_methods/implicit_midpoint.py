@@ -29,8 +29,8 @@ on: the documented non-convergence flag, which checked mode reports as an
 error naming the step and body (unchecked, test ``isnan(traj.orientation)``).
 Measured (float64, 200 random boxes, random axes, 200 steps): every solve
 converges at ``h|ω| ≤ 3`` (energy kept to 1e-14) and at 30; at 10 and 100,
-2 and 0 of 200 bodies are flagged, the rest keep energy to 1e-12. The issue's
-box 0.1x0.2x0.4 at ``h|ω| = 10``, which lost 165% of its energy in 100 steps
+2 and 0 of 200 bodies are flagged, the rest keep energy to 1e-12. A box
+0.1x0.2x0.4 at ``h|ω| = 10``, which loses 165% of its energy in 100 steps
 with the fixed count alone, keeps it to 1.4e-15. At the solution Newton's map has zero derivative in
 ``Π_½``, so the derivative of that last step is exactly the implicit-function
 derivative ``-J⁻¹ ∂G/∂θ`` and the reverse pass stores one iteration, not all.
@@ -38,12 +38,11 @@ derivative ``-J⁻¹ ∂G/∂θ`` and the reverse pass stores one iteration, not
 
 Order 2. Symmetric, time-reversible; torque-free ``L`` exact, ``|L|`` and energy
 to solver tolerance wherever the solve converges (above; otherwise NaN).
-Cost ≈ 20x ``"euler"`` (measured before the residual test was added, quiet
-machine, N = 10⁴ float32; eight Newton iterations, each a 3x3 Jacobian and
-Cramer solve, and two force evaluations; the residual test adds one
-iteration's work). Choose it where energy must be kept exactly (not just bounded)
-or no principal frame is wanted; ``"splitting"`` is cheaper for equal accuracy
-on most bodies.
+Cost ≈ 20x ``"euler"`` without the residual test (quiet machine, N = 10⁴
+float32; eight Newton iterations, each a 3x3 Jacobian and Cramer solve, and
+two force evaluations); the residual test adds one iteration's work.
+Choose it where energy must be kept exactly (not just bounded) or no principal
+frame is wanted; ``"splitting"`` is cheaper for equal accuracy on most bodies.
 """
 
 from __future__ import annotations
