@@ -372,7 +372,7 @@ def _add_at(total: Array, idx: Array, values: Array) -> Array:
     return total.at[idx].add(values, out_sharding=_explicit_sharding(total))
 
 
-def _scatter(n: int, state: AnyState, idx: Array, values: Array) -> Array:
+def _scatter(state: AnyState, idx: Array, values: Array) -> Array:
     return _add_at(jnp.zeros_like(state.position), idx, values)
 
 
@@ -538,7 +538,7 @@ class Spring(ForceModel):
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         self.check(state)
-        n = _check_flat("Spring", state)
+        _check_flat("Spring", state)
         rotating = self.point is not None or (self.other is not None and self.anchor is not None)
         omega = angular_velocity(_no_torque_for_particles("Spring(point=...)", state)) if rotating else None
         r_a = _offset(state, self.body, self.point)
@@ -560,13 +560,13 @@ class Spring(ForceModel):
             rel = -v_a if v_b is None else v_b - v_a
             f_a = f_a + _cast(self.damping, state)[..., None] * rel
         f_a = jnp.broadcast_to(f_a, d.shape)
-        force = _scatter(n, state, self.body, f_a)
-        torque = None if r_a is None else _scatter(n, state, self.body, cross(r_a, f_a))
+        force = _scatter(state, self.body, f_a)
+        torque = None if r_a is None else _scatter(state, self.body, cross(r_a, f_a))
         if self.other is not None:
             force = _add_at(force, self.other, -f_a)
             if r_b is not None:
                 tb = cross(r_b, -f_a)
-                torque = _scatter(n, state, self.other, tb) if torque is None else _add_at(torque, self.other, tb)
+                torque = _scatter(state, self.other, tb) if torque is None else _add_at(torque, self.other, tb)
         return Forces(force=force, torque=torque)
 
 
@@ -619,14 +619,14 @@ class Thruster(ForceModel):
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         self.check(state)
-        n = _check_flat("Thruster", state)
+        _check_flat("Thruster", state)
         if isinstance(state, ParticleState):
             raise ValueError("Thruster: a body-fixed direction needs rigid bodies, not ParticleState")
         d = _to_world(state, self.body, self.direction)
         f = _cast(self.thrust, state)[..., None] * d
         r = _offset(state, self.body, self.point)
-        force = _scatter(n, state, self.body, f)
-        return Forces(force=force, torque=None if r is None else _scatter(n, state, self.body, cross(r, f)))
+        force = _scatter(state, self.body, f)
+        return Forces(force=force, torque=None if r is None else _scatter(state, self.body, cross(r, f)))
 
 
 # ---------------------------------------------------------------- prescribed loads

@@ -24,14 +24,14 @@ rugged. Two standard remedies, both built on :func:`rbjax.step` /
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import Any, cast
 
 import jax
 import jax.core
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
-from jaxtyping import ArrayLike, Float
+from jaxtyping import Float
 
 from . import _methods
 from ._batching import batch_shape, in_axes_of
@@ -41,6 +41,7 @@ from ._simulate import as_force_fn, simulate, start_time
 from ._simulate_support import DEFAULT_METHOD, constant_fields
 from ._state import AnyState, ForceLike, Forces, State
 from ._trajectory import stack_frames
+from ._typing import ArrayLike
 from ._validate import check_dt, check_state
 
 __all__ = ["shoot", "defects", "simulate_truncated"]
@@ -265,5 +266,6 @@ def simulate_truncated(
     _, rest = jax.lax.scan(chunk, carry, (jnp.arange(1, n_chunks, dtype=dtype), rest_f))
     rest = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:]), rest)
     traj = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), first, rest)
-    times = t0 + (save_every * jnp.arange(steps // save_every + 1)).astype(dtype) * dt  # as simulate's
+    # check_dt passed: dt is a real scalar (the cast is for the type checker)
+    times = t0 + (save_every * jnp.arange(steps // save_every + 1)).astype(dtype) * cast(Array, dt)  # as simulate's
     return stack_frames(traj, state, times)

@@ -91,15 +91,15 @@ def _newton(y, pi0, I_inv, h):
     return y - solve3(JG[:3], JG[3])
 
 
-def midpoint_momentum(pi0, I_inv, h):
-    """Solve the midpoint equation for ``Π_½`` (body frame), one body."""
-    y = jax.lax.stop_gradient(pi0)
-    consts = jax.lax.stop_gradient((pi0, I_inv, h))
+def _fixed_newton(pi0, I_inv, h):
+    """The fixed count of Newton iterations from ``Π_½ = Π₀`` (body frame), one body;
+    the caller stops the gradient."""
+    y = pi0
     for _ in range(_newton_iterations(y.dtype)):
         # materialise each iterate: fused across iterations, XLA:CPU re-evaluated
         # earlier iterations once per component of the later ones
-        y = jax.lax.optimization_barrier(_newton(y, *consts))
-    return _newton(jax.lax.stop_gradient(y), pi0, I_inv, h)
+        y = jax.lax.optimization_barrier(_newton(y, pi0, I_inv, h))
+    return y
 
 
 def _body_momentum(s: State):
@@ -123,11 +123,7 @@ def _fast_guess(s: State, h) -> State:
     needs :func:`_continuation_guess`)."""
     pi0 = jax.lax.stop_gradient(_body_momentum(s))
     I_inv = jax.lax.stop_gradient(s.body.inverse_inertia)
-    y = pi0
-    for _ in range(_newton_iterations(y.dtype)):
-        # materialise each iterate: fused across iterations, XLA:CPU re-evaluated
-        # earlier iterations once per component of the later ones
-        y = jax.lax.optimization_barrier(_newton(y, pi0, I_inv, h))
+    y = _fixed_newton(pi0, I_inv, h)
     res, tol = _residual(_newton(y, pi0, I_inv, h), pi0, I_inv, h)
     return replace(s, angular_momentum=jnp.where(res <= tol, y, jnp.nan))
 

@@ -11,6 +11,7 @@ import jax.core
 import numpy as np
 
 from .._state import quat_tolerance
+from ._robust import LOSSES
 from ._rotations_np import CONJ, np_qlog, np_qmul
 
 
@@ -59,7 +60,7 @@ def check_options(
     _positive_finite("rtol", rtol, "the default is 1e-8")
     _positive_finite("atol", atol, "the default is 1e-8")
     _positive_int("max_steps", max_steps, "the default is 200")
-    if not isinstance(loss, str) or loss not in ("squared", "huber", "cauchy"):
+    if not isinstance(loss, str) or loss not in LOSSES:
         raise ValueError(
             f"fit_inertia: loss must be 'squared', 'huber' or 'cauchy', got {loss!r}; "
             "'huber' or 'cauchy' down-weight glitches"

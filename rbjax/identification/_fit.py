@@ -205,8 +205,9 @@ def fit_inertia(
         initial_inertia: optional ``(3, 3)`` starting guess (body frame); default:
             linear least squares on conservation of angular momentum.
         method: integrator (see :func:`rbjax.methods`); ``"rk4"`` recommended.
-        segments: number of multiple-shooting segments; default one per ``2π``
-            of recorded rotation, at least 1 and at most ``(T-1) // 8``.
+        segments: number of multiple-shooting segments; default about one per
+            512 sample intervals and per ``4π`` (two turns) of recorded rotation,
+            rounded up to a power of two, at least 1 and at most ``(T-1) // 8``.
         substeps: integrator steps per sample interval; default enough that no
             step turns more than 0.05 rad.
         orientation_std, rate_std: noise standard deviations (rad, rad/s) that
@@ -641,7 +642,8 @@ def _stack_results(results: dict, n: int, errors: dict) -> FitResult:
 
 
 def _sample_weights(prob, rw: np.ndarray, outlier_weight: float):
-    """Segment-row weights ``(*N, S, B, K+1)`` as ``(*N, T, 2)`` [orientation, gyro], and the outliers ``(*N, T)``."""
+    """Segment-row weights ``(*N, S, B, K+1)`` as ``(*N, T, 3)`` [orientation, gyro, accelerometer]
+    (1 for a sensor not fitted), and the outliers ``(*N, T)``."""
     rw = rw if prob.batched else rw[None]
     idx, valid = prob.sample_index[prob.sample_valid], prob.sample_valid
     T = int(idx.max()) + 1
