@@ -68,13 +68,19 @@ def floats(obj: Any, *names: str) -> None:
     for name in names:
         v = getattr(obj, name)
         if v is not None:
-            try:
-                a = as_float(v)
-            except TypeError as e:
-                raise TypeError(f"{type(obj).__name__}: {name}: {e}") from None
-            if is_concrete(a) and not np.all(np.isfinite(np.asarray(a))):
-                raise ValueError(f"{type(obj).__name__}: {name} must be finite, got non-finite entries")
-            object.__setattr__(obj, name, a)
+            object.__setattr__(obj, name, finite_float(type(obj).__name__, name, v))
+
+
+def finite_float(owner: str, name: str, x: Any) -> Array:
+    """``x`` as a float array; ``TypeError``/``ValueError`` naming ``owner: name`` unless it is
+    real and (when concrete) finite."""
+    try:
+        a = as_float(x)
+    except TypeError as e:
+        raise TypeError(f"{owner}: {name}: {e}") from None
+    if is_concrete(a) and not np.all(np.isfinite(np.asarray(a))):
+        raise ValueError(f"{owner}: {name} must be finite, got non-finite entries")
+    return a
 
 
 def is_concrete(*xs: Any) -> bool:

@@ -40,7 +40,7 @@ from jax.sharding import NamedSharding, PartitionSpec
 from jaxtyping import Float, Int
 
 from ._body import as_float, floats
-from ._math import cross, matvec3, quat_rotate, safe_norm
+from ._math import broadcasts_to, cross, matvec3, quat_rotate, safe_norm
 from ._pytree import field, pytree_dataclass, replace, static_field
 from ._quantities import angular_velocity
 from ._state import AnyState, Forces, MatrixState, ParticleState, RigidState, State
@@ -153,10 +153,7 @@ def _fits(model: Any, name: str, core: int, shape: tuple[int, ...], what: str) -
     if a is None:
         return
     lead = tuple(a.shape[: a.ndim - core])
-    try:
-        ok = jnp.broadcast_shapes(lead, tuple(shape)) == tuple(shape)
-    except ValueError:
-        ok = False
+    ok = broadcasts_to(lead, tuple(shape))
     if not ok:
         raise ValueError(
             f"{type(model).__name__}: {name} of shape {tuple(a.shape)} does not fit {what} {tuple(shape)}; give it "
@@ -245,8 +242,25 @@ class Gravity(ForceModel):
         return Forces(force=_full(_mass(state)[..., None] * _cast(self.g, state), state))
 
 
+class _Drag(ForceModel):
+    """The coefficients of :class:`LinearDrag` and :class:`QuadraticDrag`: ``linear`` and
+    ``angular``, scalar or ``(*B,)``, ``>= 0``, ``angular`` ``None`` for no torque."""
+
+    linear: Array
+    angular: Array | None
+    _NON_NEGATIVE = ("linear", "angular")
+
+    def __post_init__(self) -> None:
+        floats(self, "linear", "angular")
+        _non_negative(self, "linear", "angular")
+
+    def check(self, state: AnyState) -> None:
+        for name in ("linear", "angular"):
+            _fits(self, name, 0, state.batch_shape, "the batch shape")
+
+
 @pytree_dataclass
-class LinearDrag(ForceModel):
+class LinearDrag(_Drag):
     """Viscous drag ``F = -b v`` and, if ``angular`` is given, ``τ = -b_r ω``.
 
     ``linear`` ``b``: scalar or ``(*B,)``, N s/m, ``>= 0``. ``angular`` ``b_r``: scalar or
@@ -256,21 +270,12 @@ class LinearDrag(ForceModel):
 
     linear: Float[Array, "*B"] = field(default=0.0)
     angular: Float[Array, "*B"] | None = field(default=None)
-    _NON_NEGATIVE = ("linear", "angular")
 
     if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
 
         def __init__(
             self, linear: Float[ArrayLike, "*B"] = 0.0, angular: Float[ArrayLike, "*B"] | None = None
         ) -> None: ...
-
-    def __post_init__(self) -> None:
-        floats(self, "linear", "angular")
-        _non_negative(self, "linear", "angular")
-
-    def check(self, state: AnyState) -> None:
-        for name in ("linear", "angular"):
-            _fits(self, name, 0, state.batch_shape, "the batch shape")
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         self.check(state)
@@ -282,7 +287,7 @@ class LinearDrag(ForceModel):
 
 
 @pytree_dataclass
-class QuadraticDrag(ForceModel):
+class QuadraticDrag(_Drag):
     """Quadratic drag ``F = -c ‖v‖ v`` and, if ``angular`` is given, ``τ = -c_r ‖ω‖ ω``.
 
     ``linear`` ``c``: scalar or ``(*B,)``, kg/m (``½ ρ C_d A``), ``>= 0``. ``angular``
@@ -292,21 +297,12 @@ class QuadraticDrag(ForceModel):
 
     linear: Float[Array, "*B"] = field(default=0.0)
     angular: Float[Array, "*B"] | None = field(default=None)
-    _NON_NEGATIVE = ("linear", "angular")
 
     if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
 
         def __init__(
             self, linear: Float[ArrayLike, "*B"] = 0.0, angular: Float[ArrayLike, "*B"] | None = None
         ) -> None: ...
-
-    def __post_init__(self) -> None:
-        floats(self, "linear", "angular")
-        _non_negative(self, "linear", "angular")
-
-    def check(self, state: AnyState) -> None:
-        for name in ("linear", "angular"):
-            _fits(self, name, 0, state.batch_shape, "the batch shape")
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         self.check(state)
@@ -731,10 +727,7 @@ class TimeSeriesForce(ForceModel):
             a = getattr(self, name)
             if a is None:
                 continue
-            try:
-                ok = jnp.broadcast_shapes(tuple(a.shape[1:]), want) == want
-            except ValueError:
-                ok = False
+            ok = broadcasts_to(tuple(a.shape[1:]), want)
             if not ok:
                 raise ValueError(
                     f"TimeSeriesForce: {name} samples of shape {tuple(a.shape[1:])} do not fit the batch: each must "
@@ -778,10 +771,7 @@ class ExternalForce(ForceModel):
         except TypeError as e:
             raise TypeError(f"ExternalForce: {name}(t) must return a real (3,) or (*B, 3) array: {e}") from None
         want = tuple(state.position.shape)
-        try:
-            ok = jnp.broadcast_shapes(tuple(a.shape), want) == want
-        except ValueError:
-            ok = False
+        ok = broadcasts_to(tuple(a.shape), want)
         if not ok:
             raise ValueError(
                 f"ExternalForce: {name}(t) returned shape {tuple(a.shape)}, which does not broadcast to the "

@@ -88,6 +88,14 @@ def _batches(fn: str, **named: tuple[Array, int]) -> None:
         raise ValueError(f"{fn}: the batch shapes do not broadcast ({listed})") from None
 
 
+def broadcasts_to(shape: tuple[int, ...], want: tuple[int, ...]) -> bool:
+    """Whether an array of ``shape`` broadcasts to exactly ``want``."""
+    try:
+        return jnp.broadcast_shapes(tuple(shape), tuple(want)) == tuple(want)
+    except ValueError:
+        return False
+
+
 def _eps(x: Array) -> Array:
     return jnp.asarray(jnp.finfo(x.dtype).eps, x.dtype)
 

@@ -13,7 +13,18 @@ from jaxtyping import Float
 from ._batching import lift
 from ._body import inertia_of
 from ._dynamics import omega_world
-from ._math import array_arg, cross, dot3, matmul3, matrix_to_quat, matvec3, quat_conjugate, quat_rotate, quat_to_matrix
+from ._math import (
+    array_arg,
+    broadcasts_to,
+    cross,
+    dot3,
+    matmul3,
+    matrix_to_quat,
+    matvec3,
+    quat_conjugate,
+    quat_rotate,
+    quat_to_matrix,
+)
 from ._pytree import new_unchecked
 from ._state import AnyState, MatrixState, ParticleState, RigidState, State
 from ._typing import ArrayLike
@@ -124,10 +135,7 @@ def angular_momentum(state: AnyState, about: Float[ArrayLike, "*B 3"] | None = N
     a = None if about is None else array_arg("angular_momentum", "about", about, (3,)).astype(state.dtype)
     if a is not None:
         want = tuple(state.position.shape)
-        try:
-            ok = jnp.broadcast_shapes(tuple(a.shape), want) == want
-        except ValueError:
-            ok = False
+        ok = broadcasts_to(tuple(a.shape), want)
         if not ok:
             raise ValueError(
                 f"angular_momentum: about of shape {tuple(a.shape)} does not fit the state's positions {want}; "

@@ -16,7 +16,7 @@ import numpy as np
 from jax import Array
 from jaxtyping import Float
 
-from ._body import Body, as_float, floats, inertia_of, is_concrete
+from ._body import Body, as_float, finite_float, floats, inertia_of, is_concrete
 from ._math import array_arg, cross, matvec3, quat_conjugate, quat_rotate, quat_to_matrix
 from ._pytree import field, pytree_dataclass
 from ._trajectory import BatchIndexing
@@ -145,12 +145,7 @@ def _body_as(body: Body, dtype: Any) -> Body:
 
 def _time(cls: str, time: Any, dtype: Any, shape: tuple[int, ...]) -> Array:
     """``time`` (s) as ``dtype`` broadcast to the batch ``shape``; ``TypeError``/``ValueError`` naming it otherwise."""
-    try:
-        t = as_float(time)
-    except TypeError as e:
-        raise TypeError(f"{cls}: time: {e}") from None
-    if is_concrete(t) and not np.all(np.isfinite(np.asarray(t))):
-        raise ValueError(f"{cls}: time must be finite, got non-finite entries")
+    t = finite_float(cls, "time", time)
     try:
         return jnp.broadcast_to(t.astype(dtype), shape)
     except ValueError:

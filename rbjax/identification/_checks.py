@@ -137,6 +137,16 @@ def check_arrays(**arrays) -> None:
             raise TypeError(f"fit_inertia: {name} must be real numbers (float32 or float64), got dtype {dtype.name}")
 
 
+def _series(name: str, x, T: int, k: int) -> np.ndarray:
+    """``x`` as a ``(T, k)`` or ``(N, T, k)`` array; ``ValueError`` naming ``name`` otherwise."""
+    a = np.asarray(x)
+    if a.ndim not in (2, 3) or a.shape[-2:] != (T, k):
+        raise ValueError(
+            f"fit_inertia: {name} must have shape (T, {k}) or (N, T, {k}) with T = len(times) = {T}, got {a.shape}"
+        )
+    return a
+
+
 def check_inputs(times, orientations, body_rates, torques, body_torques=None):
     """Checked NumPy copies ``(t, q, ω, τ, τ_b)``; ``q`` is None for a gyro-only recording.
 
@@ -157,21 +167,11 @@ def check_inputs(times, orientations, body_rates, torques, body_torques=None):
                 "fit_inertia: torques= are world-frame and need orientations to be used; for a "
                 "gyro-only fit pass the known torques in the body frame as body_torques="
             )
-        w = np.asarray(body_rates)
-        if w.ndim not in (2, 3) or w.shape[-2:] != (t.shape[0], 3):
-            raise ValueError(
-                f"fit_inertia: body_rates must have shape (T, 3) or (N, T, 3) with T = len(times) = "
-                f"{t.shape[0]}, got {w.shape}"
-            )
+        w = _series("body_rates", body_rates, t.shape[0], 3)
         lead = w.shape[:-1]
         q = None
     else:
-        q = np.asarray(orientations)
-        if q.ndim not in (2, 3) or q.shape[-2:] != (t.shape[0], 4):
-            raise ValueError(
-                f"fit_inertia: orientations must have shape (T, 4) or (N, T, 4) with T = len(times) = "
-                f"{t.shape[0]}, got {q.shape}"
-            )
+        q = _series("orientations", orientations, t.shape[0], 4)
         lead = q.shape[:-1]
     if torques is not None and body_torques is not None:
         raise ValueError(
