@@ -105,7 +105,7 @@ def _kernel() -> Any:
 
 def soa_data(state: Any, forces: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(S, P, F)`` of an rbjax ``State`` and ``Forces``: one C-contiguous row per component (see the kernel)."""
-    rows = lambda a: np.asarray(a).reshape(np.shape(a)[0], -1).T  # noqa: E731
+    rows = lambda a: np.asarray(a).reshape(np.shape(a)[0], -1).T
     s, b = state, state.body
     S = np.concatenate([rows(a) for a in (s.position, s.velocity, s.orientation, s.angular_momentum)])
     P = np.concatenate([rows(b.inverse_inertia), np.asarray(b.mass)[None]])

@@ -65,7 +65,7 @@ def main():
     times = np.linspace(0, dur, int(dur * rate) + 1)
     rng = np.random.default_rng(0)
     recs = [recording(rng, times) for _ in range(2)]
-    fit = lambda t, q, w: rb.fit_inertia(t, q, body_rates=w)  # noqa: E731
+    fit = lambda t, q, w: rb.fit_inertia(t, q, body_rates=w)
     res, t_first, c_first = timed(lambda: fit(times, recs[0][1], recs[0][2]))
     err_first = np.linalg.norm(res.inertia - recs[0][0]) / np.linalg.norm(recs[0][0])
     res, t_fit, c_fit = timed(lambda: fit(times, recs[1][1], recs[1][2]))  # a new recording, same shape

@@ -67,7 +67,7 @@ def main():
     q, wb = record(times, False)
     qt, wbt = record(times, True)
     tau = np.stack([torque(t, None, None) for t in times])
-    fit = lambda w, *a, **k: rb.fit_inertia(times, *a, segments=segments, continuity_weight=w, **k)  # noqa: E731
+    fit = lambda w, *a, **k: rb.fit_inertia(times, *a, segments=segments, continuity_weight=w, **k)
     rows = []
     for w in weights:
         clean = rel(fit(w, q).inertia, i_bar)

@@ -58,7 +58,7 @@ def one(n: int, steps: int, save_every: int, method: str) -> dict:
     after_state = _rss_MB()
     scene = rb.Scene.build(state, rb.Gravity(), method)
     after_scene = _rss_MB()
-    nbytes = lambda tree: sum(a.nbytes for a in jax.tree.leaves(tree))  # noqa: E731
+    nbytes = lambda tree: sum(a.nbytes for a in jax.tree.leaves(tree))
     # the compiled program's own accounting (private entry point: a failure is a bug in this script)
     c = (
         _simulate._simulate.lower(

@@ -411,7 +411,7 @@ def summary(results: dict, probs: dict[str, Problem]) -> tuple[str, dict]:
                         cands[f"{m} {d}"] = t
                 best[solver] = min(cands.items(), key=lambda kv: kv[1]) if cands else None
             r, d = best["rbjax"], best["diffrax"]
-            cell = lambda b: (f"{b[0]}", f"{b[1] * 1e6:.3g}") if b else ("unreached", "–")  # noqa: E731
+            cell = lambda b: (f"{b[0]}", f"{b[1] * 1e6:.3g}") if b else ("unreached", "–")
             ratio = f"{d[1] / r[1]:.2f}x" if r and d else "–"
             verdicts[name][f"{level:.0e}"] = r is not None and (d is None or r[1] < d[1])
             lines.append(f"| 1e{int(np.log10(level))} | {' | '.join(cell(r))} | {' | '.join(cell(d))} | {ratio} |")
@@ -530,7 +530,7 @@ def main(argv=None) -> int:
         ref["I"] = p.inertia
         refs[name] = ref["source"]
         print(f"{p.title} (T = {p.T} s; reference: {ref['source']})", flush=True)
-        log = lambda s: print(s, flush=True)  # noqa: E731
+        log = lambda s: print(s, flush=True)
         rows = []
         for dtype in dtypes:
             rows += rbjax_curves(p, ref, dtype, n_batch, methods, args.quick, log)

@@ -51,7 +51,7 @@ from .identification import fit_inertia as fit_inertia
 from .identification import fit_inertia_linear as fit_inertia_linear
 
 # isort: split
-# --- multiple shooting and truncated gradients (fit2) ---
+# --- multiple shooting and truncated gradients ---
 from ._shooting import defects as defects
 from ._shooting import shoot as shoot
 from ._shooting import simulate_truncated as simulate_truncated
@@ -163,7 +163,7 @@ from ._native import native_status as native_status
 # exact torque-free solution (ground truth for integrator tests and benchmarks)
 from ._torque_free import torque_free as torque_free
 
-# --- scenes and force models (issue 6) ---
+# --- scenes and force models ---
 # isort: split
 from ._forces import (
     ConstantForce as ConstantForce,

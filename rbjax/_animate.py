@@ -38,11 +38,11 @@ def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
     return np.stack([np.stack(r, -1) for r in rows], -2)
 
 
-def _ellipsoid_mesh(n_lon: int = 14, n_lat: int = 8) -> np.ndarray:
+def ellipsoid_mesh(n_lon: int = 14, n_lat: int = 8) -> np.ndarray:
     """Quads ``(F, 4, 3)`` on the unit sphere (scaled per body into its inertia ellipsoid)."""
     lon = np.linspace(0, 2 * np.pi, n_lon + 1)
     lat = np.linspace(-np.pi / 2, np.pi / 2, n_lat + 1)
-    p = lambda a, b: np.stack([np.cos(b) * np.cos(a), np.cos(b) * np.sin(a), np.sin(b)], -1)  # noqa: E731
+    p = lambda a, b: np.stack([np.cos(b) * np.cos(a), np.cos(b) * np.sin(a), np.sin(b)], -1)
     quads = [
         [p(lon[i], lat[j]), p(lon[i + 1], lat[j]), p(lon[i + 1], lat[j + 1]), p(lon[i], lat[j + 1])]
         for i in range(n_lon)
@@ -51,7 +51,7 @@ def _ellipsoid_mesh(n_lon: int = 14, n_lat: int = 8) -> np.ndarray:
     return np.array(quads)
 
 
-def _half_extents(moments: np.ndarray, mass: np.ndarray, shape: str) -> np.ndarray:
+def half_extents(moments: np.ndarray, mass: np.ndarray, shape: str) -> np.ndarray:
     """Half side lengths (box) or semi-axes (ellipsoid) ``(N, 3)`` (m) with the given principal moments.
 
     A box of half sides ``h`` has ``I₁ = m/3 (h₂² + h₃²)``, an ellipsoid of semi-axes ``h`` has
@@ -64,7 +64,7 @@ def _half_extents(moments: np.ndarray, mass: np.ndarray, shape: str) -> np.ndarr
     return np.sqrt(np.maximum(sq, 1e-4 * sq.max(-1, keepdims=True)))
 
 
-def _frames_of(traj: Any) -> dict[str, Any]:
+def frames_of(traj: Any) -> dict[str, Any]:
     """Positions ``(T, N, 3)``, rotations ``(T, N, 3, 3)``, world ``L`` ``(T, N, 3)``, mass ``(N,)``, inertia."""
     if not hasattr(traj, "body"):
         raise TypeError(f"rbjax.animate needs a State or MatrixState trajectory (with a body), got {type(traj)}")
@@ -93,7 +93,7 @@ def _frames_of(traj: Any) -> dict[str, Any]:
     inertia = np.broadcast_to(inertia, (*B, 3, 3)).reshape(-1, 3, 3)
     n = mass.shape[0]
     pos = pos.reshape(T, n, 3)
-    field = lambda name, core: np.asarray(getattr(traj, name), np.float64).reshape(T, n, *core)  # noqa: E731
+    field = lambda name, core: np.asarray(getattr(traj, name), np.float64).reshape(T, n, *core)
     if hasattr(traj, "orientation"):
         R = _quat_to_matrix(field("orientation", (4,)))
         L = field("angular_momentum", (3,))
@@ -106,7 +106,7 @@ def _frames_of(traj: Any) -> dict[str, Any]:
     return {"pos": pos, "R": R, "L": L, "mass": mass, "inertia": inertia, "time": times}
 
 
-def _pick(n: int, bodies: int | Sequence[int] | None) -> np.ndarray:
+def pick(n: int, bodies: int | Sequence[int] | None) -> np.ndarray:
     if bodies is None:
         bodies = min(n, 9)
     if isinstance(bodies, (int, np.integer)):
@@ -200,8 +200,8 @@ def animate(
         raise RuntimeError("rbjax.animate: writing .mp4 needs ffmpeg on the path; write a .gif instead")
 
     t0 = _time.perf_counter()
-    data = _frames_of(traj)
-    idx = _pick(data["pos"].shape[1], bodies)
+    data = frames_of(traj)
+    idx = pick(data["pos"].shape[1], bodies)
     T = data["pos"].shape[0]
     chosen = np.arange(T)[frames if frames is not None else slice(None)]
     if chosen.size == 0:
@@ -211,9 +211,9 @@ def animate(
     mass, inertia = data["mass"][idx], data["inertia"][idx]
     moments, axes = np.linalg.eigh(inertia)
     axes = axes * np.sign(np.linalg.det(axes))[:, None, None]
-    half = _half_extents(moments, mass, shape)  # (N, 3) along the principal axes
+    half = half_extents(moments, mass, shape)  # (N, 3) along the principal axes
     # body-frame vertices: unit solid scaled by half extents, then principal axes to body frame
-    unit = _CORNERS[_FACES] if shape == "box" else _ellipsoid_mesh()  # (F, 4, 3)
+    unit = _CORNERS[_FACES] if shape == "box" else ellipsoid_mesh()  # (F, 4, 3)
     verts_body = np.einsum("nij,nfkj->nfki", axes, unit[None] * half[:, None, None, :])  # (N, F, 4, 3)
     longest = np.argmax(half, -1)
     tip_body = axes[np.arange(len(idx)), :, longest] * half[np.arange(len(idx)), longest][:, None]  # (N, 3)

@@ -45,7 +45,7 @@ def batch_last(on: bool = True) -> Iterator[None]:
         _BATCH_LAST.reset(token)
 
 
-def _map_leaves(obj: Any, fn: Callable[[Any, int], Any]) -> Any:
+def map_leaves(obj: Any, fn: Callable[[Any, int], Any]) -> Any:
     """Apply ``fn(leaf, core_ndim)`` to every array leaf of an rbjax pytree."""
     if not is_rbjax_dataclass(obj):
         return obj
@@ -54,18 +54,18 @@ def _map_leaves(obj: Any, fn: Callable[[Any, int], Any]) -> Any:
         v = getattr(obj, name)
         if v is None:
             continue
-        changes[name] = _map_leaves(v, fn) if is_rbjax_dataclass(v) else fn(v, type(obj)._rbjax_core_ndim[name])
+        changes[name] = map_leaves(v, fn) if is_rbjax_dataclass(v) else fn(v, type(obj)._rbjax_core_ndim[name])
     return replace(obj, **changes)
 
 
 def to_batch_last(obj: Any) -> Any:
     """``(*B, *core)`` → ``(*core, *B)`` on every leaf (a shared leaf is unchanged)."""
-    return _map_leaves(obj, lambda a, c: jnp.moveaxis(a, tuple(range(a.ndim - c, a.ndim)), tuple(range(c))))
+    return map_leaves(obj, lambda a, c: jnp.moveaxis(a, tuple(range(a.ndim - c, a.ndim)), tuple(range(c))))
 
 
 def to_batch_first(obj: Any) -> Any:
     """``(*core, *B)`` → ``(*B, *core)`` on every leaf; inverse of :func:`to_batch_last`."""
-    return _map_leaves(obj, lambda a, c: jnp.moveaxis(a, tuple(range(c)), tuple(range(a.ndim - c, a.ndim))))
+    return map_leaves(obj, lambda a, c: jnp.moveaxis(a, tuple(range(c)), tuple(range(a.ndim - c, a.ndim))))
 
 
 def _batch_dims(obj: Any) -> list[tuple[int, ...]]:
@@ -103,7 +103,7 @@ def batch_shape(*trees: Any) -> tuple[int, ...]:
     return tuple(result)
 
 
-def _in_axes(obj: Any, level: int, nd: int, last: bool) -> Any:
+def in_axes_of(obj: Any, level: int, nd: int, last: bool) -> Any:
     """in_axes for the vmap over batch dimension ``level`` of ``nd``.
 
     Batch-first, a mapped leaf's axis is 0 (outer levels are already removed);
@@ -117,7 +117,7 @@ def _in_axes(obj: Any, level: int, nd: int, last: bool) -> Any:
         if v is None:
             changes[name] = None
         elif is_rbjax_dataclass(v):
-            changes[name] = _in_axes(v, level, nd, last)
+            changes[name] = in_axes_of(v, level, nd, last)
         else:
             core = type(obj)._rbjax_core_ndim[name]
             k = v.ndim - core
@@ -137,7 +137,7 @@ def _expand_ones(obj: Any, full: tuple[int, ...], last: bool) -> Any:
             return a
         return jnp.broadcast_to(a, a.shape[:core] + want if last else want + a.shape[k:])
 
-    return _map_leaves(obj, expand)
+    return map_leaves(obj, expand)
 
 
 def lift(fn: Callable[..., Any]) -> Callable[..., Any]:
@@ -153,7 +153,7 @@ def lift(fn: Callable[..., Any]) -> Callable[..., Any]:
         # innermost vmap maps the last batch dimension; batch-last, each level's
         # output axis goes just before those of the levels inside it
         for level in reversed(range(nd)):
-            in_axes = tuple(_in_axes(a, level, nd, last) for a in args)
+            in_axes = tuple(in_axes_of(a, level, nd, last) for a in args)
             f = jax.vmap(f, in_axes=in_axes, out_axes=level - nd if last else 0)
         return f(*args)
 

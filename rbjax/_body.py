@@ -16,7 +16,7 @@ import numpy as np
 from jax import Array
 from jaxtyping import Float
 
-from ._math import _arg, skew
+from ._math import array_arg, skew
 from ._pytree import field, new_unchecked, pytree_dataclass
 from ._trajectory import BatchIndexing
 from ._typing import ArrayLike
@@ -42,7 +42,7 @@ __all__ = [
 TRIANGLE_RTOL = 1e-6
 
 
-def _as_float(x: ArrayLike) -> Array:
+def as_float(x: ArrayLike) -> Array:
     if x is None or isinstance(x, (str, bytes, dict)):
         raise TypeError(f"rbjax expected a real number or array, got {type(x).__name__} {x!r}")
     try:
@@ -59,7 +59,7 @@ def _as_float(x: ArrayLike) -> Array:
     return x
 
 
-def _floats(obj: Any, *names: str) -> None:
+def floats(obj: Any, *names: str) -> None:
     """In ``__post_init__`` of a frozen pytree dataclass: the named fields as float arrays (``None`` stays).
 
     ``TypeError`` for values that are not real numbers, ``ValueError`` for
@@ -68,16 +68,22 @@ def _floats(obj: Any, *names: str) -> None:
     for name in names:
         v = getattr(obj, name)
         if v is not None:
-            try:
-                a = _as_float(v)
-            except TypeError as e:
-                raise TypeError(f"{type(obj).__name__}: {name}: {e}") from None
-            if _is_concrete(a) and not np.all(np.isfinite(np.asarray(a))):
-                raise ValueError(f"{type(obj).__name__}: {name} must be finite, got non-finite entries")
-            object.__setattr__(obj, name, a)
+            object.__setattr__(obj, name, finite_float(type(obj).__name__, name, v))
 
 
-def _is_concrete(*xs: Any) -> bool:
+def finite_float(owner: str, name: str, x: Any) -> Array:
+    """``x`` as a float array; ``TypeError``/``ValueError`` naming ``owner: name`` unless it is
+    real and (when concrete) finite."""
+    try:
+        a = as_float(x)
+    except TypeError as e:
+        raise TypeError(f"{owner}: {name}: {e}") from None
+    if is_concrete(a) and not np.all(np.isfinite(np.asarray(a))):
+        raise ValueError(f"{owner}: {name} must be finite, got non-finite entries")
+    return a
+
+
+def is_concrete(*xs: Any) -> bool:
     """Whether the values of ``xs`` can be read on this host (and so checked before tracing).
 
     A ``jax.Array`` spread over several processes (not fully addressable) has no
@@ -148,7 +154,7 @@ def symmetric_part(A: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 3 3"]:
     a function that reads an inertia through this has a symmetric gradient with
     respect to it, so one gradient step keeps the inertia symmetric.
     """
-    A = _arg("symmetric_part", "A", A, (3, 3))
+    A = array_arg("symmetric_part", "A", A, (3, 3))
     return 0.5 * (A + jnp.swapaxes(A, -1, -2))
 
 
@@ -188,13 +194,13 @@ class Body(BatchIndexing):
     def __post_init__(self) -> None:
         if self._inverse is not None:
             raise TypeError("Body(mass, inertia): the inverse inertia is derived, not an argument")
-        mass = _as_float(self.mass)
-        inertia = _as_float(self.inertia)
+        mass = as_float(self.mass)
+        inertia = as_float(self.inertia)
         dtype = jnp.result_type(mass, inertia)
         mass, inertia = mass.astype(dtype), inertia.astype(dtype)
         if inertia.shape[-2:] != (3, 3):
             raise ValueError(f"Body: inertia must end in (3, 3), got shape {inertia.shape}")
-        if _is_concrete(mass, inertia):
+        if is_concrete(mass, inertia):
             _check_body(mass, inertia)
         object.__setattr__(self, "mass", mass)
         object.__setattr__(self, "inertia", symmetric_part(inertia))
@@ -267,12 +273,12 @@ def _size(fn: str, name: str, x: ArrayLike, *, vector: bool = False) -> Array:
     if isinstance(x, (bool, np.bool_)) or np.dtype(getattr(x, "dtype", None) or "f8") == np.bool_:
         raise TypeError(f"{fn}: {name} must be lengths in m (real numbers), got a bool")
     try:
-        a = _as_float(x)
+        a = as_float(x)
     except TypeError as e:
         raise TypeError(f"{fn}: {name}: {e}") from None
     if vector and a.shape[-1:] != (3,):
         raise ValueError(f"{fn}: {name} must end in (3,) (one length per body axis x, y, z), got shape {a.shape}")
-    if _is_concrete(a):
+    if is_concrete(a):
         v = np.asarray(a)
         if not np.all(np.isfinite(v)) or np.any(v <= 0):
             bad = v[~(np.isfinite(v) & (v > 0))].ravel()[:3]
@@ -290,7 +296,7 @@ def box(mass: Float[ArrayLike, "*B"], size: Float[ArrayLike, "*B 3"]) -> Body:
 
     ``I = m/12 · diag(b² + c², a² + c², a² + b²)``.
     """
-    m, s = _as_float(mass), _size("box", "size", size, vector=True)
+    m, s = as_float(mass), _size("box", "size", size, vector=True)
     a2, b2, c2 = s[..., 0] ** 2, s[..., 1] ** 2, s[..., 2] ** 2
     return Body(m, (m / 12)[..., None, None] * _diag(b2 + c2, a2 + c2, a2 + b2))
 
@@ -300,7 +306,7 @@ def sphere(mass: Float[ArrayLike, "*B"], radius: Float[ArrayLike, "*B"]) -> Body
 
     ``mass`` (kg) and ``radius`` broadcast to the batch shape ``B`` of the body.
     """
-    m, r = _as_float(mass), _size("sphere", "radius", radius)
+    m, r = as_float(mass), _size("sphere", "radius", radius)
     i = 0.4 * m * r**2
     return Body(m, _diag(i, i, i))
 
@@ -310,7 +316,7 @@ def cylinder(mass: Float[ArrayLike, "*B"], radius: Float[ArrayLike, "*B"], lengt
 
     ``Izz = m r²/2``, ``Ixx = Iyy = m (3 r² + l²)/12``.
     """
-    m, r, l = _as_float(mass), _size("cylinder", "radius", radius), _size("cylinder", "length", length)
+    m, r, l = as_float(mass), _size("cylinder", "radius", radius), _size("cylinder", "length", length)
     t = m * (3 * r**2 + l**2) / 12
     return Body(m, _diag(t, t, 0.5 * m * r**2))
 
@@ -320,7 +326,7 @@ def ellipsoid(mass: Float[ArrayLike, "*B"], semi_axes: Float[ArrayLike, "*B 3"])
 
     ``I = m/5 · diag(b² + c², a² + c², a² + b²)``.
     """
-    m, s = _as_float(mass), _size("ellipsoid", "semi_axes", semi_axes, vector=True)
+    m, s = as_float(mass), _size("ellipsoid", "semi_axes", semi_axes, vector=True)
     a2, b2, c2 = s[..., 0] ** 2, s[..., 1] ** 2, s[..., 2] ** 2
     return Body(m, (m / 5)[..., None, None] * _diag(b2 + c2, a2 + c2, a2 + b2))
 
@@ -334,7 +340,7 @@ def particle_inertia(
     ``c = Σ m_i p_i / M`` and ``I = -Σ m_i r̃_i r̃_i`` with ``r_i = p_i - c``
     (the notes' formula), about the centre of mass.
     """
-    m, p = _as_float(masses), _as_float(points)
+    m, p = as_float(masses), as_float(points)
     total = jnp.sum(m, axis=-1)
     com = jnp.sum(m[..., None] * p, axis=-2) / total[..., None]
     rt = skew(p - com[..., None, :])
@@ -351,14 +357,14 @@ def from_particles(masses: Float[ArrayLike, " P"], points: Float[ArrayLike, "P 3
     ``L = Σ r_i × m_i (ω × r_i)``. Collinear points give a singular inertia and
     raise ``ValueError``.
     """
-    m = _arg("from_particles", "masses", masses)
-    p = _arg("from_particles", "points", points, (3,))
+    m = array_arg("from_particles", "masses", masses)
+    p = array_arg("from_particles", "points", points, (3,))
     if m.shape[-1:] != p.shape[-2:-1] or p.ndim < 2:
         raise ValueError(
             f"from_particles: masses (P,) and points (P, 3) must name the same particles, got masses of shape "
             f"{tuple(m.shape)} and points of shape {tuple(p.shape)}"
         )
-    if _is_concrete(m) and np.any(np.asarray(m) <= 0):
+    if is_concrete(m) and np.any(np.asarray(m) <= 0):
         raise ValueError(f"from_particles: every particle mass must be > 0, got {np.asarray(m)}")
     total, com, inertia = particle_inertia(m, p)
     return Body(total, inertia), com
@@ -372,8 +378,8 @@ def parallel_axis(
     ``I_p = I_c + m (‖d‖² 1 - d dᵀ)``, all in the same frame (Steiner's theorem).
     ``inertia``: ``(..., 3, 3)``, ``mass``: ``(...)``, ``offset``: ``(..., 3)``.
     """
-    I = _arg("parallel_axis", "inertia", inertia, (3, 3))
-    m, d = _arg("parallel_axis", "mass", mass), _arg("parallel_axis", "offset", offset, (3,))
+    I = array_arg("parallel_axis", "inertia", inertia, (3, 3))
+    m, d = array_arg("parallel_axis", "mass", mass), array_arg("parallel_axis", "offset", offset, (3,))
     try:
         jnp.broadcast_shapes(I.shape[:-2], m.shape, d.shape[:-1])
     except ValueError:
@@ -393,8 +399,8 @@ def rotate_inertia(
     With ``R`` body to world this is the notes' world inertia ``I_w = R I_L R⁻¹``.
     ``inertia``, ``rotation``: ``(..., 3, 3)``.
     """
-    I = _arg("rotate_inertia", "inertia", inertia, (3, 3))
-    R = _arg("rotate_inertia", "rotation", rotation, (3, 3))
+    I = array_arg("rotate_inertia", "inertia", inertia, (3, 3))
+    R = array_arg("rotate_inertia", "rotation", rotation, (3, 3))
     try:
         jnp.broadcast_shapes(I.shape[:-2], R.shape[:-2])
     except ValueError:

@@ -20,7 +20,7 @@ from jaxtyping import Float
 from ._checked import Checks
 from ._chunk_dir import ChunkWriter, chunk_files, fingerprint
 from ._io import load
-from ._simulate import _is_time_series, _run, start_time
+from ._simulate import is_time_series, run_simulation, start_time
 from ._simulate_support import DEFAULT_METHOD
 from ._state import ForceLike, Forces, StateT
 from ._typing import ArrayLike
@@ -117,7 +117,7 @@ def simulate_chunked(
     if chunk_steps % save_every:
         raise ValueError(f"chunk_steps must be a positive multiple of save_every={save_every}, got {chunk_steps!r}")
     chunk_steps = int(min(chunk_steps, max(steps, save_every)))
-    series = isinstance(forces, Forces) and _is_time_series(forces, state, steps)
+    series = isinstance(forces, Forces) and is_time_series(forces, state, steps)
     kept: list[Any] = []
     current = state
     done, started = 0, False
@@ -146,7 +146,7 @@ def simulate_chunked(
             started = True
             n = min(chunk_steps, steps - done)
             f = jax.tree.map(lambda a, sl=slice(done, done + n): a[sl], forces) if series else forces
-            traj = _run(
+            traj = run_simulation(
                 current,
                 f,
                 dt_arr,

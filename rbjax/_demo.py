@@ -92,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     state = default_scene(args.bodies, dtype=dtype)
     n = state.batch_shape[0]
 
-    run = lambda s: simulate(s, None, args.dt, steps, method, save_every=save_every)  # noqa: E731
+    run = lambda s: simulate(s, None, args.dt, steps, method, save_every=save_every)
     t0 = time.perf_counter()
     compiled = jax.jit(run).lower(state).compile()
     t_compile = time.perf_counter() - t0

@@ -16,25 +16,32 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+from jax import Array
 
 from ._batching import lift
 from ._body import inertia_of
-from ._math import _matmul3, _over, _pure_quat_multiply, cross, skew
+from ._math import cross, matmul3, matvec3, over, pure_quat_multiply, quat_conjugate, quat_rotate, skew
 from ._pytree import replace
-from ._quantities import _omega_world
-from ._state import AnyState, Forces, ParticleState, State, StateT, _apply
+from ._state import AnyState, Forces, ParticleState, State, StateT
 
 __all__ = ["derivative"]
 
 
+def omega_world(s: State) -> Array:
+    # ω = I_w⁻¹ L = R I_L⁻¹ Rᵀ L, evaluated with quaternion rotations (no matrix)
+    return quat_rotate(
+        s.orientation, matvec3(s.body.inverse_inertia, quat_rotate(quat_conjugate(s.orientation), s.angular_momentum))
+    )
+
+
 def _one_derivative(s: AnyState, f: Forces) -> AnyState:
     m = s.mass if isinstance(s, ParticleState) else s.body.mass
-    a = jnp.zeros_like(s.velocity) if f.force is None else _over(f.force, m)
+    a = jnp.zeros_like(s.velocity) if f.force is None else over(f.force, m)
     if isinstance(s, ParticleState):
         return replace(s, position=s.velocity, velocity=a)
     tau = jnp.zeros_like(s.velocity) if f.torque is None else f.torque
     if isinstance(s, State):
-        w = _omega_world(s)
+        w = omega_world(s)
         if f.torque is not None:
             # With a torque, a Runge-Kutta stage's L is L + h Σ a_ij τ_j, and XLA:CPU's fusion
             # emitters then outline ω's components as per-element functions called from each of
@@ -47,18 +54,18 @@ def _one_derivative(s: AnyState, f: Forces) -> AnyState:
             s,
             position=s.velocity,
             velocity=a,
-            orientation=0.5 * _pure_quat_multiply(w, s.orientation),
+            orientation=0.5 * pure_quat_multiply(w, s.orientation),
             angular_momentum=tau,
         )
     R, w = s.rotation, s.angular_velocity
-    I_w = _matmul3(_matmul3(R, inertia_of(s.body)), R.T)
-    I_w_inv = _matmul3(_matmul3(R, s.body.inverse_inertia), R.T)
+    I_w = matmul3(matmul3(R, inertia_of(s.body)), R.T)
+    I_w_inv = matmul3(matmul3(R, s.body.inverse_inertia), R.T)
     return replace(
         s,
         position=s.velocity,
         velocity=a,
-        rotation=_matmul3(skew(w), R),
-        angular_velocity=_apply(I_w_inv, tau - cross(w, _apply(I_w, w))),
+        rotation=matmul3(skew(w), R),
+        angular_velocity=matvec3(I_w_inv, tau - cross(w, matvec3(I_w, w))),
     )
 
 

@@ -39,11 +39,11 @@ from jax import Array
 from jax.sharding import NamedSharding, PartitionSpec
 from jaxtyping import Float, Int
 
-from ._body import _as_float, _floats
-from ._math import cross, quat_rotate, safe_norm
+from ._body import as_float, floats
+from ._math import broadcasts_to, cross, matvec3, quat_rotate, safe_norm
 from ._pytree import field, pytree_dataclass, replace, static_field
 from ._quantities import angular_velocity
-from ._state import AnyState, Forces, MatrixState, ParticleState, RigidState, State, _apply
+from ._state import AnyState, Forces, MatrixState, ParticleState, RigidState, State
 from ._typing import ArrayLike
 
 __all__ = [
@@ -153,10 +153,7 @@ def _fits(model: Any, name: str, core: int, shape: tuple[int, ...], what: str) -
     if a is None:
         return
     lead = tuple(a.shape[: a.ndim - core])
-    try:
-        ok = jnp.broadcast_shapes(lead, tuple(shape)) == tuple(shape)
-    except ValueError:
-        ok = False
+    ok = broadcasts_to(lead, tuple(shape))
     if not ok:
         raise ValueError(
             f"{type(model).__name__}: {name} of shape {tuple(a.shape)} does not fit {what} {tuple(shape)}; give it "
@@ -229,7 +226,7 @@ class Gravity(ForceModel):
     def __post_init__(self) -> None:
         if self.g is None:
             raise TypeError("Gravity: g must be a (3,) acceleration vector in m/s², e.g. (0, 0, -9.81); got None")
-        _floats(self, "g")
+        floats(self, "g")
         if self.g.ndim == 0:
             raise ValueError(
                 f"Gravity: g must be a (3,) acceleration vector in m/s² (world frame), got the scalar {self.g}; "
@@ -245,8 +242,25 @@ class Gravity(ForceModel):
         return Forces(force=_full(_mass(state)[..., None] * _cast(self.g, state), state))
 
 
+class _Drag(ForceModel):
+    """The coefficients of :class:`LinearDrag` and :class:`QuadraticDrag`: ``linear`` and
+    ``angular``, scalar or ``(*B,)``, ``>= 0``, ``angular`` ``None`` for no torque."""
+
+    linear: Array
+    angular: Array | None
+    _NON_NEGATIVE = ("linear", "angular")
+
+    def __post_init__(self) -> None:
+        floats(self, "linear", "angular")
+        _non_negative(self, "linear", "angular")
+
+    def check(self, state: AnyState) -> None:
+        for name in ("linear", "angular"):
+            _fits(self, name, 0, state.batch_shape, "the batch shape")
+
+
 @pytree_dataclass
-class LinearDrag(ForceModel):
+class LinearDrag(_Drag):
     """Viscous drag ``F = -b v`` and, if ``angular`` is given, ``τ = -b_r ω``.
 
     ``linear`` ``b``: scalar or ``(*B,)``, N s/m, ``>= 0``. ``angular`` ``b_r``: scalar or
@@ -256,21 +270,12 @@ class LinearDrag(ForceModel):
 
     linear: Float[Array, "*B"] = field(default=0.0)
     angular: Float[Array, "*B"] | None = field(default=None)
-    _NON_NEGATIVE = ("linear", "angular")
 
     if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
 
         def __init__(
             self, linear: Float[ArrayLike, "*B"] = 0.0, angular: Float[ArrayLike, "*B"] | None = None
         ) -> None: ...
-
-    def __post_init__(self) -> None:
-        _floats(self, "linear", "angular")
-        _non_negative(self, "linear", "angular")
-
-    def check(self, state: AnyState) -> None:
-        for name in ("linear", "angular"):
-            _fits(self, name, 0, state.batch_shape, "the batch shape")
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         self.check(state)
@@ -282,7 +287,7 @@ class LinearDrag(ForceModel):
 
 
 @pytree_dataclass
-class QuadraticDrag(ForceModel):
+class QuadraticDrag(_Drag):
     """Quadratic drag ``F = -c ‖v‖ v`` and, if ``angular`` is given, ``τ = -c_r ‖ω‖ ω``.
 
     ``linear`` ``c``: scalar or ``(*B,)``, kg/m (``½ ρ C_d A``), ``>= 0``. ``angular``
@@ -292,21 +297,12 @@ class QuadraticDrag(ForceModel):
 
     linear: Float[Array, "*B"] = field(default=0.0)
     angular: Float[Array, "*B"] | None = field(default=None)
-    _NON_NEGATIVE = ("linear", "angular")
 
     if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
 
         def __init__(
             self, linear: Float[ArrayLike, "*B"] = 0.0, angular: Float[ArrayLike, "*B"] | None = None
         ) -> None: ...
-
-    def __post_init__(self) -> None:
-        _floats(self, "linear", "angular")
-        _non_negative(self, "linear", "angular")
-
-    def check(self, state: AnyState) -> None:
-        for name in ("linear", "angular"):
-            _fits(self, name, 0, state.batch_shape, "the batch shape")
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         self.check(state)
@@ -341,7 +337,7 @@ def _to_world(state: AnyState, idx: Array, point: Array) -> Array:
     if isinstance(state, State):
         return quat_rotate(_gather(state.orientation, idx), p)
     if isinstance(state, MatrixState):
-        return _apply(_gather(state.rotation, idx), p)
+        return matvec3(_gather(state.rotation, idx), p)
     raise ValueError("a body-frame attachment point needs rigid bodies; ParticleState has no rotation")
 
 
@@ -372,7 +368,7 @@ def _add_at(total: Array, idx: Array, values: Array) -> Array:
     return total.at[idx].add(values, out_sharding=_explicit_sharding(total))
 
 
-def _scatter(n: int, state: AnyState, idx: Array, values: Array) -> Array:
+def _scatter(state: AnyState, idx: Array, values: Array) -> Array:
     return _add_at(jnp.zeros_like(state.position), idx, values)
 
 
@@ -483,7 +479,7 @@ class Spring(ForceModel):
                 )
         elif self.anchor is None:
             raise ValueError("Spring: a world anchor is required when other is None")
-        _floats(self, "stiffness", "point", "anchor", "rest_length", "damping")
+        floats(self, "stiffness", "point", "anchor", "rest_length", "damping")
         _per_item(self, self.body.shape[0], ("point", "anchor"), ("stiffness", "rest_length", "damping"))
         _non_negative(self, "stiffness", "rest_length", "damping")
 
@@ -538,7 +534,7 @@ class Spring(ForceModel):
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         self.check(state)
-        n = _check_flat("Spring", state)
+        _check_flat("Spring", state)
         rotating = self.point is not None or (self.other is not None and self.anchor is not None)
         omega = angular_velocity(_no_torque_for_particles("Spring(point=...)", state)) if rotating else None
         r_a = _offset(state, self.body, self.point)
@@ -560,13 +556,13 @@ class Spring(ForceModel):
             rel = -v_a if v_b is None else v_b - v_a
             f_a = f_a + _cast(self.damping, state)[..., None] * rel
         f_a = jnp.broadcast_to(f_a, d.shape)
-        force = _scatter(n, state, self.body, f_a)
-        torque = None if r_a is None else _scatter(n, state, self.body, cross(r_a, f_a))
+        force = _scatter(state, self.body, f_a)
+        torque = None if r_a is None else _scatter(state, self.body, cross(r_a, f_a))
         if self.other is not None:
             force = _add_at(force, self.other, -f_a)
             if r_b is not None:
                 tb = cross(r_b, -f_a)
-                torque = _scatter(n, state, self.other, tb) if torque is None else _add_at(torque, self.other, tb)
+                torque = _scatter(state, self.other, tb) if torque is None else _add_at(torque, self.other, tb)
         return Forces(force=force, torque=torque)
 
 
@@ -602,7 +598,7 @@ class Thruster(ForceModel):
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "body", _as_index("Thruster", "body", self.body))
-        _floats(self, "direction", "thrust", "point")
+        floats(self, "direction", "thrust", "point")
         _per_item(self, self.body.shape[0], ("direction", "point"), ("thrust",))
         d = self.direction
         if _concrete(d) and d.size:
@@ -619,14 +615,14 @@ class Thruster(ForceModel):
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         self.check(state)
-        n = _check_flat("Thruster", state)
+        _check_flat("Thruster", state)
         if isinstance(state, ParticleState):
             raise ValueError("Thruster: a body-fixed direction needs rigid bodies, not ParticleState")
         d = _to_world(state, self.body, self.direction)
         f = _cast(self.thrust, state)[..., None] * d
         r = _offset(state, self.body, self.point)
-        force = _scatter(n, state, self.body, f)
-        return Forces(force=force, torque=None if r is None else _scatter(n, state, self.body, cross(r, f)))
+        force = _scatter(state, self.body, f)
+        return Forces(force=force, torque=None if r is None else _scatter(state, self.body, cross(r, f)))
 
 
 # ---------------------------------------------------------------- prescribed loads
@@ -650,7 +646,7 @@ class ConstantForce(ForceModel):
         ) -> None: ...
 
     def __post_init__(self) -> None:
-        _floats(self, "force", "torque")
+        floats(self, "force", "torque")
         _core(self, "force", (3,), " (a force vector, N)")
         _core(self, "torque", (3,), " (a torque vector, N m)")
 
@@ -708,7 +704,7 @@ class TimeSeriesForce(ForceModel):
     def __post_init__(self) -> None:
         if self.interpolation not in ("linear", "hold"):
             raise ValueError(f"TimeSeriesForce: interpolation must be 'linear' or 'hold', got {self.interpolation!r}")
-        _floats(self, "times")
+        floats(self, "times")
         if self.times.ndim != 1 or self.times.shape[0] < 1:
             raise ValueError(f"TimeSeriesForce: times must have shape (K,) with K >= 1, got {tuple(self.times.shape)}")
         if _concrete(self.times) and np.any(np.diff(np.asarray(self.times)) <= 0):
@@ -717,7 +713,7 @@ class TimeSeriesForce(ForceModel):
         for name in ("force", "torque"):
             v = getattr(self, name)
             if v is not None:
-                _floats(self, name)
+                floats(self, name)
                 v = getattr(self, name)
                 if v.ndim < 2 or v.shape[0] != k or v.shape[-1] != 3:
                     raise ValueError(
@@ -731,10 +727,7 @@ class TimeSeriesForce(ForceModel):
             a = getattr(self, name)
             if a is None:
                 continue
-            try:
-                ok = jnp.broadcast_shapes(tuple(a.shape[1:]), want) == want
-            except ValueError:
-                ok = False
+            ok = broadcasts_to(tuple(a.shape[1:]), want)
             if not ok:
                 raise ValueError(
                     f"TimeSeriesForce: {name} samples of shape {tuple(a.shape[1:])} do not fit the batch: each must "
@@ -774,14 +767,11 @@ class ExternalForce(ForceModel):
     def _value(self, name: str, state: AnyState, t: Any) -> Array:
         fn = getattr(self, name)
         try:
-            a = _as_float(fn(t)).astype(state.dtype)
+            a = as_float(fn(t)).astype(state.dtype)
         except TypeError as e:
             raise TypeError(f"ExternalForce: {name}(t) must return a real (3,) or (*B, 3) array: {e}") from None
         want = tuple(state.position.shape)
-        try:
-            ok = jnp.broadcast_shapes(tuple(a.shape), want) == want
-        except ValueError:
-            ok = False
+        ok = broadcasts_to(tuple(a.shape), want)
         if not ok:
             raise ValueError(
                 f"ExternalForce: {name}(t) returned shape {tuple(a.shape)}, which does not broadcast to the "

@@ -22,8 +22,8 @@ import numpy as np
 from jax import Array
 from jaxtyping import Float
 
-from ._body import TRIANGLE_RTOL, _is_concrete
-from ._math import _arg
+from ._body import TRIANGLE_RTOL, is_concrete
+from ._math import array_arg
 from ._typing import ArrayLike
 
 __all__ = ["inertia_from_params", "params_from_inertia", "second_moment"]
@@ -43,7 +43,7 @@ def inertia_from_params(theta: Float[ArrayLike, "... 6"]) -> Float[Array, "... 3
     ``I = tr(Σ) 1 - Σ``. Always symmetric positive definite with strict triangle
     inequalities (for finite ``θ``); smooth, so gradients flow to ``θ``.
     """
-    theta = _arg("inertia_from_params", "theta", theta, (6,))
+    theta = array_arg("inertia_from_params", "theta", theta, (6,))
     L = _lower(theta)
     sigma = L @ jnp.swapaxes(L, -1, -2)
     tr = jnp.trace(sigma, axis1=-2, axis2=-1)
@@ -52,7 +52,7 @@ def inertia_from_params(theta: Float[ArrayLike, "... 6"]) -> Float[Array, "... 3
 
 def second_moment(inertia: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 3 3"]:
     """Second-moment matrix ``Σ = ½ tr(I) 1 - I`` ``(..., 3, 3)`` of an inertia tensor."""
-    I = _arg("second_moment", "inertia", inertia, (3, 3))
+    I = array_arg("second_moment", "inertia", inertia, (3, 3))
     tr = jnp.trace(I, axis1=-2, axis2=-1)
     return 0.5 * tr[..., None, None] * jnp.eye(3, dtype=I.dtype) - I
 
@@ -73,11 +73,11 @@ def params_from_inertia(inertia: Float[ArrayLike, "... 3 3"], rtol: float = TRIA
     :data:`rbjax.TRIANGLE_RTOL`) are floored too. A concrete inertia that breaks
     the triangle inequality by more raises ``ValueError``; a traced one gives NaN.
     """
-    I = _arg("params_from_inertia", "inertia", inertia, (3, 3))
+    I = array_arg("params_from_inertia", "inertia", inertia, (3, 3))
     S = second_moment(0.5 * (I + jnp.swapaxes(I, -1, -2)))
     tr = jnp.trace(I, axis1=-2, axis2=-1)
     floor, worst = 16 * jnp.finfo(I.dtype).eps * tr, -rtol * tr
-    if _is_concrete(I):
+    if is_concrete(I):
         moments = np.linalg.eigvalsh(np.asarray(S, dtype=np.float64))
         bad = moments[..., 0] < -rtol * np.asarray(np.trace(np.asarray(I), axis1=-2, axis2=-1))
         if np.any(bad):
@@ -88,8 +88,8 @@ def params_from_inertia(inertia: Float[ArrayLike, "... 3 3"], rtol: float = TRIA
             )
     # Cholesky of the 3x3 by hand, each pivot floored (jnp.linalg.cholesky gives NaN at a zero
     # pivot); a pivot below -rtol tr I is an impossible inertia: NaN, never a silent other one
-    s = lambda i, j: S[..., i, j]  # noqa: E731
-    root = lambda d: jnp.sqrt(jnp.where(d < worst, jnp.nan, jnp.maximum(d, floor)))  # noqa: E731
+    s = lambda i, j: S[..., i, j]
+    root = lambda d: jnp.sqrt(jnp.where(d < worst, jnp.nan, jnp.maximum(d, floor)))
     l00 = root(s(0, 0))
     l10, l20 = s(1, 0) / l00, s(2, 0) / l00
     l11 = root(s(1, 1) - l10**2)

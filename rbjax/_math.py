@@ -50,7 +50,7 @@ __all__ = [
 _WHAT = {(3,): "3-vectors", (4,): "quaternions [w, x, y, z]", (3, 3): "3x3 matrices", (6,): "6-vectors"}
 
 
-def _arg(fn: str, name: str, x: Any, core: tuple[int, ...] = ()) -> Array:
+def array_arg(fn: str, name: str, x: Any, core: tuple[int, ...] = ()) -> Array:
     """``x`` as a float array whose shape ends in ``core``; ``TypeError``/``ValueError`` naming ``fn``'s ``name``.
 
     Runs while tracing (shape and dtype are static), so it costs nothing in a
@@ -88,6 +88,14 @@ def _batches(fn: str, **named: tuple[Array, int]) -> None:
         raise ValueError(f"{fn}: the batch shapes do not broadcast ({listed})") from None
 
 
+def broadcasts_to(shape: tuple[int, ...], want: tuple[int, ...]) -> bool:
+    """Whether an array of ``shape`` broadcasts to exactly ``want``."""
+    try:
+        return jnp.broadcast_shapes(tuple(shape), tuple(want)) == tuple(want)
+    except ValueError:
+        return False
+
+
 def _eps(x: Array) -> Array:
     return jnp.asarray(jnp.finfo(x.dtype).eps, x.dtype)
 
@@ -98,7 +106,7 @@ def safe_norm(x: Float[ArrayLike, " ..."], axis: int = -1, keepdims: bool = Fals
     Uses the double-``where`` pattern: the square root never sees a zero that
     would be differentiated. ``x``: ``(..., n, ...)``; returns ``x``'s shape without ``axis``.
     """
-    x = _arg("safe_norm", "x", x)
+    x = array_arg("safe_norm", "x", x)
     if isinstance(axis, (bool, np.bool_)) or not isinstance(axis, (int, np.integer)) or not -x.ndim <= axis < x.ndim:
         raise ValueError(
             f"safe_norm: axis must be an int in [-{x.ndim}, {x.ndim}) for x of shape {x.shape}, got {axis!r}"
@@ -117,7 +125,7 @@ def skew(a: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3 3"]:
              [ az,  0, -ax],
              [-ay, ax,   0]]
     """
-    a = _arg("skew", "a", a, (3,))
+    a = array_arg("skew", "a", a, (3,))
     ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
     z = jnp.zeros_like(ax)
     return jnp.stack(
@@ -132,7 +140,7 @@ def skew(a: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3 3"]:
 
 def cross(a: Float[ArrayLike, "... 3"], b: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3"]:
     """Cross product ``a × b`` of ``(..., 3)`` vectors, written by components."""
-    a, b = _arg("cross", "a", a, (3,)), _arg("cross", "b", b, (3,))
+    a, b = array_arg("cross", "a", a, (3,)), array_arg("cross", "b", b, (3,))
     _batches("cross", a=(a, 1), b=(b, 1))
     return jnp.stack(_cross(_unstack(a), _unstack(b)), axis=-1)
 
@@ -145,7 +153,7 @@ def _unstack(a: Array) -> tuple[Array, ...]:
     return tuple(a[..., i] for i in range(a.shape[-1]))
 
 
-def _over(a: Array, s: Array) -> Array:
+def over(a: Array, s: Array) -> Array:
     """``a / s`` for ``(..., 3)`` vectors and per-body scalars, by components.
 
     ``a / s`` itself mixes a vector with a scalar of another rank; under ``vmap``
@@ -156,18 +164,18 @@ def _over(a: Array, s: Array) -> Array:
     return jnp.stack([a[..., k] / s for k in range(3)], axis=-1)
 
 
-def _kick3(v: Array, f: Array, m: Array, h: Array) -> Array:
-    """``v + f/m h`` by components (see :func:`_over`): the same operations, which XLA may fuse
+def kick3(v: Array, f: Array, m: Array, h: Array) -> Array:
+    """``v + f/m h`` by components (see :func:`over`): the same operations, which XLA may fuse
     (contract) differently from the vector form, so results differ from it by round-off only."""
     return jnp.stack([v[..., k] + f[..., k] / m * h for k in range(3)], axis=-1)
 
 
-def _dot3(a: Array, b: Array) -> Array:
+def dot3(a: Array, b: Array) -> Array:
     """``a · b`` of ``(..., 3)`` vectors by components (a sum would be a reduction)."""
     return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
 
 
-def _matmul3(A: Array, B: Array) -> Array:
+def matmul3(A: Array, B: Array) -> Array:
     """``A @ B`` of ``(..., 3, 3)`` matrices by components: a batched ``dot`` of 3x3
     blocks is a separate, unfused XLA:CPU kernel per product."""
     return jnp.stack(
@@ -176,7 +184,7 @@ def _matmul3(A: Array, B: Array) -> Array:
     )
 
 
-def _pure_quat_multiply(w: Array, q: Array) -> Array:
+def pure_quat_multiply(w: Array, q: Array) -> Array:
     """``(0, w) ⊗ q`` for a ``(..., 3)`` vector ``w``: ``(-w·u, q_w w + w × u)`` with ``q = (q_w, u)``.
 
     The quaternion rate ``q̇ = ½ (0, ω) ⊗ q`` without building ``(0, ω)`` (a
@@ -188,6 +196,13 @@ def _pure_quat_multiply(w: Array, q: Array) -> Array:
     return jnp.stack([-(wv[0] * u[0] + wv[1] * u[1] + wv[2] * u[2])] + [qw * wv[i] + c[i] for i in range(3)], axis=-1)
 
 
+def matvec3(A: Array, v: Array) -> Array:
+    """``A v`` for ``(..., 3, 3)`` and ``(..., 3)``, by components (fuses under vmap)."""
+    # single components only (see _unstack): rows of A dotted with v
+    v0, v1, v2 = v[..., 0], v[..., 1], v[..., 2]
+    return jnp.stack([A[..., i, 0] * v0 + A[..., i, 1] * v1 + A[..., i, 2] * v2 for i in range(3)], axis=-1)
+
+
 def _cross(a: tuple, b: tuple) -> tuple:
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
@@ -197,7 +212,7 @@ def quat_multiply(p: Float[ArrayLike, "... 4"], q: Float[ArrayLike, "... 4"]) ->
 
     ``(pw, pv) ⊗ (qw, qv) = (pw qw - pv·qv, pw qv + qw pv + pv × qv)``.
     """
-    p, q = _arg("quat_multiply", "p", p, (4,)), _arg("quat_multiply", "q", q, (4,))
+    p, q = array_arg("quat_multiply", "p", p, (4,)), array_arg("quat_multiply", "q", q, (4,))
     _batches("quat_multiply", p=(p, 1), q=(q, 1))
     pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
     qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
@@ -217,7 +232,7 @@ def quat_conjugate(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
 
     ``q``: ``(..., 4)``; returns ``(..., 4)``.
     """
-    q = _arg("quat_conjugate", "q", q, (4,))
+    q = array_arg("quat_conjugate", "q", q, (4,))
     return jnp.stack([q[..., 0], -q[..., 1], -q[..., 2], -q[..., 3]], axis=-1)
 
 
@@ -227,7 +242,7 @@ def quat_rotate(q: Float[ArrayLike, "... 4"], v: Float[ArrayLike, "... 3"]) -> F
     Evaluated as ``v + w t + u × t`` with ``t = 2 u × v`` (``q = [w, u]``): 18
     multiplies, no rotation matrix.
     """
-    q, v = _arg("quat_rotate", "q", q, (4,)), _arg("quat_rotate", "v", v, (3,))
+    q, v = array_arg("quat_rotate", "q", q, (4,)), array_arg("quat_rotate", "v", v, (3,))
     _batches("quat_rotate", q=(q, 1), v=(v, 1))
     w, u = q[..., 0], (q[..., 1], q[..., 2], q[..., 3])
     t = tuple(2 * c for c in _cross(u, _unstack(v)))
@@ -237,7 +252,7 @@ def quat_rotate(q: Float[ArrayLike, "... 4"], v: Float[ArrayLike, "... 3"]) -> F
 
 def quat_normalize(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
     """``q / ‖q‖`` for ``(..., 4)`` quaternions (finite gradient; ``q = 0`` is invalid)."""
-    q = _arg("quat_normalize", "q", q, (4,))
+    q = array_arg("quat_normalize", "q", q, (4,))
     # explicit components, not a reduce: a reduction ends an XLA:CPU loop fusion
     w, x, y, z = _unstack(q)
     inv = 1 / jnp.sqrt(w * w + x * x + y * y + z * z)
@@ -250,7 +265,7 @@ def quat_to_matrix(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 3 3"]:
     ``R = (w² - u·u) 1 + 2 u uᵀ + 2 w ũ``. Columns of ``R`` are the body axes
     expressed in the world frame, as in the notes.
     """
-    q = _arg("quat_to_matrix", "q", q, (4,))
+    q = array_arg("quat_to_matrix", "q", q, (4,))
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     xx, yy, zz = x * x, y * y, z * z
     xy, xz, yz = x * y, x * z, y * z
@@ -273,7 +288,7 @@ def matrix_to_quat(R: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 4"]:
     every rotation, including half turns. The square roots of the unused
     candidates are clamped, so gradients carry no NaN from branches not taken.
     """
-    R = _arg("matrix_to_quat", "R", R, (3, 3))
+    R = array_arg("matrix_to_quat", "R", R, (3, 3))
     r00, r01, r02 = R[..., 0, 0], R[..., 0, 1], R[..., 0, 2]
     r10, r11, r12 = R[..., 1, 0], R[..., 1, 1], R[..., 1, 2]
     r20, r21, r22 = R[..., 2, 0], R[..., 2, 1], R[..., 2, 2]
@@ -303,8 +318,8 @@ def quat_exp(rotvec: Float[ArrayLike, "... 3"]) -> Float[Array, "... 4"]:
         ``sin(θ/2)/θ``, so the value and every gradient are finite at zero rotation.
     ``rotvec``: ``(..., 3)``; returns ``(..., 4)``.
     """
-    v = _arg("quat_exp", "rotvec", rotvec, (3,))
-    th2 = _dot3(v, v)[..., None]
+    v = array_arg("quat_exp", "rotvec", rotvec, (3,))
+    th2 = dot3(v, v)[..., None]
     small = th2 < jnp.sqrt(_eps(v))
     th = jnp.sqrt(jnp.where(small, 1.0, th2))
     half_sinc = jnp.where(small, 0.5 - th2 / 48 + th2 * th2 / 3840, jnp.sin(th / 2) / th)
@@ -319,7 +334,7 @@ def quat_log(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 3"]:
     ``q`` and ``-q`` give the same result (the shorter rotation). Finite
     gradients at the identity. ``q``: ``(..., 4)``; returns ``(..., 3)``.
     """
-    q = _arg("quat_log", "q", q, (4,))
+    q = array_arg("quat_log", "q", q, (4,))
     q = jnp.where(q[..., :1] < 0, -q, q)
     w, u = q[..., :1], q[..., 1:]
     s = safe_norm(u, keepdims=True)
@@ -337,13 +352,13 @@ def quat_angle(p: Float[ArrayLike, "... 4"], q: Float[ArrayLike, "... 4"]) -> Fl
         quaternion, accurate for small angles (unlike ``arccos``). ``p``, ``q``:
     ``(..., 4)``, broadcast; returns ``(...)``.
     """
-    p, q = _arg("quat_angle", "p", p, (4,)), _arg("quat_angle", "q", q, (4,))
+    p, q = array_arg("quat_angle", "p", p, (4,)), array_arg("quat_angle", "q", q, (4,))
     _batches("quat_angle", p=(p, 1), q=(q, 1))
     d = quat_multiply(quat_conjugate(p), q)
     return 2 * jnp.arctan2(safe_norm(d[..., 1:]), jnp.abs(d[..., 0]))
 
 
-def _orthonormalize(R: Array, iterations: int = 2) -> Array:
+def orthonormalize_unchecked(R: Array, iterations: int = 2) -> Array:
     """Newton–Schulz polar iterations ``R ← R (3·1 - RᵀR) / 2`` (the integrators' projection).
 
     Unchecked and unscaled: for the nearly orthogonal matrices of a step
@@ -351,8 +366,8 @@ def _orthonormalize(R: Array, iterations: int = 2) -> Array:
     """
     eye = jnp.eye(3, dtype=R.dtype)
     for _ in range(iterations):
-        RtR = _matmul3(jnp.swapaxes(R, -1, -2), R)
-        R = 0.5 * _matmul3(R, 3 * eye - RtR)
+        RtR = matmul3(jnp.swapaxes(R, -1, -2), R)
+        R = 0.5 * matmul3(R, 3 * eye - RtR)
     return R
 
 
@@ -378,13 +393,13 @@ def orthonormalize(R: Float[ArrayLike, "... 3 3"], iterations: int = 2) -> Float
     an ``R`` with ``det R ≤ 0`` (a reflection: no nearest rotation in this
     sense) gives NaN. Dimensionless; returns ``(..., 3, 3)``.
     """
-    R = _arg("orthonormalize", "R", R, (3, 3))
+    R = array_arg("orthonormalize", "R", R, (3, 3))
     if isinstance(iterations, (bool, np.bool_)) or not isinstance(iterations, (int, np.integer)) or iterations < 0:
         raise ValueError(f"orthonormalize: iterations must be a non-negative int, got {iterations!r}")
     det = _det3(R)
     positive = det > 0
     scale = jnp.cbrt(jnp.where(positive, det, 1.0))
-    out = _orthonormalize(R / scale[..., None, None], int(iterations))
+    out = orthonormalize_unchecked(R / scale[..., None, None], int(iterations))
     out = jnp.where(positive[..., None, None], out, jnp.nan)
     if not isinstance(out, jax.core.Tracer):
         _check_rotation_out(R, out, int(iterations))

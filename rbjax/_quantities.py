@@ -12,9 +12,21 @@ from jaxtyping import Float
 
 from ._batching import lift
 from ._body import inertia_of
-from ._math import _arg, _dot3, _matmul3, cross, matrix_to_quat, quat_conjugate, quat_rotate, quat_to_matrix
+from ._dynamics import omega_world
+from ._math import (
+    array_arg,
+    broadcasts_to,
+    cross,
+    dot3,
+    matmul3,
+    matrix_to_quat,
+    matvec3,
+    quat_conjugate,
+    quat_rotate,
+    quat_to_matrix,
+)
 from ._pytree import new_unchecked
-from ._state import AnyState, MatrixState, ParticleState, RigidState, State, _apply
+from ._state import AnyState, MatrixState, ParticleState, RigidState, State
 from ._typing import ArrayLike
 
 __all__ = [
@@ -41,16 +53,9 @@ def _expect(state: object, fn: str, types: tuple[type, ...] = (State, MatrixStat
 _ANY = (State, MatrixState, ParticleState)
 
 
-def _omega_world(s: State) -> Array:
-    # ω = I_w⁻¹ L = R I_L⁻¹ Rᵀ L, evaluated with quaternion rotations (no matrix)
-    return quat_rotate(
-        s.orientation, _apply(s.body.inverse_inertia, quat_rotate(quat_conjugate(s.orientation), s.angular_momentum))
-    )
-
-
 def _one_angular_velocity(s: RigidState) -> Array:
     if isinstance(s, State):
-        return _omega_world(s)
+        return omega_world(s)
     return s.angular_velocity
 
 
@@ -66,8 +71,8 @@ def angular_velocity(state: RigidState) -> Float[Array, "*B 3"]:
 
 def _one_body_angular_velocity(s: RigidState) -> Array:
     if isinstance(s, State):
-        return _apply(s.body.inverse_inertia, quat_rotate(quat_conjugate(s.orientation), s.angular_momentum))
-    return _apply(jnp.swapaxes(s.rotation, -1, -2), s.angular_velocity)
+        return matvec3(s.body.inverse_inertia, quat_rotate(quat_conjugate(s.orientation), s.angular_momentum))
+    return matvec3(jnp.swapaxes(s.rotation, -1, -2), s.angular_velocity)
 
 
 def body_angular_velocity(state: RigidState) -> Float[Array, "*B 3"]:
@@ -98,7 +103,7 @@ def orientation(state: RigidState) -> Float[Array, "*B 4"]:
 
 def _one_world_inertia(s: RigidState) -> Array:
     R = _one_rotation(s)
-    return _matmul3(_matmul3(R, inertia_of(s.body)), R.T)
+    return matmul3(matmul3(R, inertia_of(s.body)), R.T)
 
 
 def world_inertia(state: RigidState) -> Float[Array, "*B 3 3"]:
@@ -113,7 +118,7 @@ def _one_angular_momentum(s: AnyState, about: Array | None) -> Array:
     if isinstance(s, State):
         L = s.angular_momentum
     else:
-        L = _apply(s.rotation, _apply(inertia_of(s.body), _apply(s.rotation.T, s.angular_velocity)))
+        L = matvec3(s.rotation, matvec3(inertia_of(s.body), matvec3(s.rotation.T, s.angular_velocity)))
     if about is not None:
         L = L + cross(s.position - about, s.body.mass * s.velocity)
     return L
@@ -127,13 +132,10 @@ def angular_momentum(state: AnyState, about: Float[ArrayLike, "*B 3"] | None = N
     ``L = r × p`` about ``about`` (default the world origin), as in the notes.
     """
     _expect(state, "angular_momentum", _ANY)
-    a = None if about is None else _arg("angular_momentum", "about", about, (3,)).astype(state.dtype)
+    a = None if about is None else array_arg("angular_momentum", "about", about, (3,)).astype(state.dtype)
     if a is not None:
         want = tuple(state.position.shape)
-        try:
-            ok = jnp.broadcast_shapes(tuple(a.shape), want) == want
-        except ValueError:
-            ok = False
+        ok = broadcasts_to(tuple(a.shape), want)
         if not ok:
             raise ValueError(
                 f"angular_momentum: about of shape {tuple(a.shape)} does not fit the state's positions {want}; "
@@ -164,12 +166,12 @@ def linear_momentum(state: AnyState) -> Float[Array, "*B 3"]:
 
 def _one_kinetic_energy(s: AnyState) -> Array:
     m = s.mass if isinstance(s, ParticleState) else s.body.mass
-    e = 0.5 * m * _dot3(s.velocity, s.velocity)
+    e = 0.5 * m * dot3(s.velocity, s.velocity)
     if isinstance(s, ParticleState):
         return e
     w = _one_angular_velocity(s)
     L = s.angular_momentum if isinstance(s, State) else _one_angular_momentum(s, None)
-    return e + 0.5 * _dot3(w, L)
+    return e + 0.5 * dot3(w, L)
 
 
 def kinetic_energy(state: AnyState) -> Float[Array, "*B"]:

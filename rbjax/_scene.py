@@ -35,7 +35,7 @@ from jax import Array
 from jaxtyping import Float
 
 from . import _methods, _specialise
-from ._body import Body, _is_concrete
+from ._body import Body, is_concrete
 from ._forces import ForceModel, ForceSum
 from ._pytree import pytree_dataclass, static_field
 from ._simulate import simulate as _simulate_fn
@@ -98,7 +98,7 @@ def body_kind(body: Body) -> str:
 
 def _has_value(a: Any) -> bool:
     """Concrete on this host, or a ``jax.Array`` spread over processes (reduced by XLA): not traced."""
-    return _is_concrete(a) or (isinstance(a, jax.Array) and not isinstance(a, jax.core.Tracer))
+    return is_concrete(a) or (isinstance(a, jax.Array) and not isinstance(a, jax.core.Tracer))
 
 
 def _kind_flags(I: Any, xp: Any) -> tuple[Any, Any]:

@@ -7,7 +7,7 @@ from typing import Any
 import jax
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from ._batching import _map_leaves
+from ._batching import map_leaves
 from ._pytree import is_rbjax_dataclass
 from ._trajectory import full_batch_shape
 
@@ -52,7 +52,7 @@ def batch_sharding(obj: Any, mesh: Mesh, axis_name: str = "bodies", batch_axis: 
             parts[p] = axis_name
         return NamedSharding(mesh, PartitionSpec(*parts))
 
-    out = _map_leaves(obj, spec)
+    out = map_leaves(obj, spec)
     # the result is a pytree of shardings with obj's structure (no array work was done)
     assert jax.tree.structure(out) == jax.tree.structure(obj)
     return out

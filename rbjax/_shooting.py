@@ -24,23 +24,24 @@ rugged. Two standard remedies, both built on :func:`rbjax.step` /
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import Any, cast
 
 import jax
 import jax.core
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
-from jaxtyping import ArrayLike, Float
+from jaxtyping import Float
 
 from . import _methods
-from ._batching import _in_axes, batch_shape
+from ._batching import batch_shape, in_axes_of
 from ._math import quat_conjugate, quat_log, quat_multiply
 from ._pytree import replace
 from ._simulate import as_force_fn, simulate, start_time
 from ._simulate_support import DEFAULT_METHOD, constant_fields
 from ._state import AnyState, ForceLike, Forces, State
 from ._trajectory import stack_frames
+from ._typing import ArrayLike
 from ._validate import check_dt, check_state
 
 __all__ = ["shoot", "defects", "simulate_truncated"]
@@ -53,7 +54,7 @@ def _scan_segment(state: Any, force_fn: Callable, dts: Array, t0: Array, step_fn
     state first). A step with ``dt = 0`` leaves the state unchanged (padding).
     """
     consts = {k: getattr(state, k) for k in constant_fields(state)}
-    strip = lambda s: replace(s, **{k: None for k in consts})  # noqa: E731
+    strip = lambda s: replace(s, **{k: None for k in consts})
 
     def sub(carry, dt):
         dyn, t = carry
@@ -138,8 +139,8 @@ def shoot(
         raise ValueError(f"shoot: t0 must be a scalar or (S,) = {(S,)}, got {t0.shape}")
     force_fn = as_force_fn(forces)
     n_save = steps // save_every
-    run = lambda s, d, t: _scan_segment(s, force_fn, d.reshape(n_save, save_every), t, step_fn)  # noqa: E731
-    traj = jax.vmap(run, in_axes=(_in_axes(starts, 0, nd, last=False), 0, 0))(starts, dts, t0)
+    run = lambda s, d, t: _scan_segment(s, force_fn, d.reshape(n_save, save_every), t, step_fn)
+    traj = jax.vmap(run, in_axes=(in_axes_of(starts, 0, nd, last=False), 0, 0))(starts, dts, t0)
     consts = constant_fields(starts)
     # vmap put segments first; time leads in rbjax trajectories
     moved = {
@@ -174,8 +175,8 @@ def defects(ends: State, starts: State) -> Float[Array, "S-1 *B 12"]:
         raise ValueError("defects: ends and starts must be rbjax.State (quaternion form)")
     if batch_shape(ends)[:1] != batch_shape(starts)[:1]:
         raise ValueError(f"defects: segment counts differ: {batch_shape(ends)} vs {batch_shape(starts)}")
-    e = lambda a: a[:-1]  # noqa: E731
-    n = lambda a: a[1:]  # noqa: E731
+    e = lambda a: a[:-1]
+    n = lambda a: a[1:]
     rot = quat_log(quat_multiply(quat_conjugate(e(ends.orientation)), n(starts.orientation)))
     return jnp.concatenate(
         [
@@ -241,7 +242,7 @@ def simulate_truncated(
     n_chunks = steps // k
     consts = constant_fields(state)
     const_vals = {n: getattr(state, n) for n in consts}
-    strip = lambda s: replace(s, **{n: None for n in consts})  # noqa: E731
+    strip = lambda s: replace(s, **{n: None for n in consts})
     series = isinstance(forces, Forces) and any(
         a is not None and a.ndim >= 2 and a.shape[0] == steps and a.ndim - 1 > len(state.batch_shape)
         for a in (forces.force, forces.torque)
@@ -265,5 +266,6 @@ def simulate_truncated(
     _, rest = jax.lax.scan(chunk, carry, (jnp.arange(1, n_chunks, dtype=dtype), rest_f))
     rest = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:]), rest)
     traj = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), first, rest)
-    times = t0 + (save_every * jnp.arange(steps // save_every + 1)).astype(dtype) * dt  # as simulate's
+    # check_dt passed: dt is a real scalar (the cast is for the type checker)
+    times = t0 + (save_every * jnp.arange(steps // save_every + 1)).astype(dtype) * cast(Array, dt)  # as simulate's
     return stack_frames(traj, state, times)

@@ -14,7 +14,7 @@ from jax import Array
 from jaxtyping import Float
 
 from . import _checked, _methods, _native
-from ._batching import _map_leaves, batch_last, batch_shape, lift, to_batch_first, to_batch_last
+from ._batching import batch_last, batch_shape, lift, map_leaves, to_batch_first, to_batch_last
 from ._body import prepare
 from ._forces import ForceModel
 from ._pytree import replace
@@ -40,7 +40,7 @@ def as_force_fn(forces: ForceLike) -> Callable[[Any, Array], Forces]:
 
 def cast_forces(forces: Forces, dtype: Any) -> Forces:
     """``forces`` with its arrays in the state's ``dtype`` (a float64 force must not promote a float32 state)."""
-    cast = lambda a: None if a is None else a.astype(dtype)  # noqa: E731
+    cast = lambda a: None if a is None else a.astype(dtype)
     if all(a is None or a.dtype == dtype for a in (forces.force, forces.torque)):
         return forces
     return replace(forces, force=cast(forces.force), torque=cast(forces.torque))
@@ -98,7 +98,7 @@ def _canonical(state: Any) -> Any:
             drop += 1
         return a.reshape(a.shape[drop:])
 
-    return replace(state, body=_map_leaves(state.body, squeeze))
+    return replace(state, body=map_leaves(state.body, squeeze))
 
 
 def _prepared(state: Any) -> Any:
@@ -154,7 +154,7 @@ def step(
     return replace(new, **keep, time=jnp.broadcast_to(t + dt, jnp.shape(state.time)).astype(dtype))
 
 
-def _is_time_series(forces: Forces, state: AnyState, steps: int) -> bool:
+def is_time_series(forces: Forces, state: AnyState, steps: int) -> bool:
     leaves = [a for a in (forces.force, forces.torque) if a is not None]
     if not leaves:
         return False
@@ -255,7 +255,7 @@ def simulate(
     eagerly; inside a caller's ``jax.jit`` it arrives wrapped in JAX's
     ``JaxRuntimeError`` (use ``equinox.filter_jit`` to unwrap it).
     """
-    return _run(
+    return run_simulation(
         state,
         forces,
         dt,
@@ -285,7 +285,9 @@ def _native_path(native: bool | None, state, forces, method, *, series: bool, ch
     return not reason
 
 
-def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoint=None, step_offset=0, native=None):
+def run_simulation(
+    state, forces, dt, steps, method, *, save_every, t0, checked, checkpoint=None, step_offset=0, native=None
+):
     """``simulate`` after its signature.
 
     ``step_offset`` is the number of steps already done from ``t0`` (a chunked
@@ -308,7 +310,7 @@ def _run(state, forces, dt, steps, method, *, save_every, t0, checked, checkpoin
     t0 = start_time(state) if t0 is None else t0
     if isinstance(forces, Forces):
         forces = cast_forces(forces, state.dtype)
-        series = _is_time_series(forces, state, steps)
+        series = is_time_series(forces, state, steps)
         if not series:
             batch_shape(state, forces)
     elif isinstance(forces, ForceModel):
@@ -378,8 +380,8 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
     # force callables see the usual batch-first layout.
     agnostic = getattr(method, "layout_agnostic", None)
     soa = not callable(method) or (agnostic is not None and agnostic(type(state)))
-    to_soa = to_batch_last if soa else (lambda x: x)  # noqa: E731
-    to_aos = to_batch_first if soa else (lambda x: x)  # noqa: E731
+    to_soa = to_batch_last if soa else (lambda x: x)
+    to_aos = to_batch_first if soa else (lambda x: x)
 
     initial = state
     consts = {k: getattr(state, k) for k in constant_fields(state)}
@@ -389,7 +391,7 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
         with batch_last(soa):
             consts_soa["body"] = lift(prepare)(consts_soa["body"])
     # the time rides outside the carry too: one scalar per step, not one per body
-    strip = lambda s: replace(s, **{k: None for k in consts})  # noqa: E731
+    strip = lambda s: replace(s, **{k: None for k in consts})
     # wrapped here, not by the caller: force_fn is static, and a new wrapper per call would recompile;
     # it checks the callable's output while tracing and casts it to the state's dtype
     user_fn = checked_force_fn(force_fn if force_fn is not None else as_force_fn(forces))
@@ -411,13 +413,13 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
         s = replace(dyn, **consts_soa)
         if series:
             f = to_soa(f)
-            fn = lambda state, t: f  # noqa: E731
+            fn = lambda state, t: f
         elif const_forces is not None:
-            fn = lambda state, t: const_forces  # noqa: E731
+            fn = lambda state, t: const_forces
         elif soa:
             fn = soa_forces
         else:
-            fn = lambda state, t: user_fn(replace(state, time=t), t)  # noqa: E731
+            fn = lambda state, t: user_fn(replace(state, time=t), t)
         with batch_last(soa):
             new = strip(step_fn(s, fn, t0 + (k0 + k).astype(dtype) * dt, dt))
         if checks is not None:
@@ -477,7 +479,7 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
             i, xs = xs
             inner_carry, buf = carry
             inner_carry = advance(inner_carry, xs)
-            put = lambda b, a: jax.lax.dynamic_update_index_in_dim(b, a, i + 1, 0)  # noqa: E731
+            put = lambda b, a: jax.lax.dynamic_update_index_in_dim(b, a, i + 1, 0)
             return (inner_carry, jax.tree.map(put, buf, to_aos(inner_carry[0]))), None
 
         ((_, rec), traj), _ = jax.lax.scan(chunk, (carry0, buf0), (jnp.arange(n_out), (ks, fs)))
@@ -521,7 +523,7 @@ def _checkpointed_scan(f, carry, xs, segment: int | None):
     if segment is None:
         return jax.lax.scan(f, carry, xs)
     n = jax.tree.leaves(xs)[0].shape[0]
-    split = lambda a: a.reshape((n // segment, segment) + a.shape[1:])  # noqa: E731
+    split = lambda a: a.reshape((n // segment, segment) + a.shape[1:])
 
     @jax.checkpoint
     def run_segment(c, seg_xs):

@@ -28,11 +28,11 @@ import jax
 import jax.numpy as jnp
 
 from ._batching import lift
-from ._math import _dot3, _matmul3, _over, _pure_quat_multiply, cross, quat_normalize, skew
+from ._dynamics import omega_world
+from ._math import cross, dot3, matmul3, matvec3, over, pure_quat_multiply, quat_normalize, skew
 from ._methods._common import project
 from ._pytree import replace
-from ._quantities import _omega_world
-from ._state import Forces, State, _apply
+from ._state import Forces, State
 
 __all__ = ["KINDS", "explicit_step"]
 
@@ -53,7 +53,7 @@ def _axis_from_quat(q: Any) -> Any:
 def _axisym_inv(body: Any, n: Any, u: Any) -> Any:
     """``I_w⁻¹ u = u/a + (1/c - 1/a)(n·u) n`` for ``I = diag(a, a, c)``."""
     a_inv, c_inv = body.inverse_inertia[0, 0], body.inverse_inertia[2, 2]
-    return a_inv * u + (c_inv - a_inv) * _dot3(n, u) * n
+    return a_inv * u + (c_inv - a_inv) * dot3(n, u) * n
 
 
 def omega_of(s: State, kind: str) -> Any:
@@ -67,24 +67,24 @@ def omega_of(s: State, kind: str) -> Any:
         return s.body.inverse_inertia[0, 0] * s.angular_momentum
     if kind == "axisymmetric":
         return _axisym_inv(s.body, _axis_from_quat(s.orientation), s.angular_momentum)
-    return _omega_world(replace(s, orientation=quat_normalize(s.orientation)))
+    return omega_world(replace(s, orientation=quat_normalize(s.orientation)))
 
 
 def _rates(s: Any, f: Forces, kind: str) -> dict[str, Any]:
     """``d/dt`` of each changing field of one body; ``None`` where it is zero by structure."""
     out: dict[str, Any] = {
         "position": s.velocity,
-        "velocity": None if f.force is None else _over(f.force, s.body.mass),
+        "velocity": None if f.force is None else over(f.force, s.body.mass),
     }
     if isinstance(s, State):
         w = omega_of(s, kind)
         if f.torque is not None:
             w = jax.lax.optimization_barrier(w)  # see rbjax._dynamics: scalar code otherwise
-        out["orientation"] = 0.5 * _pure_quat_multiply(w, s.orientation)
+        out["orientation"] = 0.5 * pure_quat_multiply(w, s.orientation)
         out["angular_momentum"] = f.torque
         return out
     R, w = s.rotation, s.angular_velocity
-    out["rotation"] = _matmul3(skew(w), R)
+    out["rotation"] = matmul3(skew(w), R)
     if kind == "isotropic":
         # gyroscopic term i ω × ω = 0; I_w⁻¹ = 1/i
         out["angular_velocity"] = None if f.torque is None else s.body.inverse_inertia[0, 0] * f.torque
@@ -92,14 +92,14 @@ def _rates(s: Any, f: Forces, kind: str) -> dict[str, Any]:
     if kind == "axisymmetric":
         n = R[:, 2]
         a, c = s.body.inertia[0, 0], s.body.inertia[2, 2]
-        gyro = (c - a) * _dot3(n, w) * cross(w, n)
+        gyro = (c - a) * dot3(n, w) * cross(w, n)
         tau = -gyro if f.torque is None else f.torque - gyro
         out["angular_velocity"] = _axisym_inv(s.body, n, tau)
         return out
-    I_w = _matmul3(_matmul3(R, s.body.inertia), R.T)
-    I_w_inv = _matmul3(_matmul3(R, s.body.inverse_inertia), R.T)
-    tau = -cross(w, _apply(I_w, w)) if f.torque is None else f.torque - cross(w, _apply(I_w, w))
-    out["angular_velocity"] = _apply(I_w_inv, tau)
+    I_w = matmul3(matmul3(R, s.body.inertia), R.T)
+    I_w_inv = matmul3(matmul3(R, s.body.inverse_inertia), R.T)
+    tau = -cross(w, matvec3(I_w, w)) if f.torque is None else f.torque - cross(w, matvec3(I_w, w))
+    out["angular_velocity"] = matvec3(I_w_inv, tau)
     return out
 
 
@@ -123,7 +123,7 @@ def euler(state: Any, force_fn: Any, t: Any, dt: Any, kind: str, torque_free: bo
 
 def rk4(state: Any, force_fn: Any, t: Any, dt: Any, kind: str, torque_free: bool) -> Any:
     """Classical RK4 as :mod:`rbjax._methods.rk4`, with the kind's rates."""
-    f = lambda s, tt: _rates_batch(s, _drop_torque(force_fn(s, tt), torque_free), kind)  # noqa: E731
+    f = lambda s, tt: _rates_batch(s, _drop_torque(force_fn(s, tt), torque_free), kind)
     k1 = f(state, t)
     k2 = f(_axpy(state, dt / 2, k1), t + dt / 2)
     k3 = f(_axpy(state, dt / 2, k2), t + dt / 2)

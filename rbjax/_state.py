@@ -16,8 +16,8 @@ import numpy as np
 from jax import Array
 from jaxtyping import Float
 
-from ._body import Body, _as_float, _floats, _is_concrete, inertia_of
-from ._math import _arg, cross, quat_rotate, quat_to_matrix
+from ._body import Body, as_float, finite_float, floats, inertia_of, is_concrete
+from ._math import array_arg, cross, matvec3, quat_conjugate, quat_rotate, quat_to_matrix
 from ._pytree import field, pytree_dataclass
 from ._trajectory import BatchIndexing
 from ._typing import ArrayLike
@@ -54,12 +54,12 @@ def _check_vectors(cls: str, **arrays: Array | None) -> None:
                 raise ValueError(f"{cls}: rotation must end in (3, 3), got shape {a.shape}")
         elif a.shape[-1:] != (want,):
             raise ValueError(f"{cls}: {name} must end in ({want},), got shape {a.shape}")
-        if _is_concrete(a) and not np.all(np.isfinite(np.asarray(a))):
+        if is_concrete(a) and not np.all(np.isfinite(np.asarray(a))):
             raise ValueError(f"{cls}: {name} must be finite, got non-finite entries")
 
 
 def _check_unit_quaternion(cls: str, q: Array) -> None:
-    if not _is_concrete(q):
+    if not is_concrete(q):
         return
     err = np.abs(np.linalg.norm(np.asarray(q, dtype=np.float64), axis=-1) - 1)
     tol = quat_tolerance(q.dtype)
@@ -71,7 +71,7 @@ def _check_unit_quaternion(cls: str, q: Array) -> None:
 
 
 def _check_rotation(cls: str, R: Array) -> None:
-    if not _is_concrete(R):
+    if not is_concrete(R):
         return
     R64 = np.asarray(R, dtype=np.float64)
     err = np.max(np.abs(np.swapaxes(R64, -1, -2) @ R64 - np.eye(3)), initial=0.0)
@@ -92,7 +92,7 @@ def _convert(obj: Any, *names: str) -> None:
     """
     body = getattr(obj, "body", None)
     dtype = _dtype_of(body, *(getattr(obj, n) for n in names))
-    _floats(obj, *names)
+    floats(obj, *names)
     for n in names:
         a = getattr(obj, n)
         if a.dtype != dtype and not isinstance(a, jax.core.Tracer):
@@ -129,7 +129,7 @@ def _dtype_of(body: Body | None, *xs: Any) -> Any:
     """
     for x in xs:
         if x is not None:
-            _as_float(x)  # TypeError in rbjax's words for strings, complex, float16, ...
+            as_float(x)  # TypeError in rbjax's words for strings, complex, float16, ...
     typed = [d for d in (_typed(x) for x in xs if x is not None) if d is not None]
     if body is not None:
         typed.append(body.mass.dtype)
@@ -145,12 +145,7 @@ def _body_as(body: Body, dtype: Any) -> Body:
 
 def _time(cls: str, time: Any, dtype: Any, shape: tuple[int, ...]) -> Array:
     """``time`` (s) as ``dtype`` broadcast to the batch ``shape``; ``TypeError``/``ValueError`` naming it otherwise."""
-    try:
-        t = _as_float(time)
-    except TypeError as e:
-        raise TypeError(f"{cls}: time: {e}") from None
-    if _is_concrete(t) and not np.all(np.isfinite(np.asarray(t))):
-        raise ValueError(f"{cls}: time must be finite, got non-finite entries")
+    t = finite_float(cls, "time", time)
     try:
         return jnp.broadcast_to(t.astype(dtype), shape)
     except ValueError:
@@ -161,7 +156,7 @@ def _time(cls: str, time: Any, dtype: Any, shape: tuple[int, ...]) -> Array:
 
 
 def _vec(x: ArrayLike | None, default: tuple[float, ...], dtype: Any) -> Array:
-    return jnp.asarray(default if x is None else _as_float(x), dtype=dtype)
+    return jnp.asarray(default if x is None else as_float(x), dtype=dtype)
 
 
 def _batch(cls: str, body_shape: tuple[int, ...] | None, **shapes: tuple[int, ...]) -> tuple[int, ...]:
@@ -269,8 +264,8 @@ class State(BatchIndexing):
             angular_velocity=w.shape[:-1],
         )
         _check_unit_quaternion("State.create", q)
-        L = quat_rotate(q, _apply(inertia_of(body), quat_rotate(_conj(q), w)))
-        bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])  # noqa: E731
+        L = quat_rotate(q, matvec3(inertia_of(body), quat_rotate(quat_conjugate(q), w)))
+        bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])
         return cls(body, bc(x), bc(v), bc(q), bc(L), _time("State.create", time, dtype, shape))
 
     @property
@@ -364,7 +359,7 @@ class MatrixState(BatchIndexing):
             orientation=R.shape[:-2],
             angular_velocity=w.shape[:-1],
         )
-        bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])  # noqa: E731
+        bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])
         R = jnp.broadcast_to(R, shape + (3, 3))
         return cls(body, bc(x), bc(v), R, bc(w), _time("MatrixState.create", time, dtype, shape))
 
@@ -408,7 +403,7 @@ class ParticleState(BatchIndexing):
     def __post_init__(self) -> None:
         _convert(self, "position", "velocity", "mass")
         _check_vectors("ParticleState", position=self.position, velocity=self.velocity)
-        if _is_concrete(self.mass):
+        if is_concrete(self.mass):
             m = np.asarray(self.mass)
             if not np.all(np.isfinite(m)) or np.any(m <= 0):
                 raise ValueError(f"ParticleState: mass must be finite and > 0, got {m.ravel()[:3]}")
@@ -423,7 +418,7 @@ class ParticleState(BatchIndexing):
         time: Float[ArrayLike, ""] = 0.0,
     ) -> ParticleState:
         """Particles from mass (kg), optional position and velocity (zeros) and time (s)."""
-        m = _as_float(mass)
+        m = as_float(mass)
         dtype = _dtype_of(None, mass, position, velocity)
         x = _vec(position, (0.0, 0.0, 0.0), dtype)
         v = _vec(velocity, (0.0, 0.0, 0.0), dtype)
@@ -476,7 +471,7 @@ class Forces:
         ) -> None: ...
 
     def __post_init__(self) -> None:
-        _floats(self, "force", "torque")
+        floats(self, "force", "torque")
         _check_vectors("Forces", force=self.force, torque=self.torque)
 
     @classmethod
@@ -485,8 +480,8 @@ class Forces:
 
         ``force``, ``point``: ``(*B, 3)`` or ``(3,)``, broadcast against the state's positions ``(*B, 3)``.
         """
-        f = _arg("Forces.at_point", "force", force, (3,)).astype(state.dtype)
-        p = _arg("Forces.at_point", "point", point, (3,)).astype(state.dtype)
+        f = array_arg("Forces.at_point", "force", force, (3,)).astype(state.dtype)
+        p = array_arg("Forces.at_point", "point", point, (3,)).astype(state.dtype)
         _batch("Forces.at_point", None, force=f.shape[:-1], point=p.shape[:-1], state=state.batch_shape)
         return cls(force=f, torque=cross(p - state.position, f))
 
@@ -501,7 +496,7 @@ class Forces:
         """
         m = state.mass if isinstance(state, ParticleState) else state.body.mass
         try:
-            g = _as_float(g).astype(state.dtype)
+            g = as_float(g).astype(state.dtype)
         except TypeError as e:
             raise TypeError(f"Forces.gravity: g: {e}") from None
         if g.shape[-1:] != (3,):
@@ -527,14 +522,3 @@ class Forces:
 
 
 ForceLike = Union[Forces, Callable[[Any, Array], Forces], None]
-
-
-def _conj(q: Array) -> Array:
-    return jnp.concatenate([q[..., :1], -q[..., 1:]], axis=-1)
-
-
-def _apply(A: Array, v: Array) -> Array:
-    """``A v`` for ``(..., 3, 3)`` and ``(..., 3)``, by components (fuses under vmap)."""
-    # single components only (see rbjax._math._unstack): rows of A dotted with v
-    v0, v1, v2 = v[..., 0], v[..., 1], v[..., 2]
-    return jnp.stack([A[..., i, 0] * v0 + A[..., i, 1] * v1 + A[..., i, 2] * v2 for i in range(3)], axis=-1)

@@ -26,7 +26,7 @@ import jax.core
 import jax.numpy as jnp
 import numpy as np
 
-from ._batching import _map_leaves
+from ._batching import map_leaves
 from ._pytree import is_rbjax_dataclass, replace
 
 __all__ = ["BatchIndexing", "concatenate", "index", "stack_frames"]
@@ -76,7 +76,7 @@ def stack_frames(frames: Any, initial: Any, times: Any) -> Any:
             return jnp.broadcast_to(a, (n,) + a.shape[1:])
 
         v = getattr(initial, name)
-        changes[name] = _map_leaves(v, per_frame) if is_rbjax_dataclass(v) else per_frame(v, 0)
+        changes[name] = map_leaves(v, per_frame) if is_rbjax_dataclass(v) else per_frame(v, 0)
     lead = jnp.reshape(times, (n,) + (1,) * nb) if times.ndim == 1 else times
     # built on the frames' positions so that it takes their sharding (a batch split over
     # devices gets its times split the same way, not replicated)
@@ -167,7 +167,7 @@ def index(obj: T, idx: Any) -> T:
                 per_leaf.append(c)
         return a[tuple(per_leaf)] if per_leaf else a
 
-    return _map_leaves(obj, pick)
+    return map_leaves(obj, pick)
 
 
 class BatchIndexing:

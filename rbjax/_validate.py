@@ -19,6 +19,7 @@ import jax.core
 import jax.numpy as jnp
 import numpy as np
 
+from ._math import broadcasts_to
 from ._pytree import data_fields, is_rbjax_dataclass, new_unchecked
 from ._state import Forces, MatrixState, ParticleState, State
 
@@ -121,10 +122,7 @@ def check_forces_output(out: Any, state: Any, fn: Any) -> Forces:
         dt = getattr(a, "dtype", None)
         if dt is None or not (jnp.issubdtype(dt, jnp.floating) or jnp.issubdtype(dt, jnp.integer)):
             raise TypeError(f"force callable {_name(fn)!r}: {name} must be a real array; it returned {_describe(out)}")
-        try:
-            ok = jnp.broadcast_shapes(tuple(a.shape), want) == want
-        except ValueError:
-            ok = False
+        ok = broadcasts_to(tuple(a.shape), want)
         if not ok:
             raise ValueError(
                 f"force callable {_name(fn)!r}: {name} has shape {tuple(a.shape)}, which does not broadcast "

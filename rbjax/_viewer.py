@@ -18,7 +18,7 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
-from ._animate import _ellipsoid_mesh, _frames_of, _half_extents, _pick
+from ._animate import ellipsoid_mesh, frames_of, half_extents, pick
 from ._math import matrix_to_quat
 
 __all__ = ["Viewer", "view"]
@@ -34,7 +34,7 @@ _COLORS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 1
 
 def _sphere_mesh() -> tuple[np.ndarray, np.ndarray]:
     """Vertices and triangles of the unit sphere, from the quads of :func:`rbjax.animate`'s ellipsoid."""
-    quads = _ellipsoid_mesh(24, 12)
+    quads = ellipsoid_mesh(24, 12)
     verts = quads.reshape(-1, 3)
     faces = np.arange(len(verts)).reshape(-1, 4)
     return verts, np.concatenate([faces[:, [0, 1, 2]], faces[:, [0, 2, 3]]])
@@ -107,13 +107,13 @@ def view(
     if shape not in ("box", "ellipsoid"):
         raise ValueError(f"rbjax.view: shape must be 'box' or 'ellipsoid', got {shape!r}")
 
-    data = _frames_of(traj)
-    idx = _pick(data["pos"].shape[1], bodies)
+    data = frames_of(traj)
+    idx = pick(data["pos"].shape[1], bodies)
     pos, R, L = (data[k][:, idx] for k in ("pos", "R", "L"))
     mass, inertia = data["mass"][idx], data["inertia"][idx]
     moments, axes = np.linalg.eigh(inertia)
     axes = axes * np.sign(np.linalg.det(axes))[:, None, None]
-    half = _half_extents(moments, mass, shape)
+    half = half_extents(moments, mass, shape)
     n, T = len(idx), pos.shape[0]
     reach = float(half.max())
     if spacing is None and n > 1 and np.ptp(pos[0], axis=0).max() < 1e-9:

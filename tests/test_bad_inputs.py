@@ -794,24 +794,24 @@ def _batch_traj():
 
 def test_animate_draws_a_batch_at_one_instant_as_one_frame_of_all_bodies(_batch_traj):
     pytest.importorskip("matplotlib")
-    from rbjax._animate import _frames_of
+    from rbjax._animate import frames_of
 
     for instant in (_batch_traj[-1], jax.tree.map(lambda a: a[-1], _batch_traj), _batch_traj[0]):
-        data = _frames_of(instant)
+        data = frames_of(instant)
         assert data["pos"].shape == (1, 3, 3), data["pos"].shape  # was (3, 1, 3): three frames of one body
         np.testing.assert_allclose(data["pos"][0], np.asarray(instant.position))
     fresh = rb.State.create(rb.box(1.0, [0.1, 0.2, 0.4]), position=np.eye(3))  # a shared body
-    assert _frames_of(fresh)["pos"].shape == (1, 3, 3)
+    assert frames_of(fresh)["pos"].shape == (1, 3, 3)
     one = rb.State.create(rb.box(1.0, [0.1, 0.2, 0.4]))
-    assert _frames_of(one)["pos"].shape == (1, 1, 3)
-    assert _frames_of(_batch_traj)["pos"].shape == (3, 3, 3)  # a trajectory stays one
+    assert frames_of(one)["pos"].shape == (1, 1, 3)
+    assert frames_of(_batch_traj)["pos"].shape == (3, 3, 3)  # a trajectory stays one
 
 
 def test_animate_clock_of_a_batch_uses_the_trajectory_time(_batch_traj):
     pytest.importorskip("matplotlib")
-    from rbjax._animate import _clock, _frames_of
+    from rbjax._animate import _clock, frames_of
 
-    times = _frames_of(_batch_traj)["time"]
+    times = frames_of(_batch_traj)["time"]
     np.testing.assert_allclose(times, [0.5, 0.54, 0.58])
     assert _clock(2, None, times) == "t = 0.580 s"  # was "frame 2"
     assert _clock(2, 0.1, times) == "t = 0.200 s"

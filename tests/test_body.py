@@ -49,7 +49,7 @@ def _ellipsoid_integral(a, b, c):
     def second_moments():
         out = []
         for k in range(3):
-            f = lambda z, y, x, k=k: (x, y, z)[k] ** 2  # noqa: E731
+            f = lambda z, y, x, k=k: (x, y, z)[k] ** 2
             val, _ = integrate.tplquad(
                 f,
                 -a,

@@ -131,7 +131,7 @@ def test_checks_without_energy_still_report_and_errors_are_plain_value_errors():
 
 def test_under_jax_jit_the_message_is_on_its_own_line_with_the_remedy():
     s = _state()
-    run = lambda s: rb.simulate(s, NAN_ON_3_AT_7, DT, 20, "euler", checked=rb.Checks(energy_factor=None))  # noqa: E731
+    run = lambda s: rb.simulate(s, NAN_ON_3_AT_7, DT, 20, "euler", checked=rb.Checks(energy_factor=None))
     with pytest.raises(Exception) as info:
         jax.block_until_ready(jax.jit(run)(s))
     lines = str(info.value).splitlines()

@@ -130,7 +130,7 @@ def test_particles_measured_order(method):
     # the errors are 3e-5..3e-8 (measured; asymptotic: slopes 4.01, 6.00, 8.05); observed
     # order within ±0.3 of declared.
     n = {"splitting4": 16, "splitting6": 8, "splitting8": 4}[method]
-    spring = lambda s, t: rb.Forces(force=-s.position)  # noqa: E731
+    spring = lambda s, t: rb.Forces(force=-s.position)
     s = rb.ParticleState.create(1.0, position=[1.0, 0.0, 0.0])
     err = []
     for k in (n, 2 * n):
@@ -197,7 +197,7 @@ def test_gradient_matches_central_differences():
     # ~1e-10, round-off ~1e-16/1e-5 = 1e-11 relative); tolerance 1e-7 relative.
     # (tests/test_gradients.py checks every method, these included, in forward and reverse
     # mode component-wise; forward mode here keeps this file's compile time down.)
-    forces = lambda s, t: rb.Forces(torque=_tau_t(t, jnp))  # noqa: E731
+    forces = lambda s, t: rb.Forces(torque=_tau_t(t, jnp))
 
     def loss(x):
         body = rb.Body(jnp.asarray(1.0), x[3] * jnp.asarray(INERTIA))

@@ -14,11 +14,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from rbjax import _methods
-from rbjax._body import Body
-from rbjax._math import quat_rotate
+from rbjax import Body, Forces, State, _methods, quat_rotate
 from rbjax._pytree import new_unchecked
-from rbjax._state import Forces, State
 from rbjax.identification._flow import flow
 
 M, K, N_TANGENTS = 3, 5, 2

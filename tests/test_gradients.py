@@ -85,7 +85,7 @@ def test_fwd_and_rev_match_finite_differences(method):
     # relative; check_grads' default float64 tolerance (1e-5) has a wide margin
     check_grads(loss, _args(), order=1, modes=("fwd", "rev"), eps=1e-4)
     # and the full Jacobian agrees between modes to round-off
-    f = lambda w0, I: _final(method, *_args()[:1], I, *_args()[2:5], w0, *_args()[6:])  # noqa: E731
+    f = lambda w0, I: _final(method, *_args()[:1], I, *_args()[2:5], w0, *_args()[6:])
     a = _args()
     Jf = jax.jacfwd(f, argnums=(0, 1))(a[5], a[1])
     Jr = jax.jacrev(f, argnums=(0, 1))(a[5], a[1])
@@ -226,7 +226,7 @@ def test_inertia_gradient_at_symmetric_bodies(method):
     # with the exact flow's derivative to that error: 2e-4 covers splitting's (dt |ω| = 0.03, 100
     # steps) with a margin of ~10 and still fails the frame-fixed gradient (off by 0.3 or more).
     steps = 100
-    final = lambda s: rb.simulate(s, None, 0.02, steps, method, save_every=steps).orientation[-1]  # noqa: E731
+    final = lambda s: rb.simulate(s, None, 0.02, steps, method, save_every=steps).orientation[-1]
     loss, grad = _symmetric_loss(final)
     for name, moments in SYMMETRIC_BODIES.items():
         rtol = 2e-4 if method.startswith("splitting") and name != "generic" else 1e-7

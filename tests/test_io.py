@@ -98,7 +98,7 @@ def test_chunk_directory_concatenates_and_survives_a_crash(tmp_path):
     s = _state(jnp.float64)
     traj = rb.simulate(s, None, 0.01, 9, "euler", save_every=3)  # frames 0, 3, 6, 9
     w = rb.ChunkWriter(tmp_path / "run", method="euler", dt=0.01, save_every=3)
-    take = lambda sl: rb._chunked._frames(traj, sl)  # noqa: E731
+    take = lambda sl: rb._chunked._frames(traj, sl)
     w.write(take(slice(0, 2)))
     w.write(take(slice(2, 3)))
     # a crash while writing the third chunk leaves only its temporary file

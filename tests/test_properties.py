@@ -60,7 +60,7 @@ def bodies(draw):
 
 @st.composite
 def states(draw):
-    vec = lambda lim: draw(hnp.arrays(np.float64, (N, 3), elements=finite(min_value=-lim, max_value=lim)))  # noqa: E731
+    vec = lambda lim: draw(hnp.arrays(np.float64, (N, 3), elements=finite(min_value=-lim, max_value=lim)))
     return rb.State.create(
         draw(bodies()),
         position=vec(5.0),

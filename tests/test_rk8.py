@@ -61,7 +61,7 @@ def test_bad_tableau_is_rejected():
 
 def _classical_rk4(state, force_fn, t, dt):
     """Classical RK4 written out by hand on ``rb.derivative`` (an independent check of the driver)."""
-    f = lambda s, tt: rb.derivative(s, force_fn(s, tt))  # noqa: E731
+    f = lambda s, tt: rb.derivative(s, force_fn(s, tt))
     k1 = f(state, t)
     k2 = f(_axpy(state, dt / 2, k1), t + dt / 2)
     k3 = f(_axpy(state, dt / 2, k2), t + dt / 2)
@@ -92,7 +92,7 @@ def test_rk4_is_the_driver_with_the_classical_tableau():
 
     @jax.jit
     def both(s):
-        body = lambda k, ab: (  # noqa: E731
+        body = lambda k, ab: (
             _classical_rk4(ab[0], _tau_fn, 0.05 * k, 0.05),
             rb.step(ab[1], _tau_fn, 0.05, "rk4", t=0.05 * k),
         )

@@ -40,11 +40,11 @@ def test_defects_vanish_on_dop853_trajectory():
 
 def test_shoot_time_dependent_torque_segments_tile_the_horizon():
     S, steps = 3, 200
-    torque = lambda t: np.array([0.2 * np.sin(3 * t), 0.1, -0.1 * np.cos(t)])  # noqa: E731
+    torque = lambda t: np.array([0.2 * np.sin(3 * t), 0.1, -0.1 * np.cos(t)])
     times = np.arange(S + 1) * steps * DT + 0.5
     q, w = reference_rotation(I_T, np.array([1.0, 0, 0, 0]), W_SEP, times, torque_world=lambda t, *_: torque(t))
     starts = _states(q[:-1], w[:-1])
-    f = lambda s, t: rb.Forces(torque=jnp.stack([0.2 * jnp.sin(3 * t), 0.1 + 0 * t, -0.1 * jnp.cos(t)]))  # noqa: E731
+    f = lambda s, t: rb.Forces(torque=jnp.stack([0.2 * jnp.sin(3 * t), 0.1 + 0 * t, -0.1 * jnp.cos(t)]))
     _, ends = rb.shoot(starts, f, DT, steps, "rk4", t0=0.5)  # scalar t0: segment s starts at 0.5 + s·0.2
     # rk4 with smooth torque, 0.2 s per segment: error ~1e-11
     assert np.max(np.abs(rb.defects(ends, starts))) < 1e-9

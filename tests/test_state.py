@@ -104,7 +104,7 @@ def test_batched_state_with_shared_body():
 
 def test_pytrees_work_under_jit_vmap_grad():
     body = rb.box(1.0, [1.0, 2.0, 3.0])
-    f = lambda w: rb.kinetic_energy(rb.State.create(body, angular_velocity=w))  # noqa: E731
+    f = lambda w: rb.kinetic_energy(rb.State.create(body, angular_velocity=w))
     w = jnp.array([0.1, 0.2, 0.3])
     # ∂T/∂ω = I_w ω = L
     np.testing.assert_allclose(jax.grad(f)(w), np.asarray(body.inertia) @ w, rtol=TOL)

@@ -175,7 +175,7 @@ def test_gradient_wrt_initial_rate_matches_finite_differences(name):
     jac_rev = np.asarray(_dw_rev(inertia, w0, t))
     assert np.all(np.isfinite(jac)) and np.all(np.isfinite(jac_rev))
     h = 1e-5
-    f = lambda w: np.asarray(_final_jit(inertia, w, t))  # noqa: E731
+    f = lambda w: np.asarray(_final_jit(inertia, w, t))
     fd = np.stack([(f(w0 + h * e) - f(w0 - h * e)) / (2 * h) for e in np.eye(3)], axis=1)
     # central differences: truncation h^2 |f'''| ~ 1e-9 (|f'''| ~ t^3 = 350), rounding eps/h ~ 1e-11
     np.testing.assert_allclose(jac, fd, rtol=0, atol=2e-8)

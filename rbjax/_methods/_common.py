@@ -12,7 +12,7 @@ from jax import Array
 from jax.extend.core import Literal
 
 from .._batching import lift
-from .._math import _dot3, _kick3, _orthonormalize, cross, matrix_to_quat, quat_multiply, quat_normalize
+from .._math import cross, dot3, kick3, matrix_to_quat, orthonormalize_unchecked, quat_multiply, quat_normalize
 from .._pytree import replace
 from .._quantities import to_matrix_state, to_state
 from .._simulate_support import constant_fields
@@ -21,7 +21,7 @@ from .._state import Forces, MatrixState, State
 
 def kick(s: State, f: Forces, h) -> State:
     """``v += F/m h``, ``L += τ h`` (world frame): the exact flow of constant forces."""
-    v = s.velocity if f.force is None else _kick3(s.velocity, f.force, s.body.mass, h)
+    v = s.velocity if f.force is None else kick3(s.velocity, f.force, s.body.mass, h)
     L = s.angular_momentum if f.torque is None else s.angular_momentum + f.torque * h
     return replace(s, velocity=v, angular_momentum=L)
 
@@ -31,7 +31,7 @@ def solve3(A: Array, b: Array) -> Array:
     c0 = cross(A[1], A[2])
     c1 = cross(A[2], A[0])
     c2 = cross(A[0], A[1])
-    det = _dot3(A[0], c0)
+    det = dot3(A[0], c0)
     # adj(A) = [c0 c1 c2] (as columns), so A⁻¹ b = (c0 b0 + c1 b1 + c2 b2) / det
     return (c0 * b[0] + c1 * b[1] + c2 * b[2]) / det
 
@@ -123,7 +123,7 @@ def _project_one(s):
     if isinstance(s, State):
         return replace(s, orientation=quat_normalize(s.orientation))
     if isinstance(s, MatrixState):
-        return replace(s, rotation=_orthonormalize(s.rotation))
+        return replace(s, rotation=orthonormalize_unchecked(s.rotation))
     return s
 
 
@@ -142,7 +142,7 @@ def via_state(state_step):
     """
 
     def step(state: MatrixState, force_fn, t, dt) -> MatrixState:
-        fn = lambda s, tt: force_fn(to_matrix_state(s), tt)  # noqa: E731
+        fn = lambda s, tt: force_fn(to_matrix_state(s), tt)
         return to_matrix_state(state_step(to_state(state), fn, t, dt))
 
     return step
@@ -194,6 +194,6 @@ def materialise(tree, dt):
     fold the conditional away. Under ``vmap`` over ``dt`` it becomes a
     ``select``: one more pass, no value changed.
     """
-    keep = lambda u: u  # noqa: E731
-    nan = lambda u: jax.tree.map(lambda a: jnp.full_like(a, jnp.nan), u)  # noqa: E731
+    keep = lambda u: u
+    nan = lambda u: jax.tree.map(lambda a: jnp.full_like(a, jnp.nan), u)
     return jax.lax.cond(dt == dt, keep, nan, tree)

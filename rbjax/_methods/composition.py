@@ -132,7 +132,7 @@ def compose(base_step: StepFn, gammas: Sequence[float]) -> StepFn:
 
     def step(state, force_fn, t, dt):
         consts = {n: getattr(state, n) for n in constant_fields(state)}
-        strip = lambda s: replace(s, **dict.fromkeys(consts))  # noqa: E731
+        strip = lambda s: replace(s, **dict.fromkeys(consts))
 
         def sub(dyn, gc):
             g, c = gc

@@ -19,24 +19,24 @@ from __future__ import annotations
 import math
 
 from .._batching import lift
-from .._math import _kick3, _matmul3, _orthonormalize, _pure_quat_multiply, cross, quat_normalize, skew
+from .._dynamics import omega_world
+from .._math import cross, kick3, matmul3, matvec3, orthonormalize_unchecked, pure_quat_multiply, quat_normalize, skew
 from .._pytree import replace
-from .._quantities import _omega_world
-from .._state import Forces, MatrixState, ParticleState, State, _apply
+from .._state import Forces, MatrixState, ParticleState, State
 from ._registry import Method, register
 
 
 def _translate(x, v, m, f: Forces, dt):
-    v_new = v if f.force is None else _kick3(v, f.force, m, dt)
+    v_new = v if f.force is None else kick3(v, f.force, m, dt)
     return x + v * dt, v_new
 
 
 def euler_state(s: State, f: Forces, dt) -> State:
     """One explicit-Euler step of one body in the ``(x, v, q, L)`` form."""
     x, v = _translate(s.position, s.velocity, s.body.mass, f, dt)
-    w = _omega_world(s)
+    w = omega_world(s)
     q = s.orientation
-    q = quat_normalize(q + 0.5 * dt * _pure_quat_multiply(w, q))
+    q = quat_normalize(q + 0.5 * dt * pure_quat_multiply(w, q))
     L = s.angular_momentum if f.torque is None else s.angular_momentum + f.torque * dt
     return replace(s, position=x, velocity=v, orientation=q, angular_momentum=L)
 
@@ -45,11 +45,11 @@ def euler_matrix(s: MatrixState, f: Forces, dt) -> MatrixState:
     """One explicit-Euler step of one body in the ``(x, v, R, ω)`` form."""
     x, v = _translate(s.position, s.velocity, s.body.mass, f, dt)
     R, w = s.rotation, s.angular_velocity
-    I_w = _matmul3(_matmul3(R, s.body.inertia), R.T)
-    I_w_inv = _matmul3(_matmul3(R, s.body.inverse_inertia), R.T)
-    tau = -cross(w, _apply(I_w, w)) if f.torque is None else f.torque - cross(w, _apply(I_w, w))
-    R_new = _orthonormalize(R + _matmul3(skew(w), R) * dt)
-    w_new = w + _apply(I_w_inv, tau) * dt
+    I_w = matmul3(matmul3(R, s.body.inertia), R.T)
+    I_w_inv = matmul3(matmul3(R, s.body.inverse_inertia), R.T)
+    tau = -cross(w, matvec3(I_w, w)) if f.torque is None else f.torque - cross(w, matvec3(I_w, w))
+    R_new = orthonormalize_unchecked(R + matmul3(skew(w), R) * dt)
+    w_new = w + matvec3(I_w_inv, tau) * dt
     return replace(s, position=x, velocity=v, rotation=R_new, angular_velocity=w_new)
 
 

@@ -30,7 +30,7 @@ from ._registry import Method, StepFn, register
 __all__ = ["explicit_rk", "register_tableau"]
 
 
-def _combine(state, dt, weights: Sequence[float], ks: Sequence):
+def combine(state, dt, weights: Sequence[float], ks: Sequence):
     """``state + dt Σ_j w_j k_j`` on the changing fields; zero weights cost nothing."""
     terms = [(w, k) for w, k in zip(weights, ks, strict=True) if w != 0.0]
     if not terms:
@@ -80,11 +80,11 @@ def explicit_rk(a: Sequence[Sequence[float]], b: Sequence[float], c: Sequence[fl
         stage = (lambda y: materialise(y, dt)) if varies else (lambda y: y)
         ks = []
         for i in range(s):
-            y = _combine(state, dt, a[i], ks[:i])
+            y = combine(state, dt, a[i], ks[:i])
             y = stage(y) if i > 0 else y
             ks.append(derivative(y, force_fn(y, t + c[i] * dt)))
         # lifted, so it holds in simulate's batch-last layout too
-        return project(_combine(state, dt, b, ks))
+        return project(combine(state, dt, b, ks))
 
     return step
 

@@ -20,26 +20,37 @@ never for long-horizon physics or energy studies.
 
 from __future__ import annotations
 
-from .._math import _kick3, _matmul3, cross, quat_conjugate, quat_exp, quat_multiply, quat_normalize, quat_rotate, skew
+from .._math import (
+    cross,
+    kick3,
+    matmul3,
+    matvec3,
+    quat_conjugate,
+    quat_exp,
+    quat_multiply,
+    quat_normalize,
+    quat_rotate,
+    skew,
+)
 from .._pytree import replace
-from .._state import Forces, MatrixState, State, _apply
+from .._state import Forces, MatrixState, State
 from ._common import batch, solve3, via_state
 from ._registry import Method, register
 
 
 def implicit_gyroscopic_state(s: State, f: Forces, dt) -> State:
     """One implicit-gyroscopic step of one body in the ``(x, v, q, L)`` form."""
-    v = s.velocity if f.force is None else _kick3(s.velocity, f.force, s.body.mass, dt)
+    v = s.velocity if f.force is None else kick3(s.velocity, f.force, s.body.mass, dt)
     q, I = s.orientation, s.body.inertia
     pi = quat_rotate(quat_conjugate(q), s.angular_momentum)  # I_L ω₀
-    w0 = _apply(s.body.inverse_inertia, pi)
+    w0 = matvec3(s.body.inverse_inertia, pi)
     rhs = cross(w0, pi)
     if f.torque is not None:
         rhs = rhs - quat_rotate(quat_conjugate(q), f.torque)
-    J = I + dt * (_matmul3(skew(w0), I) - skew(pi))
+    J = I + dt * (matmul3(skew(w0), I) - skew(pi))
     w1 = w0 - solve3(J, dt * rhs)
     q = quat_normalize(quat_multiply(q, quat_exp(w1 * dt)))
-    L = quat_rotate(q, _apply(I, w1))
+    L = quat_rotate(q, matvec3(I, w1))
     return replace(s, position=s.position + v * dt, velocity=v, orientation=q, angular_momentum=L)
 
 

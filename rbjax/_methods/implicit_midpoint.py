@@ -29,8 +29,8 @@ on: the documented non-convergence flag, which checked mode reports as an
 error naming the step and body (unchecked, test ``isnan(traj.orientation)``).
 Measured (float64, 200 random boxes, random axes, 200 steps): every solve
 converges at ``h|ω| ≤ 3`` (energy kept to 1e-14) and at 30; at 10 and 100,
-2 and 0 of 200 bodies are flagged, the rest keep energy to 1e-12. The issue's
-box 0.1x0.2x0.4 at ``h|ω| = 10``, which lost 165% of its energy in 100 steps
+2 and 0 of 200 bodies are flagged, the rest keep energy to 1e-12. A box
+0.1x0.2x0.4 at ``h|ω| = 10``, which loses 165% of its energy in 100 steps
 with the fixed count alone, keeps it to 1.4e-15. At the solution Newton's map has zero derivative in
 ``Π_½``, so the derivative of that last step is exactly the implicit-function
 derivative ``-J⁻¹ ∂G/∂θ`` and the reverse pass stores one iteration, not all.
@@ -38,12 +38,11 @@ derivative ``-J⁻¹ ∂G/∂θ`` and the reverse pass stores one iteration, not
 
 Order 2. Symmetric, time-reversible; torque-free ``L`` exact, ``|L|`` and energy
 to solver tolerance wherever the solve converges (above; otherwise NaN).
-Cost ≈ 20x ``"euler"`` (measured before the residual test was added, quiet
-machine, N = 10⁴ float32; eight Newton iterations, each a 3x3 Jacobian and
-Cramer solve, and two force evaluations; the residual test adds one
-iteration's work). Choose it where energy must be kept exactly (not just bounded)
-or no principal frame is wanted; ``"splitting"`` is cheaper for equal accuracy
-on most bodies.
+Cost ≈ 20x ``"euler"`` without the residual test (quiet machine, N = 10⁴
+float32; eight Newton iterations, each a 3x3 Jacobian and Cramer solve, and
+two force evaluations); the residual test adds one iteration's work.
+Choose it where energy must be kept exactly (not just bounded) or no principal
+frame is wanted; ``"splitting"`` is cheaper for equal accuracy on most bodies.
 """
 
 from __future__ import annotations
@@ -52,9 +51,9 @@ import jax
 import jax.numpy as jnp
 
 from .._batching import lift
-from .._math import _dot3, _matmul3, cross, quat_conjugate, quat_multiply, quat_normalize, quat_rotate, skew
+from .._math import cross, dot3, matmul3, matvec3, quat_conjugate, quat_multiply, quat_normalize, quat_rotate, skew
 from .._pytree import replace
-from .._state import MatrixState, State, _apply
+from .._state import MatrixState, State
 from ._common import kick, solve3, via_state
 from ._registry import Method, register
 
@@ -83,24 +82,24 @@ def _newton_iterations(dtype) -> int:
 
 
 def _newton(y, pi0, I_inv, h):
-    w = _apply(I_inv, y)
+    w = matvec3(I_inv, y)
     G = y - pi0 - 0.5 * h * cross(y, w)
-    J = jnp.eye(3, dtype=y.dtype) - 0.5 * h * (_matmul3(skew(y), I_inv) - skew(w))
+    J = jnp.eye(3, dtype=y.dtype) - 0.5 * h * (matmul3(skew(y), I_inv) - skew(w))
     # one materialised (4, 3) block per body: otherwise each entry of the solve
     # re-evaluates J and G inside the fused loop
     JG = jax.lax.optimization_barrier(jnp.concatenate([J, G[None]]))
     return y - solve3(JG[:3], JG[3])
 
 
-def midpoint_momentum(pi0, I_inv, h):
-    """Solve the midpoint equation for ``Π_½`` (body frame), one body."""
-    y = jax.lax.stop_gradient(pi0)
-    consts = jax.lax.stop_gradient((pi0, I_inv, h))
+def _fixed_newton(pi0, I_inv, h):
+    """The fixed count of Newton iterations from ``Π_½ = Π₀`` (body frame), one body;
+    the caller stops the gradient."""
+    y = pi0
     for _ in range(_newton_iterations(y.dtype)):
         # materialise each iterate: fused across iterations, XLA:CPU re-evaluated
         # earlier iterations once per component of the later ones
-        y = jax.lax.optimization_barrier(_newton(y, *consts))
-    return _newton(jax.lax.stop_gradient(y), pi0, I_inv, h)
+        y = jax.lax.optimization_barrier(_newton(y, pi0, I_inv, h))
+    return y
 
 
 def _body_momentum(s: State):
@@ -110,10 +109,10 @@ def _body_momentum(s: State):
 def _residual(y, pi0, I_inv, h):
     """``‖G(y)‖`` and the tolerance it must meet: a few hundred ulp of the
     equation's largest term (``h/2 ‖Π_½ × ω_½‖`` can exceed ``‖Π‖`` when ``h|ω| > 2``)."""
-    w = _apply(I_inv, y)
+    w = matvec3(I_inv, y)
     c = cross(y, w)
     G = y - pi0 - 0.5 * h * c
-    norm = lambda v: jnp.sqrt(_dot3(v, v))  # noqa: E731
+    norm = lambda v: jnp.sqrt(dot3(v, v))
     eps = jnp.finfo(y.dtype).eps
     return norm(G), 256 * eps * (norm(pi0) + norm(y) + 0.5 * jnp.abs(h) * norm(y) * norm(w))
 
@@ -124,11 +123,7 @@ def _fast_guess(s: State, h) -> State:
     needs :func:`_continuation_guess`)."""
     pi0 = jax.lax.stop_gradient(_body_momentum(s))
     I_inv = jax.lax.stop_gradient(s.body.inverse_inertia)
-    y = pi0
-    for _ in range(_newton_iterations(y.dtype)):
-        # materialise each iterate: fused across iterations, XLA:CPU re-evaluated
-        # earlier iterations once per component of the later ones
-        y = jax.lax.optimization_barrier(_newton(y, pi0, I_inv, h))
+    y = _fixed_newton(pi0, I_inv, h)
     res, tol = _residual(_newton(y, pi0, I_inv, h), pi0, I_inv, h)
     return replace(s, angular_momentum=jnp.where(res <= tol, y, jnp.nan))
 
@@ -161,10 +156,10 @@ def _finish(s: State, guess: State, h) -> State:
     I_inv = s.body.inverse_inertia
     y = _newton(jax.lax.stop_gradient(guess.angular_momentum), pi0, I_inv, h)
     res, tol = _residual(jax.lax.stop_gradient(y), jax.lax.stop_gradient(pi0), jax.lax.stop_gradient(I_inv), h)
-    w = _apply(I_inv, y)
+    w = matvec3(I_inv, y)
     # (1, a)/‖(1, a)‖, a = h ω/2, by components (no unbatched constant 1 stacked in)
     a = 0.5 * h * w
-    n = 1 / jnp.sqrt(1 + _dot3(a, a))
+    n = 1 / jnp.sqrt(1 + dot3(a, a))
     cay = jnp.stack([n, a[0] * n, a[1] * n, a[2] * n])
     q = quat_normalize(quat_multiply(s.orientation, cay))
     # not converged: NaN, the documented flag (checked mode names the step and body),

@@ -29,12 +29,12 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from .._batching import lift
-from .._math import _over, cross, quat_conjugate, quat_multiply, quat_rotate
+from .._math import cross, matvec3, over, quat_conjugate, quat_multiply, quat_rotate
 from .._pytree import replace
-from .._state import Forces, MatrixState, State, _apply
+from .._state import Forces, MatrixState, State
 from ._common import project, via_state
 from ._registry import Method, register
-from .explicit_rk import _combine
+from .explicit_rk import combine
 
 __all__ = ["rk4_body"]
 
@@ -55,11 +55,11 @@ def _to_world(s: State) -> State:
 def _body_derivative(s: State, f: Forces) -> State:
     """``(ẋ, v̇, q̇, π̇)`` of one body, stored in a State's fields (π̇ in ``angular_momentum``)."""
     q, pi = s.orientation, s.angular_momentum
-    w = _apply(s.body.inverse_inertia, pi)
+    w = matvec3(s.body.inverse_inertia, pi)
     dpi = cross(pi, w)
     if f.torque is not None:
         dpi = dpi + quat_rotate(quat_conjugate(q), f.torque)
-    a = jnp.zeros_like(s.velocity) if f.force is None else _over(f.force, s.body.mass)
+    a = jnp.zeros_like(s.velocity) if f.force is None else over(f.force, s.body.mass)
     dq = 0.5 * quat_multiply(q, jnp.concatenate([jnp.zeros_like(w[:1]), w]))
     return replace(s, position=s.velocity, velocity=a, orientation=dq, angular_momentum=dpi)
 
@@ -70,9 +70,9 @@ def rk4_body(state: State, force_fn, t, dt) -> State:
     y0 = lift(_to_body)(state)
     ks = []
     for i in range(4):
-        y = _combine(y0, dt, _A[i], ks[:i])
+        y = combine(y0, dt, _A[i], ks[:i])
         ks.append(lift(_body_derivative)(y, force_fn(world(y), t + _C[i] * dt)))
-    return world(project(_combine(y0, dt, _B, ks)))
+    return world(project(combine(y0, dt, _B, ks)))
 
 
 register(

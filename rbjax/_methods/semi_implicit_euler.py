@@ -25,9 +25,10 @@ from __future__ import annotations
 import math
 
 from .._math import (
-    _kick3,
-    _matmul3,
-    _orthonormalize,
+    kick3,
+    matmul3,
+    matvec3,
+    orthonormalize_unchecked,
     quat_conjugate,
     quat_exp,
     quat_multiply,
@@ -36,7 +37,7 @@ from .._math import (
     quat_to_matrix,
 )
 from .._pytree import replace
-from .._state import Forces, MatrixState, ParticleState, State, _apply
+from .._state import Forces, MatrixState, ParticleState, State
 from ._common import batch, kick
 from ._registry import Method, register
 
@@ -45,7 +46,7 @@ def semi_implicit_state(s: State, f: Forces, dt) -> State:
     """One semi-implicit Euler step of one body in the ``(x, v, q, L)`` form."""
     s = kick(s, f, dt)
     q = s.orientation
-    w = quat_rotate(q, _apply(s.body.inverse_inertia, quat_rotate(quat_conjugate(q), s.angular_momentum)))
+    w = quat_rotate(q, matvec3(s.body.inverse_inertia, quat_rotate(quat_conjugate(q), s.angular_momentum)))
     q = quat_normalize(quat_multiply(quat_exp(w * dt), q))
     return replace(s, position=s.position + s.velocity * dt, orientation=q)
 
@@ -53,20 +54,20 @@ def semi_implicit_state(s: State, f: Forces, dt) -> State:
 def semi_implicit_matrix(s: MatrixState, f: Forces, dt) -> MatrixState:
     """One semi-implicit Euler step of one body in the ``(x, v, R, ω)`` form."""
     R, I, I_inv = s.rotation, s.body.inertia, s.body.inverse_inertia
-    v = s.velocity if f.force is None else _kick3(s.velocity, f.force, s.body.mass, dt)
-    L = _apply(R, _apply(I, _apply(R.T, s.angular_velocity)))
+    v = s.velocity if f.force is None else kick3(s.velocity, f.force, s.body.mass, dt)
+    L = matvec3(R, matvec3(I, matvec3(R.T, s.angular_velocity)))
     if f.torque is not None:
         L = L + f.torque * dt
-    w = _apply(R, _apply(I_inv, _apply(R.T, L)))
+    w = matvec3(R, matvec3(I_inv, matvec3(R.T, L)))
     # one Newton–Schulz pass stops round-off in the product from accumulating
-    R = _orthonormalize(_matmul3(quat_to_matrix(quat_exp(w * dt)), R), iterations=1)
-    w = _apply(R, _apply(I_inv, _apply(R.T, L)))
+    R = orthonormalize_unchecked(matmul3(quat_to_matrix(quat_exp(w * dt)), R), iterations=1)
+    w = matvec3(R, matvec3(I_inv, matvec3(R.T, L)))
     return replace(s, position=s.position + v * dt, velocity=v, rotation=R, angular_velocity=w)
 
 
 def semi_implicit_particles(s: ParticleState, f: Forces, dt) -> ParticleState:
     """One symplectic-Euler step of one particle."""
-    v = s.velocity if f.force is None else _kick3(s.velocity, f.force, s.mass, dt)
+    v = s.velocity if f.force is None else kick3(s.velocity, f.force, s.mass, dt)
     return replace(s, position=s.position + v * dt, velocity=v)
 
 

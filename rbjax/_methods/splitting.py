@@ -77,7 +77,7 @@ import jax
 import jax.numpy as jnp
 
 from .._batching import lift
-from .._math import _dot3, _kick3, quat_conjugate, quat_multiply, quat_normalize, quat_rotate
+from .._math import dot3, kick3, quat_conjugate, quat_multiply, quat_normalize, quat_rotate
 from .._pytree import replace
 from .._state import MatrixState, ParticleState, State
 from ._common import degenerate_flow, kick, principal_frame, via_state
@@ -130,7 +130,7 @@ def _rotate_about(qp, m, k, i, h):
 
 def _turn_about_momentum(L, e2, h):
     """Exact flow of ``H_L = |L|²/(2 d₂)`` over ``h``: the world turn ``(cos φ/2, sin φ/2 L̂)``, ``φ = |L| h e₂``."""
-    c2, t2 = _cayley(h * e2 / 4, _dot3(L, L))
+    c2, t2 = _cayley(h * e2 / 4, dot3(L, L))
     return jnp.stack([c2, t2 * L[0], t2 * L[1], t2 * L[2]])
 
 
@@ -173,7 +173,7 @@ def free_rotor_of_kind(q, L, body, h, kind: str):
     if kind == "axisymmetric":
         w, x, y, z = q[0], q[1], q[2], q[3]
         n = jnp.stack([2 * (x * z + w * y), 2 * (y * z - w * x), w * w - x * x - y * y + z * z])
-        m_z = _dot3(L, n)
+        m_z = dot3(L, n)
         c2, t2 = _cayley(h * (body.inverse_inertia[2, 2] - e) / 4, m_z * m_z)
         s2 = t2 * m_z
         q = jnp.stack([w * c2 - z * s2, x * c2 + y * s2, y * c2 - x * s2, z * c2 + w * s2])  # q ⊗ (c2, s2 e_z)
@@ -206,7 +206,7 @@ def _drift_particles(s: ParticleState, h) -> ParticleState:
 
 
 def _kick_particles(s: ParticleState, f, h) -> ParticleState:
-    return s if f.force is None else replace(s, velocity=_kick3(s.velocity, f.force, s.mass, h))
+    return s if f.force is None else replace(s, velocity=kick3(s.velocity, f.force, s.mass, h))
 
 
 def _strang(kick_fn, drift_fn):

@@ -11,7 +11,8 @@ import jax.core
 import numpy as np
 
 from .._state import quat_tolerance
-from ._rotations_np import _CONJ, _np_qlog, _np_qmul
+from ._robust import LOSSES
+from ._rotations_np import CONJ, np_qlog, np_qmul
 
 
 def _positive_finite(name: str, value, remedy: str) -> float:
@@ -59,7 +60,7 @@ def check_options(
     _positive_finite("rtol", rtol, "the default is 1e-8")
     _positive_finite("atol", atol, "the default is 1e-8")
     _positive_int("max_steps", max_steps, "the default is 200")
-    if not isinstance(loss, str) or loss not in ("squared", "huber", "cauchy"):
+    if not isinstance(loss, str) or loss not in LOSSES:
         raise ValueError(
             f"fit_inertia: loss must be 'squared', 'huber' or 'cauchy', got {loss!r}; "
             "'huber' or 'cauchy' down-weight glitches"
@@ -73,7 +74,7 @@ def check_options(
         _positive_int("substeps", substeps, "or omit it for the default")
 
 
-def _gyro_frame_check(times: np.ndarray, q: np.ndarray, w: np.ndarray, k: int, ratio: float = 3.0) -> None:
+def gyro_frame_check(times: np.ndarray, q: np.ndarray, w: np.ndarray, k: int, ratio: float = 3.0) -> None:
     """Raise ``ValueError`` when gyro rates ``w (T, 3)`` look world-frame rather than body-frame.
 
     Over windows of ``k`` samples the orientations ``q (T, 4)`` give the mean
@@ -88,8 +89,8 @@ def _gyro_frame_check(times: np.ndarray, q: np.ndarray, w: np.ndarray, k: int, r
     if T <= k:
         return
     dt = (times[k:] - times[:-k])[:, None]
-    w_body = _np_qlog(_np_qmul(q[:-k] * _CONJ, q[k:])) / dt
-    w_world = _np_qlog(_np_qmul(q[k:], q[:-k] * _CONJ)) / dt
+    w_body = np_qlog(np_qmul(q[:-k] * CONJ, q[k:])) / dt
+    w_world = np_qlog(np_qmul(q[k:], q[:-k] * CONJ)) / dt
     cum = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * np.diff(times)[:, None] * (w[1:] + w[:-1]), 0)])
     w_mean = (cum[k:] - cum[:-k]) / dt
     r_body = np.median(np.linalg.norm(w_mean - w_body, axis=-1))
@@ -136,7 +137,17 @@ def check_arrays(**arrays) -> None:
             raise TypeError(f"fit_inertia: {name} must be real numbers (float32 or float64), got dtype {dtype.name}")
 
 
-def _check_inputs(times, orientations, body_rates, torques, body_torques=None):
+def _series(name: str, x, T: int, k: int) -> np.ndarray:
+    """``x`` as a ``(T, k)`` or ``(N, T, k)`` array; ``ValueError`` naming ``name`` otherwise."""
+    a = np.asarray(x)
+    if a.ndim not in (2, 3) or a.shape[-2:] != (T, k):
+        raise ValueError(
+            f"fit_inertia: {name} must have shape (T, {k}) or (N, T, {k}) with T = len(times) = {T}, got {a.shape}"
+        )
+    return a
+
+
+def check_inputs(times, orientations, body_rates, torques, body_torques=None):
     """Checked NumPy copies ``(t, q, ω, τ, τ_b)``; ``q`` is None for a gyro-only recording.
 
     The batch shape ``(N,)`` or ``()`` comes from ``orientations``, or from
@@ -156,21 +167,11 @@ def _check_inputs(times, orientations, body_rates, torques, body_torques=None):
                 "fit_inertia: torques= are world-frame and need orientations to be used; for a "
                 "gyro-only fit pass the known torques in the body frame as body_torques="
             )
-        w = np.asarray(body_rates)
-        if w.ndim not in (2, 3) or w.shape[-2:] != (t.shape[0], 3):
-            raise ValueError(
-                f"fit_inertia: body_rates must have shape (T, 3) or (N, T, 3) with T = len(times) = "
-                f"{t.shape[0]}, got {w.shape}"
-            )
+        w = _series("body_rates", body_rates, t.shape[0], 3)
         lead = w.shape[:-1]
         q = None
     else:
-        q = np.asarray(orientations)
-        if q.ndim not in (2, 3) or q.shape[-2:] != (t.shape[0], 4):
-            raise ValueError(
-                f"fit_inertia: orientations must have shape (T, 4) or (N, T, 4) with T = len(times) = "
-                f"{t.shape[0]}, got {q.shape}"
-            )
+        q = _series("orientations", orientations, t.shape[0], 4)
         lead = q.shape[:-1]
     if torques is not None and body_torques is not None:
         raise ValueError(

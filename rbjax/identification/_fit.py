@@ -35,7 +35,7 @@ from .._pytree import new_unchecked
 from .._typing import ArrayLike
 from . import _robust
 from ._checks import check_arrays, check_options
-from ._model import _model
+from ._model import model_residuals
 from ._problem import prepare
 from ._queue import run_queue, stage_widths
 from ._result import FitResult, summarise
@@ -66,9 +66,9 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
     instead of being stepped until the slowest one stops.
     """
     opts = dict(model_opts)
-    member = lambda tree, i: jax.tree.map(lambda a: a[i], tree)  # noqa: E731
+    member = lambda tree, i: jax.tree.map(lambda a: a[i], tree)
     # one recording keeps J in its slot, so the model is compiled once (see `summary`)
-    lm = LMMember(functools.partial(_model, **opts), rtol, atol, max_steps, keep_jacobian=unbatch)
+    lm = LMMember(functools.partial(model_residuals, **opts), rtol, atol, max_steps, keep_jacobian=unbatch)
     kw = {k: opts[k] for k in _SUMMARY_OPTS}
     outlier_weight = _robust.outlier_weight(loss)
     zero = jnp.zeros((), jnp.int32)
@@ -205,8 +205,9 @@ def fit_inertia(
         initial_inertia: optional ``(3, 3)`` starting guess (body frame); default:
             linear least squares on conservation of angular momentum.
         method: integrator (see :func:`rbjax.methods`); ``"rk4"`` recommended.
-        segments: number of multiple-shooting segments; default one per ``2π``
-            of recorded rotation, at least 1 and at most ``(T-1) // 8``.
+        segments: number of multiple-shooting segments; default about one per
+            512 sample intervals and per ``4π`` (two turns) of recorded rotation,
+            rounded up to a power of two, at least 1 and at most ``(T-1) // 8``.
         substeps: integrator steps per sample interval; default enough that no
             step turns more than 0.05 rad.
         orientation_std, rate_std: noise standard deviations (rad, rad/s) that
@@ -641,7 +642,8 @@ def _stack_results(results: dict, n: int, errors: dict) -> FitResult:
 
 
 def _sample_weights(prob, rw: np.ndarray, outlier_weight: float):
-    """Segment-row weights ``(*N, S, B, K+1)`` as ``(*N, T, 2)`` [orientation, gyro], and the outliers ``(*N, T)``."""
+    """Segment-row weights ``(*N, S, B, K+1)`` as ``(*N, T, 3)`` [orientation, gyro, accelerometer]
+    (1 for a sensor not fitted), and the outliers ``(*N, T)``."""
     rw = rw if prob.batched else rw[None]
     idx, valid = prob.sample_index[prob.sample_valid], prob.sample_valid
     T = int(idx.max()) + 1

@@ -129,7 +129,7 @@ def _flow(args, *, substeps: int, torque_frame: str | None, observe):
             torque = None if torque_frame is None else functools.partial(_stage_torque, x, j, substeps, torque_frame)
             (q, L), (dq, dL) = carry
             step = functools.partial(_rk4, dt=h, torque=torque)
-            push = lambda tq, tL, ti: jax.jvp(step, (q, L, inv), (tq, tL, ti))  # noqa: E731
+            push = lambda tq, tL, ti: jax.jvp(step, (q, L, inv), (tq, tL, ti))
             return jax.vmap(push, out_axes=(None, 0))(dq, dL, dinv), None
 
         # a loop, not unrolled: the default substeps reach 32 on fast or glitched recordings
@@ -137,7 +137,7 @@ def _flow(args, *, substeps: int, torque_frame: str | None, observe):
         carry = sub(carry, steps[0])[0] if substeps == 1 else jax.lax.scan(sub, carry, steps)[0]
         (q, L), (dq, dL) = carry
         look = functools.partial(seen, obs=x["obs"])
-        tangents = lambda tq, tL, ti: jax.jvp(look, (q, L, inv), (tq, tL, ti))  # noqa: E731
+        tangents = lambda tq, tL, ti: jax.jvp(look, (q, L, inv), (tq, tL, ti))
         return carry, jax.vmap(tangents, out_axes=(None, 0))(dq, dL, dinv)
 
     ((q, _), (dq, _)), (y, dy) = jax.lax.scan(interval, ((q0, L0), (dq0, dL0)), xs)

@@ -14,7 +14,7 @@ from jax import Array
 from jaxtyping import Float
 
 from .._typing import ArrayLike
-from ._rotations_np import _np_qmat
+from ._rotations_np import np_qmat
 
 _ENTRIES = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
 
@@ -38,13 +38,13 @@ def _entries_to_matrix(x: np.ndarray) -> np.ndarray:
     return np.stack([np.stack([xx, xy, xz], -1), np.stack([xy, yy, yz], -1), np.stack([xz, yz, zz], -1)], -2)
 
 
-def _momentum_system(times, q, w, tau):
+def momentum_system(times, q, w, tau):
     """Normal matrix ``MᵀM`` and ``Mᵀb`` of ``R_i A(ω_i) x_I - L_0 = H_i`` (one recording).
 
     ``H_i = ∫_{t0}^{t_i} τ dt`` by the trapezoid rule (zero without torques).
     The ``I`` columns are scaled by the RMS rate so both blocks are O(1).
     """
-    R = _np_qmat(q)
+    R = np_qmat(q)
     scale = np.sqrt(np.mean(np.sum(w * w, -1))) + 1e-300
     M = np.concatenate([R @ _regressor(w) / scale, -np.broadcast_to(np.eye(3), R.shape)], -1)
     M = M.reshape(-1, 9)
@@ -57,7 +57,7 @@ def _momentum_system(times, q, w, tau):
     return M.T @ M, M.T @ b, scale
 
 
-def _skew(w: np.ndarray) -> np.ndarray:
+def skew(w: np.ndarray) -> np.ndarray:
     """``[ω]×`` ``(..., 3, 3)``: ``[ω]× v = ω × v``."""
     wx, wy, wz = w[..., 0], w[..., 1], w[..., 2]
     z = np.zeros_like(wx)
@@ -70,7 +70,7 @@ def _cumtrapz(times: np.ndarray, f: np.ndarray) -> np.ndarray:
     return np.concatenate([np.zeros_like(f[:1]), np.cumsum(0.5 * dt * (f[1:] + f[:-1]), 0)])
 
 
-def _body_momentum_system(times, w, tau_b):
+def body_momentum_system(times, w, tau_b):
     """Normal matrix and right side of the body-frame integral form (gyro only, one recording).
 
     Euler's equations ``I ω̇ + ω × I ω = τ_b`` integrated from ``t0``:
@@ -81,13 +81,13 @@ def _body_momentum_system(times, w, tau_b):
     """
     scale = np.sqrt(np.mean(np.sum(w * w, -1))) + 1e-300
     A = _regressor(w)
-    C = _cumtrapz(times, _skew(w) @ A)
+    C = _cumtrapz(times, skew(w) @ A)
     M = np.concatenate([(A + C) / scale, -np.broadcast_to(np.eye(3), (w.shape[0], 3, 3))], -1).reshape(-1, 9)
     b = np.zeros(M.shape[0]) if tau_b is None else _cumtrapz(times, tau_b).reshape(-1)
     return M.T @ M, M.T @ b, scale
 
 
-def _identifiability(MtM: np.ndarray, tol: float, torque_free: bool) -> None:
+def check_identifiability(MtM: np.ndarray, tol: float, torque_free: bool) -> None:
     """Raise ``ValueError`` naming the inertia directions the data cannot determine."""
     evals, evecs = np.linalg.eigh(MtM)
     sv = np.sqrt(np.maximum(evals, 0) / evals[-1])
@@ -140,13 +140,13 @@ def _rref_columns(basis: np.ndarray) -> list[np.ndarray]:
     return list(A[:r])
 
 
-def _np_params_from_inertia(I: np.ndarray) -> np.ndarray:
+def np_params_from_inertia(I: np.ndarray) -> np.ndarray:
     """NumPy twin of :func:`params_from_inertia` (no eager JAX compile per call)."""
     L = np.linalg.cholesky(0.5 * np.trace(I) * np.eye(3) - I)
     return np.array([np.log(L[0, 0]), np.log(L[1, 1]), np.log(L[2, 2]), L[1, 0], L[2, 0], L[2, 1]])
 
 
-def _initial_inertia(MtM, Mtb, scale, torque_free):
+def initial_inertia_estimate(MtM, Mtb, scale, torque_free):
     """Inertia from the momentum LLS, projected onto the physically consistent set."""
     if torque_free:
         x = np.linalg.eigh(MtM)[1][:, 0]
@@ -189,7 +189,7 @@ def fit_inertia_linear(
         x = np.linalg.svd(A, full_matrices=False)[2][-1]
         I = _entries_to_matrix(x)
         return jnp.asarray(I / np.trace(I))
-    R = _np_qmat(np.asarray(orientations, np.float64))
+    R = np_qmat(np.asarray(orientations, np.float64))
     tau_b = np.einsum("tji,tj->ti", R, np.asarray(torques, np.float64))  # Rᵀ τ
     x = np.linalg.lstsq(A, tau_b.reshape(-1), rcond=None)[0]
     return jnp.asarray(_entries_to_matrix(x))

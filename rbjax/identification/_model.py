@@ -15,9 +15,9 @@ from jax import Array
 from .. import _methods
 from .._body import Body, inverse_3x3
 from .._inertia_param import inertia_from_params
-from .._math import quat_conjugate, quat_exp, quat_log, quat_multiply, quat_rotate
+from .._math import matvec3, quat_conjugate, quat_exp, quat_log, quat_multiply, quat_rotate
 from .._pytree import new_unchecked
-from .._state import Forces, State, _apply
+from .._state import Forces, State
 from ._flow import flow
 from ._sensors import accelerometer_reading, gyro_reading
 
@@ -36,7 +36,7 @@ def _inertia(theta: Array, scale_fixed: bool) -> Array:
     return inertia_from_params(theta)
 
 
-def _unpack(y: Array, n_theta: int, S: int):
+def unpack(y: Array, n_theta: int, S: int):
     return y[:n_theta], y[n_theta:].reshape(S, 6)
 
 
@@ -49,7 +49,7 @@ def _start(x, d, *, n_theta, scale_fixed):
     one = jnp.ones((), I.dtype)
     body = new_unchecked(Body, mass=one, inertia=I, _inverse=inverse_3x3(I))
     zero = jnp.zeros(3, I.dtype)
-    L0 = quat_rotate(q0, _apply(I, w0))
+    L0 = quat_rotate(q0, matvec3(I, w0))
     return new_unchecked(
         State, body=body, position=zero, velocity=zero, orientation=q0, angular_momentum=L0, time=zero[0]
     )
@@ -62,7 +62,7 @@ def _observe(q, L, inv, o, c):
     ``inv``: body-frame ``I⁻¹``; ``o``: the sample (``q_meas``, ``w_meas``,
     ``weight``); ``c``: the segment's inverse noise levels (``wq``, ``ww``).
     """
-    w = _apply(inv, quat_rotate(quat_conjugate(q), L))
+    w = matvec3(inv, quat_rotate(quat_conjugate(q), L))
     r_q = o["weight"] * c["wq"] * quat_log(quat_multiply(quat_conjugate(q), o["q_meas"]))
     return r_q, o["weight"] * c["ww"] * (w - o["w_meas"]), w
 
@@ -138,7 +138,7 @@ def _segments(
         return out.orientation, out.angular_momentum
 
     def advance(r, dr, body, dbody, t, dt, d):
-        push = lambda tr, tb: jax.jvp(lambda r, b: rotation_step(r, b, t, dt, d), (r, body), (tr, tb))  # noqa: E731
+        push = lambda tr, tb: jax.jvp(lambda r, b: rotation_step(r, b, t, dt, d), (r, body), (tr, tb))
         return jax.vmap(push, out_axes=(None, 0))(dr, dbody)
 
     body, dbody = s0.body, ds0.body
@@ -160,7 +160,7 @@ def _segments(
 
     def observe(r, dr, obs):  # every segment's observations of one sample, tangents (S, n, ...)
         def one(r, dr, inv, dinv, obs, c):
-            look = lambda tr, ti: jax.jvp(lambda r, i: _observe(r[0], r[1], i, obs, c), (r, inv), (tr, ti))  # noqa: E731
+            look = lambda tr, ti: jax.jvp(lambda r, i: _observe(r[0], r[1], i, obs, c), (r, inv), (tr, ti))
             return jax.vmap(look, out_axes=(None, 0))(dr, dinv)
 
         return jax.vmap(one)(r, dr, inv, dinv, obs, const)
@@ -217,7 +217,7 @@ def _segments(
         def accel(th, w, ra, ba):
             return accelerometer_reading(_inertia(th, scale_fixed), w, ra, ba)
 
-        each = lambda f: jax.vmap(jax.vmap(f))(w)  # noqa: E731
+        each = lambda f: jax.vmap(jax.vmap(f))(w)
         a_pred = each(lambda w: accel(th, w, ra, ba))
         Fth, Fw, Fr, Fb = each(lambda w: jax.jacfwd(accel, argnums=(0, 1, 2, 3))(th, w, ra, ba))
         a_meas = jnp.concatenate([seg["a_first"][:, None], seg["a_meas"]], 1)
@@ -253,7 +253,7 @@ def _continuity(end, p_next, d_next, continuity_weight):
     return continuity_weight * jnp.concatenate([d_next["wcq"] * gap, d_next["wc"] * (end[4:] - p_next[3:])])
 
 
-def _model(
+def model_residuals(
     y,
     data,
     *,
@@ -275,7 +275,7 @@ def _model(
     seg = data["seg"]
     S = seg["dt"].shape[0]
     n_theta = (6 if scale_fixed else 5) + 3 * gyro_bias + 3 * gyro_rotation + 6 * use_accel  # shared block
-    theta, P = _unpack(y, n_theta, S)
+    theta, P = unpack(y, n_theta, S)
     X = jnp.concatenate([jnp.broadcast_to(theta, (S, n_theta)), P], -1)  # x_s = (θ, p_s)
     kw = dict(n_theta=n_theta, scale_fixed=scale_fixed, method=method, substeps=substeps, use_rates=use_rates)
     r_seg, ends, J_seg, J_end = _segments(
@@ -300,7 +300,7 @@ def _model(
     cj = jax.jacfwd(lambda e, pn, dn: (c(e, pn, dn),) * 2, argnums=(0, 1), has_aux=True)
     (Dc_end, Dc_p), r_c = jax.vmap(cj)(ends[:-1], P[1:], nxt)
     eye = jnp.eye(S, dtype=y.dtype)
-    blocks = lambda B, E: jnp.einsum("sra,st->srta", B, E).reshape(B.shape[0] * B.shape[1], -1)  # noqa: E731
+    blocks = lambda B, E: jnp.einsum("sra,st->srta", B, E).reshape(B.shape[0] * B.shape[1], -1)
     J_top = jnp.concatenate([J_seg[..., :n_theta].reshape(S * m, n_theta), blocks(J_seg[..., n_theta:], eye)], -1)
     Je = J_end[:-1]  # chain rule through the end state of segment s
     Jc_theta = jnp.einsum("sre,sea->sra", Dc_end, Je[..., :n_theta]).reshape(-1, n_theta)
@@ -309,7 +309,7 @@ def _model(
     return jnp.concatenate([r_seg.reshape(-1), r_c.reshape(-1)]), J
 
 
-def _normalised_moments(y, scale_fixed):
+def normalised_moments(y, scale_fixed):
     I = _inertia(y[: 6 if scale_fixed else 5], scale_fixed)
     if not scale_fixed:
         I = I / jnp.trace(I)

@@ -17,16 +17,16 @@ import numpy as np
 from .. import _methods
 from .._body import Body
 from .._state import State
-from ._checks import _check_inputs, _gyro_frame_check
+from ._checks import check_inputs, gyro_frame_check
 from ._linear import (
-    _body_momentum_system,
-    _identifiability,
-    _initial_inertia,
-    _momentum_system,
-    _np_params_from_inertia,
-    _skew,
+    body_momentum_system,
+    check_identifiability,
+    initial_inertia_estimate,
+    momentum_system,
+    np_params_from_inertia,
+    skew,
 )
-from ._rotations_np import _np_increments, _np_qmat, _rate_estimate
+from ._rotations_np import np_increments, np_qmat, rate_estimate
 
 
 def _mad_sigma(x: np.ndarray) -> np.ndarray:
@@ -136,14 +136,14 @@ def prepare(
     from the identity times its fitted rotation, chained by the joins.
     """
     _methods.get(method, State)  # unknown method: ValueError now, not in the solver
-    t, q, wr, tau, tau_b = _check_inputs(times, orientations, body_rates, torques, body_torques)
+    t, q, wr, tau, tau_b = check_inputs(times, orientations, body_rates, torques, body_torques)
     use_q = q is not None
     lead = (q if use_q else wr).shape[:-1]
     batched = len(lead) == 2
     add = (lambda a: a) if batched else (lambda a: None if a is None else a[None])
     q, wr, tau, tau_b = add(q), add(wr), add(tau), add(tau_b)
     main = q if q is not None else wr  # the recording that sets batch shape and dtype
-    assert main is not None  # _check_inputs: orientations or body_rates
+    assert main is not None  # check_inputs: orientations or body_rates
     N, T = main.shape[:2]
     dtype = jax.dtypes.canonicalize_dtype(main.dtype)  # float64 input stays float32 without x64
     if not np.issubdtype(dtype, np.floating):
@@ -184,7 +184,7 @@ def prepare(
     dts = np.diff(t)
     if q is not None:
         q = q.astype(np.float64)
-        inc = _np_increments(q)  # (N, T-1, 3)
+        inc = np_increments(q)  # (N, T-1, 3)
         angles = np.linalg.norm(inc, axis=-1)
     else:
         speed = np.linalg.norm(np.asarray(wr, np.float64), axis=-1)
@@ -227,12 +227,12 @@ def prepare(
     if use_rates:
         rates = np.asarray(wr, np.float64)
         if use_q:  # a gyro in deg/s reads 57.3x the rate the orientations imply
-            _check_gyro_units(rates, _rate_estimate(t, q, k))
+            _check_gyro_units(rates, rate_estimate(t, q, k))
         if check_gyro_frame and use_q:
             for n in range(N):
-                _gyro_frame_check(t, q[n], rates[n], k)
+                gyro_frame_check(t, q[n], rates[n], k)
     else:
-        rates = _rate_estimate(t, q, k)
+        rates = rate_estimate(t, q, k)
 
     K = _bucket(-(-(T - 1) // S))  # intervals per segment, padded: shapes from a coarse grid
     if pad_intervals is not None:  # padded further, to share a program with longer recordings
@@ -252,24 +252,24 @@ def prepare(
         taub_n = None if tau_b is None else np.asarray(tau_b[n], np.float64)
         if use_q:
             # world-frame torques for the momentum law: body ones rotated by the recorded attitude
-            tau_w = tau_n if taub_n is None else np.einsum("tij,tj->ti", _np_qmat(q[n]), taub_n)
-            MtM, Mtb, scale = _momentum_system(t, q[n], rates[n], tau_w)
+            tau_w = tau_n if taub_n is None else np.einsum("tij,tj->ti", np_qmat(q[n]), taub_n)
+            MtM, Mtb, scale = momentum_system(t, q[n], rates[n], tau_w)
         else:
-            MtM, Mtb, scale = _body_momentum_system(t, rates[n], taub_n)
+            MtM, Mtb, scale = body_momentum_system(t, rates[n], taub_n)
         try:
-            _identifiability(MtM, excitation_tol, torque_free)
+            check_identifiability(MtM, excitation_tol, torque_free)
         except ValueError as e:
             if use_rates and np.median(np.linalg.norm(rates[n], axis=-1)) > _DEG_HINT_RATE:
                 raise ValueError(f"{e} {_deg_hint(rates[n])}") from None
             raise
         if initial_inertia is None:
-            I0 = _initial_inertia(MtM, Mtb, scale, torque_free)
+            I0 = initial_inertia_estimate(MtM, Mtb, scale, torque_free)
         else:
             I0 = np.asarray(initial_inertia, np.float64)
             Body(1.0, I0)  # validates a user guess
         if torque_free:  # the gauge log L00 = 0: rescale so that Σ_xx = 1, drop θ0
             I0 = I0 / (0.5 * np.trace(I0) - I0[0, 0])
-        theta0 = _np_params_from_inertia(I0)[(1 if torque_free else 0) :]
+        theta0 = np_params_from_inertia(I0)[(1 if torque_free else 0) :]
         if gyro_bias:
             theta0 = np.concatenate([theta0, np.zeros(3)])  # the bias starts at zero
         if gyro_rotation:
@@ -279,8 +279,8 @@ def prepare(
             # start inertia's ω̇ = -I⁻¹ (ω × I ω), linear in (r, b_a)
             wn = rates[n]
             wd = -np.linalg.solve(I0, np.cross(wn, wn @ I0.T).T).T
-            Wx = _skew(wn)
-            A = np.concatenate([_skew(wd) + Wx @ Wx, np.broadcast_to(np.eye(3), (T, 3, 3))], -1).reshape(-1, 6)
+            Wx = skew(wn)
+            A = np.concatenate([skew(wd) + Wx @ Wx, np.broadcast_to(np.eye(3), (T, 3, 3))], -1).reshape(-1, 6)
             theta0 = np.concatenate([theta0, np.linalg.lstsq(A, acc[n].reshape(-1), rcond=None)[0]])
         w_start = rates[n][starts]
         y0s.append(np.concatenate([theta0, np.column_stack([np.zeros((S, 3)), w_start]).reshape(-1)]))

@@ -9,7 +9,7 @@ from jaxtyping import Bool, Float, Int
 
 from .._math import quat_exp, quat_multiply
 from .._pytree import field, pytree_dataclass, static_field
-from ._model import _normalised_moments, _unpack
+from ._model import normalised_moments, unpack
 
 
 @pytree_dataclass
@@ -270,12 +270,12 @@ def summarise(
     dof_k = n_k - p_eff * n_k / n_eff
     s2_k = chi2_k / dof_k  # residual variance per sensor, in units of its noise level squared
     row_s2 = jnp.broadcast_to(s2_k[None, :, None, None], r_kept.shape).reshape(-1)
-    I, moments = _normalised_moments(y, scale_fixed)
+    I, moments = normalised_moments(y, scale_fixed)
     # dλ_k = v_kᵀ dI v_k with the eigenvectors held fixed: finite for equal moments too (eigvalsh's
     # own derivative is not), where it is the first-order change along the returned basis
     _, V = jnp.linalg.eigh(I)
     V = jax.lax.stop_gradient(V)
-    G = jax.jacfwd(lambda yy: jnp.einsum("ik,ij,jk->k", V, _normalised_moments(yy, scale_fixed)[0], V))(y)
+    G = jax.jacfwd(lambda yy: jnp.einsum("ik,ij,jk->k", V, normalised_moments(yy, scale_fixed)[0], V))(y)
     var = _variances(J, n_rows, n_cont, row_s2, jnp.concatenate([G, jnp.eye(p, dtype=y.dtype)]))
     # on the edge of the consistent set (I1 + I2 ≈ I3) the log-Cholesky map flattens: J's inertia
     # columns and G both vanish along the flat direction, and a rounding-level cut would read
@@ -284,7 +284,7 @@ def summarise(
     # where the flat direction is a small singular value of J_c with an O(1) G_c: σ finite or inf
     n_I = 6 if scale_fixed else 5
     pick = jnp.array([0, 4, 8, 1, 2, 5]) if scale_fixed else jnp.array([0, 4, 1, 2, 5])
-    c_of = lambda th: _normalised_moments(jnp.concatenate([th, y[n_I:]]), scale_fixed)[0].reshape(-1)[pick]  # noqa: E731
+    c_of = lambda th: normalised_moments(jnp.concatenate([th, y[n_I:]]), scale_fixed)[0].reshape(-1)[pick]
     M = jax.jacfwd(c_of)(y[:n_I])  # (n_I, n_I)
     J_c = jnp.concatenate([jnp.linalg.solve(M.T, J[:, :n_I].T).T, J[:, n_I:]], 1)
 
@@ -304,7 +304,7 @@ def summarise(
     n_I = 6 if scale_fixed else 5
     n_R = n_I + (3 if gyro_bias else 0)
     n_A = n_R + (3 if gyro_rotation else 0)
-    _, P = _unpack(y, n_A + (6 if use_accel else 0), S)
+    _, P = unpack(y, n_A + (6 if use_accel else 0), S)
     if use_accel:
         a_std = param_std[n_A : n_A + 6]
         lever, lever_std, a_bias, a_bias_std = y[n_A : n_A + 3], a_std[:3], y[n_A + 3 : n_A + 6], a_std[3:]

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 
-def _np_qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+def np_qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     pw, px, py, pz = np.moveaxis(p, -1, 0)
     qw, qx, qy, qz = np.moveaxis(q, -1, 0)
     return np.stack(
@@ -23,14 +23,14 @@ def _np_qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     )
 
 
-def _np_qlog(q: np.ndarray) -> np.ndarray:
+def np_qlog(q: np.ndarray) -> np.ndarray:
     q = np.where(q[..., :1] < 0, -q, q)
     s = np.linalg.norm(q[..., 1:], axis=-1, keepdims=True)
     scale = np.where(s > 1e-12, 2 * np.arctan2(s, q[..., :1]) / np.maximum(s, 1e-300), 2 / q[..., :1])
     return scale * q[..., 1:]
 
 
-def _np_qmat(q: np.ndarray) -> np.ndarray:
+def np_qmat(q: np.ndarray) -> np.ndarray:
     w, x, y, z = np.moveaxis(q, -1, 0)
     return np.stack(
         [
@@ -42,18 +42,18 @@ def _np_qmat(q: np.ndarray) -> np.ndarray:
     )
 
 
-_CONJ = np.array([1.0, -1.0, -1.0, -1.0])
+CONJ = np.array([1.0, -1.0, -1.0, -1.0])
 
 
-def _np_increments(q: np.ndarray, k: int = 1) -> np.ndarray:
+def np_increments(q: np.ndarray, k: int = 1) -> np.ndarray:
     """Body-frame rotation vectors ``log(q_i⁻¹ q_{i+k})`` ``(..., T-k, 3)``."""
-    return _np_qlog(_np_qmul(q[..., :-k, :] * _CONJ, q[..., k:, :]))
+    return np_qlog(np_qmul(q[..., :-k, :] * CONJ, q[..., k:, :]))
 
 
-def _rate_estimate(times: np.ndarray, q: np.ndarray, k: int) -> np.ndarray:
+def rate_estimate(times: np.ndarray, q: np.ndarray, k: int) -> np.ndarray:
     """Body rates from orientations by a centred difference over ``±k`` samples."""
     T = q.shape[-2]
     i = np.arange(T)
     lo, hi = np.clip(i - k, 0, T - 1), np.clip(i + k, 0, T - 1)
-    rv = _np_qlog(_np_qmul(q[..., lo, :] * _CONJ, q[..., hi, :]))
+    rv = np_qlog(np_qmul(q[..., lo, :] * CONJ, q[..., hi, :]))
     return rv / (times[..., hi] - times[..., lo])[..., None]
