@@ -267,11 +267,14 @@ def main(argv=None) -> int:
     p.add_argument("--no-peers", action="store_true", help="skip MuJoCo and MJX")
     p.add_argument("--dtypes", default=None, help="comma-separated, e.g. float32 (default: float32,float64)")
     p.add_argument("--json", default=None, help="output (default results/throughput[_quick].json)")
+    p.add_argument("--sizes", default=None, help="comma-separated N, e.g. 10000,100000 (default: 1 ... 1e6)")
     args = p.parse_args(argv)
     if args.json is None:
         name = "throughput_quick.json" if args.quick else "throughput.json"
         args.json = os.path.join(ROOT, "benchmarks", "results", name)
     sizes = [100, 10_000] if args.quick else [1, 10, 100, 1_000, 10_000, 100_000, 1_000_000]
+    if args.sizes:
+        sizes = [int(float(n)) for n in args.sizes.split(",")]
     # --quick checks that the benchmark runs: two methods, not every method's compile time
     methods = (["euler", "rk4"] if args.quick else list(rb.methods(rb.State))) if args.methods == "all" else None
     methods = methods or args.methods.split(",")

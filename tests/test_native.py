@@ -120,7 +120,7 @@ def test_native_matches_jax_over_batch_shapes_and_shared_bodies(method, batch, s
 def test_native_under_jit_vmap_and_chunked_runs(tmp_path):
     state = _state((4,), jnp.float64)
     forces = _forces("gravity+quadratic", (4,), jnp.float64)
-    run = lambda s, native: rb.simulate(s, forces, 1e-2, STEPS, "rk4", save_every=SAVE, native=native)  # noqa: E731
+    run = lambda s, native: rb.simulate(s, forces, 1e-2, STEPS, "rk4", save_every=SAVE, native=native)
     ref = run(state, False)
     _assert_close(jax.jit(run, static_argnums=1)(state, True), ref, STEPS, jnp.float64)
     # vmap over a stack of initial states: the kernel sees an extra leading batch

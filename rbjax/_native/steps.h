@@ -10,8 +10,8 @@
 // same order of sums; kernels.cc is built with -ffp-contract=off, so no fused
 // multiply-adds), which keeps the two within round-off of each other.
 
-// ω = R I_L⁻¹ Rᵀ L by quaternion rotations, as rbjax._quantities._omega_world with
-// rbjax._math.quat_rotate (v + w t + u × t, t = 2 u × v) and rbjax._state._apply.
+// ω = R I_L⁻¹ Rᵀ L by quaternion rotations, as rbjax._dynamics.omega_world with
+// rbjax._math.quat_rotate (v + w t + u × t, t = 2 u × v) and rbjax._math.matvec3.
 template <typename T>
 RBJAX_INLINE void omega(const T q[4], const T L[3], const T inv[9], T w[3]) {
   const T cx = -q[1], cy = -q[2], cz = -q[3];  // Rᵀ: the conjugate (w, -u)
@@ -33,7 +33,7 @@ RBJAX_INLINE void omega(const T q[4], const T L[3], const T inv[9], T w[3]) {
   w[2] = a2 + q[0] * t2 + (ux * t1 - uy * t0);
 }
 
-// (0, ω) ⊗ q without the zero, as rbjax._math._pure_quat_multiply.
+// (0, ω) ⊗ q without the zero, as rbjax._math.pure_quat_multiply.
 template <typename T>
 RBJAX_INLINE void pure_quat_multiply(const T w[3], const T q[4], T p[4]) {
   p[0] = -(w[0] * q[1] + w[1] * q[2] + w[2] * q[3]);
