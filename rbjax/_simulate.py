@@ -379,7 +379,8 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
     # functions not known to be layout-agnostic (a user's Scene kernel) and
     # force callables see the usual batch-first layout.
     agnostic = getattr(method, "layout_agnostic", None)
-    soa = not callable(method) or (agnostic is not None and agnostic(type(state)))
+    # the native kernel reads the batch-first layout itself: no transposes at either end
+    soa = not native and (not callable(method) or (agnostic is not None and agnostic(type(state))))
     to_soa = to_batch_last if soa else (lambda x: x)
     to_aos = to_batch_first if soa else (lambda x: x)
 
@@ -442,12 +443,10 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
             frc_fn = checked_force_fn(as_force_fn(frc))
 
             def fn(s, tt):
-                with batch_last(False):
-                    return to_soa(frc_fn(replace(to_aos(strip(s)), **{**cs, "time": tt}), tt))
+                return frc_fn(replace(strip(s), **{**cs, "time": tt}), tt)
 
-            def one_step(d, j):
-                with batch_last(True):
-                    return strip(step_fn(replace(d, **cs_soa), fn, t + j.astype(dtype) * h, h)), None
+            def one_step(d, j):  # batch-first, as the kernel's state
+                return strip(step_fn(replace(d, **cs_soa), fn, t + j.astype(dtype) * h, h)), None
 
             return jax.lax.scan(one_step, dyn, jnp.arange(save_every))[0]
 

@@ -169,18 +169,18 @@ def say_once_unavailable() -> None:
 
 
 def _parameters(forces: Any, batch: tuple[int, ...], dtype: Any) -> tuple[dict[str, jax.Array], int]:
-    """The kernel's force parameters ``F, tau, g (3, n)``, ``drag (4, n)`` and its ``terms`` bits."""
+    """The kernel's force parameters ``F, tau, g (n, 3)``, ``drag (n, 4)`` (``n`` = 1 when shared)
+    and its ``terms`` bits."""
     n = int(np.prod(batch, dtype=np.int64))
 
     def per_body(a: Any, comps: int) -> jax.Array:
         a = jnp.asarray(a, dtype)
         a = a if comps > 1 else a[..., None]
-        lead = a.shape[:-1]
-        if int(np.prod(lead, dtype=np.int64)) == 1:
-            return a.reshape(1, comps).T
-        return jnp.broadcast_to(a, batch + (comps,)).reshape(n, comps).T
+        if int(np.prod(a.shape[:-1], dtype=np.int64)) == 1:
+            return a.reshape(1, comps)
+        return jnp.broadcast_to(a, batch + (comps,)).reshape(n, comps)
 
-    zero3, zero = jnp.zeros((3, 1), dtype), jnp.zeros((1, 1), dtype)
+    zero3, zero = jnp.zeros((1, 3), dtype), jnp.zeros((1, 1), dtype)
     acc: dict[str, Any] = {"F": zero3, "tau": zero3, "g": zero3, "b": zero, "br": zero, "c": zero, "cr": zero}
     used: set[str] = set()
 
@@ -192,10 +192,7 @@ def _parameters(forces: Any, batch: tuple[int, ...], dtype: Any) -> tuple[dict[s
         used.add(key)
 
     for term in _terms(forces) or ():
-        if isinstance(term, Forces):
-            add("F", term.force, 3)
-            add("tau", term.torque, 3)
-        elif isinstance(term, ConstantForce):
+        if isinstance(term, (Forces, ConstantForce)):
             add("F", term.force, 3)
             add("tau", term.torque, 3)
         elif isinstance(term, Gravity):
@@ -206,36 +203,35 @@ def _parameters(forces: Any, batch: tuple[int, ...], dtype: Any) -> tuple[dict[s
         elif isinstance(term, QuadraticDrag):
             add("c", term.linear, 1)
             add("cr", term.angular, 1)
-    width = max(acc[k].shape[1] for k in ("b", "br", "c", "cr"))
-    drag = jnp.concatenate([jnp.broadcast_to(acc[k], (1, width)) for k in ("b", "br", "c", "cr")])
+    rows = max(acc[k].shape[0] for k in ("b", "br", "c", "cr"))
+    drag = jnp.concatenate([jnp.broadcast_to(acc[k], (rows, 1)) for k in ("b", "br", "c", "cr")], axis=1)
     terms = (1 if used else 0) | (2 if used & {"c", "cr"} else 0)
     return {"F": acc["F"], "tau": acc["tau"], "g": acc["g"], "drag": drag}, terms
 
 
 def _frames(body: Any, shared: bool, batch: tuple[int, ...], n: int) -> jax.Array:
-    """``"splitting"``'s principal frames, ``(7, 1)`` or ``(7, n)``: the axes' quaternion ``p`` and
+    """``"splitting"``'s principal frames, ``(1, 7)`` or ``(n, 7)``: the axes' quaternion ``p`` and
     the inverse moments ``e = 1/d``, as :func:`rbjax._methods._common.principal_frame` gives them."""
-    inertia = (
-        body.inertia.reshape(3, 3, 1) if shared else jnp.broadcast_to(body.inertia, (3, 3) + batch).reshape(3, 3, n)
-    )
-    d, p, _ = jax.vmap(principal_frame)(jnp.moveaxis(inertia, -1, 0))
-    return jnp.concatenate([p.T, (1 / d).T])
+    inertia = body.inertia
+    inertia = inertia.reshape(1, 3, 3) if shared else jnp.broadcast_to(inertia, batch + (3, 3)).reshape(n, 3, 3)
+    d, p, _ = jax.vmap(principal_frame)(inertia)
+    return jnp.concatenate([p, 1 / d], axis=1)
 
 
 def _call(method: str, steps: int, dyn: State, body: Any, forces: Any, dt: jax.Array) -> State:
-    """``steps`` steps of the kernel on a batch-last state ``dyn`` (fields ``(c, *B)``)."""
-    batch = dyn.position.shape[1:]
+    """``steps`` steps of the kernel on a batch-first state ``dyn`` (fields ``(*B, c)``)."""
+    batch = tuple(dyn.position.shape[:-1])
     n = int(np.prod(batch, dtype=np.int64))
     dtype = dyn.position.dtype
-    flat = [getattr(dyn, f).reshape(getattr(dyn, f).shape[0], n) for f in ("position", "velocity", "orientation")]
-    flat.append(dyn.angular_momentum.reshape(3, n))
-    # a body shared by the whole batch stays one column; one shared over some batch axes is spread
+    fields = ("position", "velocity", "orientation", "angular_momentum")
+    flat = [getattr(dyn, f).reshape(n, getattr(dyn, f).shape[-1]) for f in fields]
+    # a body shared by the whole batch stays one row; one shared over some batch axes is spread
     shared = body.mass.size == 1
-    m = body.mass.reshape(1, 1) if shared else jnp.broadcast_to(body.mass, batch).reshape(1, n)
+    m = body.mass.reshape(1, 1) if shared else jnp.broadcast_to(body.mass, batch).reshape(n, 1)
     inv = body.inverse_inertia
-    inv = inv.reshape(9, 1) if shared else jnp.broadcast_to(inv, (3, 3) + tuple(batch)).reshape(9, n)
-    params, terms = _parameters(forces, tuple(batch), dtype)
-    frame = _frames(body, shared, tuple(batch), n) if method == "splitting" else jnp.zeros((7, 1), dtype)
+    inv = inv.reshape(1, 9) if shared else jnp.broadcast_to(inv, batch + (3, 3)).reshape(n, 9)
+    params, terms = _parameters(forces, batch, dtype)
+    frame = _frames(body, shared, batch, n) if method == "splitting" else jnp.zeros((1, 7), dtype)
     call = jax.ffi.ffi_call(
         _TARGET,
         tuple(jax.ShapeDtypeStruct(a.shape, dtype) for a in flat),
@@ -256,7 +252,7 @@ def _call(method: str, steps: int, dyn: State, body: Any, forces: Any, dt: jax.A
         method=np.int64(METHODS[method]),
         terms=np.int64(terms),
     )
-    x, v, q, L = (a.reshape(a.shape[:1] + tuple(batch)) for a in out)
+    x, v, q, L = (a.reshape(batch + a.shape[-1:]) for a in out)
     return replace(dyn, position=x, velocity=v, orientation=q, angular_momentum=L)
 
 
@@ -274,13 +270,14 @@ def advance(
 ) -> State:
     """``steps`` steps of ``method`` by the kernel, with the values of ``reference`` (same arguments).
 
-    ``dyn`` is the stripped, batch-last state (fields ``(c, *B)``);
-    ``consts_soa`` its constant fields batch-last, with the prepared body
-    (``mass`` ``(*B)`` or ``()``, ``inverse_inertia`` ``(3, 3, *B)`` or
-    ``(3, 3)``), and ``consts`` the same batch-first (the force models see
-    those); ``forces`` is what ``simulate`` was given (``None``, a constant
-    batch-first :class:`Forces` or a force model), ``dt`` the step (s) and ``t``
-    the time of the first step. Differentiated through ``reference``, the JAX steps.
+    ``dyn`` is the stripped, batch-first state (fields ``(*B, c)``: the
+    kernel gathers each block of bodies itself, so no transposes);
+    ``consts_soa`` its constant fields with the prepared body (``mass``
+    ``(*B)`` or ``()``, ``inverse_inertia`` ``(*B, 3, 3)`` or ``(3, 3)``), and
+    ``consts`` the unprepared ones (the force models see those); ``forces``
+    is what ``simulate`` was given (``None``, a constant batch-first
+    :class:`Forces` or a force model), ``dt`` the step (s) and ``t`` the time
+    of the first step. Differentiated through ``reference``, the JAX steps.
     """
     del reference, consts, t
     return _call(method, steps, dyn, consts_soa["body"], forces, dt)

@@ -7,10 +7,11 @@
 // operation, so the two agree to round-off; tests/test_native.py holds them to it.
 // How the pieces map, and how to add a method: README.md beside this file.
 //
-// Layout (batch-last, as inside simulate's scan): a field of c components is a
-// (V, c, N) array, component k of body i at [k * N + i]; per-body parameters
-// are (V, c, n) with n = N (one per body) or n = 1 (shared). V (from jax.vmap)
-// counts independent batches.
+// Layout: batch-first, as the state arrives from the user (no transposes): a
+// field of c components is a (V, N, c) array, component k of body i at
+// [i * c + k]; per-body parameters are (V, n, c) with n = N (one per body) or
+// n = 1 (shared). V (from jax.vmap) counts independent batches. Each block
+// gathers its bodies into a structure of arrays once per call.
 //
 // The `terms` attribute: bit 0, some force or torque acts (else v and L stay);
 // bit 1, quadratic drag is among them (two square roots per evaluation).
@@ -103,7 +104,7 @@ inline void block_steps(Block<double>& B, const Consts<double>& k, const double 
   baseline::block_steps_f64(B, k, frame, n, dt, steps, method, forces, quad);
 }
 
-// A per-body parameter of `comps` components, (V, comps, n) with n = N or 1 (shared).
+// A per-body parameter of `comps` components, (V, n, comps) with n = N or 1 (shared).
 template <typename T>
 struct Param {
   const T* p = nullptr;
@@ -111,17 +112,17 @@ struct Param {
   void load(int64_t vb, int64_t i0, int count, int comps, T (*dst)[kBlock]) const {
     const T* base = p + vb * comps * n;
     for (int c = 0; c < comps; ++c)
-      for (int j = 0; j < count; ++j) dst[c][j] = base[c * n + (n == 1 ? 0 : i0 + j)];
+      for (int j = 0; j < count; ++j) dst[c][j] = base[(n == 1 ? 0 : i0 + j) * comps + c];
   }
 };
 
 // Everything one call needs, with the element type erased to T.
 template <typename T>
 struct Problem {
-  T *x, *v, *q, *L;                  // outputs, (V, c, N)
-  const T *x0, *v0, *q0, *L0;        // inputs, (V, c, N)
-  Param<T> m, inv, F, tau, g, drag;  // (V, c, n): mass 1, inverse 9, F/τ/g 3, drag 4 (b, b_r, c, c_r)
-  Param<T> frame;                    // (V, 7, n): the principal frame's quaternion and inverse moments
+  T *x, *v, *q, *L;                  // outputs, (V, N, c)
+  const T *x0, *v0, *q0, *L0;        // inputs, (V, N, c)
+  Param<T> m, inv, F, tau, g, drag;  // (V, n, c): mass 1, inverse 9, F/τ/g 3, drag 4 (b, b_r, c, c_r)
+  Param<T> frame;                    // (V, n, 7): the principal frame's quaternion and inverse moments
   const T* dt;                       // (V,)
   int64_t V, N, steps, method;
   bool forces, quad;
@@ -138,7 +139,7 @@ void run_block(const Problem<T>& P, int64_t vb, int64_t i0, int n) {
   const int comps[4] = {3, 3, 4, 3};
   for (int f = 0; f < 4; ++f)
     for (int c = 0; c < comps[f]; ++c)
-      for (int j = 0; j < n; ++j) blk[f][c][j] = in[f][(vb * comps[f] + c) * N + i0 + j];
+      for (int j = 0; j < n; ++j) blk[f][c][j] = in[f][(vb * N + i0 + j) * comps[f] + c];
   T m[1][kBlock], drag[4][kBlock], frame[7][kBlock];
   P.m.load(vb, i0, n, 1, m);
   P.inv.load(vb, i0, n, 9, k.inv);
@@ -157,7 +158,7 @@ void run_block(const Problem<T>& P, int64_t vb, int64_t i0, int n) {
   block_steps(B, k, frame, n, P.dt[vb], P.steps, P.method, P.forces, P.quad);
   for (int f = 0; f < 4; ++f)
     for (int c = 0; c < comps[f]; ++c)
-      for (int j = 0; j < n; ++j) out[f][(vb * comps[f] + c) * N + i0 + j] = blk[f][c][j];
+      for (int j = 0; j < n; ++j) out[f][(vb * N + i0 + j) * comps[f] + c] = blk[f][c][j];
 }
 
 // The blocks of all V batches, claimed from a shared counter by the calling thread and by
@@ -194,12 +195,12 @@ ffi::Error advance_typed(ffi::ThreadPool& pool, ffi::AnyBuffer x, ffi::AnyBuffer
                          ffi::Result<ffi::AnyBuffer> qo, ffi::Result<ffi::AnyBuffer> Lo, int64_t steps,
                          int64_t method, int64_t terms) {
   auto dims = x.dimensions();
-  if (dims.size() < 2 || dims[dims.size() - 2] != 3) return ffi::Error::InvalidArgument("x must be (..., 3, N)");
+  if (dims.size() < 2 || dims[dims.size() - 1] != 3) return ffi::Error::InvalidArgument("x must be (..., N, 3)");
   if (method != kEuler && method != kRk4 && method != kSplitting) {
     return ffi::Error::InvalidArgument("unknown method code");
   }
   Problem<T> P;
-  P.N = dims[dims.size() - 1];
+  P.N = dims[dims.size() - 2];
   P.V = P.N == 0 ? 0 : static_cast<int64_t>(x.element_count()) / (3 * P.N);
   P.steps = steps;
   P.method = method;
@@ -217,7 +218,7 @@ ffi::Error advance_typed(ffi::ThreadPool& pool, ffi::AnyBuffer x, ffi::AnyBuffer
   auto bind = [](const ffi::AnyBuffer& b, Param<T>& p) {
     auto d = b.dimensions();
     p.p = b.typed_data<T>();
-    p.n = d[d.size() - 1];
+    p.n = d[d.size() - 2];
   };
   bind(m, P.m);
   bind(inv, P.inv);
