@@ -9,18 +9,20 @@ with AVX2 and AVX-512 variants chosen at run time inside the library.
 """
 
 import sys
+from pathlib import Path
 
 from setuptools import Extension, setup
 from setuptools.command.build_ext import build_ext
 
 
 def _ffi_include() -> list[str]:
+    """jaxlib's FFI headers (what ``jax.ffi.include_dir()`` returns), or none: build without the kernels."""
     try:
-        import jax.ffi  # noqa: PLC0415  (a build requirement, present only while building)
-
-        return [jax.ffi.include_dir()]
-    except Exception:  # noqa: BLE001  (no jaxlib in the build environment: build without the kernels)
+        import jaxlib  # noqa: PLC0415  (a build requirement; jax itself is not installed while building)
+    except ImportError:
         return []
+    include = Path(jaxlib.__file__).parent / "include"
+    return [str(include)] if (include / "xla" / "ffi" / "api" / "ffi.h").is_file() else []
 
 
 class OptionalBuildExt(build_ext):

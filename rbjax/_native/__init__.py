@@ -162,7 +162,7 @@ def say_once_unavailable() -> None:
     status = native_status()
     if not status.available and not _warned:
         _warned = True
-        warnings.warn(f"rbjax: {status}", stacklevel=3)
+        warnings.warn(f"rbjax: {status}", stacklevel=5)  # the caller of simulate
 
 
 # --- the call --------------------------------------------------------------------------------
