@@ -72,6 +72,9 @@ def one(n: int, steps: int, save_every: int, method: str) -> dict:
             save_every=save_every,
             series=False,
             force_fn=None,
+            checks=None,
+            checkpoint=None,
+            native=False,
         )
         .compile()
         .memory_analysis()
