@@ -6,7 +6,10 @@ Strict promotion turns any silent float32/float64 mixing inside rbjax into an
 error, so the library never hard-codes a dtype.
 """
 
+import gc
+
 import jax
+import pytest
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
@@ -22,9 +25,34 @@ def pytest_addoption(parser):
 def pytest_collection_modifyitems(config, items):
     if config.getoption("--runslow"):
         return
-    import pytest
-
     skip = pytest.mark.skip(reason="slow: run with --runslow (the README's test command and .ci/run do)")
     for item in items:
         if "slow" in item.keywords:
             item.add_marker(skip)
+
+
+# Every program XLA:CPU compiles keeps its machine code in memory mappings of its own, and JAX's
+# caches keep every program alive. A worker that runs a few hundred tests holds thousands, and
+# Linux allows a process 65,530 mappings (vm.max_map_count): at that limit the next compile dies
+# inside LLVM (SIGSEGV or SIGABRT, no Python error), and with `--dist loadfile` xdist then waits
+# forever for the rest of the dead worker's file. Measured in one xdist worker of the whole suite
+# (2026-12-02): 29,000 mappings after 5 minutes, the crash at about 16. So a test that leaves the
+# process above a quarter of the limit drops the compiled programs; a module's later tests
+# recompile what they share, once.
+_MAPPINGS_BEFORE_CLEARING = 16_000
+
+
+def _mapping_count() -> int:
+    try:
+        with open("/proc/self/maps", "rb") as f:
+            return sum(1 for _ in f)
+    except OSError:  # not Linux: no such limit to keep under
+        return 0
+
+
+@pytest.fixture(autouse=True)
+def _release_compiled_programs():
+    yield
+    if _mapping_count() > _MAPPINGS_BEFORE_CLEARING:
+        jax.clear_caches()
+        gc.collect()
