@@ -44,11 +44,15 @@ from ._inertia_param import (
 from ._inertia_param import (
     second_moment as second_moment,
 )
+from ._recording import RecordingError as RecordingError
 
 # --- differentiable trajectories and inertia fitting ---
 from .identification import FitResult as FitResult
+from .identification import Recording as Recording
+from .identification import find_throws as find_throws
 from .identification import fit_inertia as fit_inertia
 from .identification import fit_inertia_linear as fit_inertia_linear
+from .identification import plot_throws as plot_throws
 
 # isort: split
 # --- multiple shooting and truncated gradients ---

@@ -13,13 +13,18 @@ One concept per private module, so the simulator's core stays small:
 * :mod:`._solver`: trust-region Levenberg–Marquardt with MINPACK's stop;
 * :mod:`._queue`: a batch of solves as a work queue, each member stopping on its own;
 * :mod:`._result`: :class:`FitResult`, the covariance and the diagnostics;
-* :mod:`._fit`: the entry point :func:`fit_inertia`.
+* :mod:`._fit`: the entry point :func:`fit_inertia`;
+* :mod:`._recording_data`: :class:`Recording` and its readers (rbjax's table, phyphox exports);
+* :mod:`._throws`: :func:`find_throws`, the free flights of a recording with throws and catches.
 
 The public names are re-exported by :mod:`rbjax`.
 """
 
 from ._fit import fit_inertia as fit_inertia
 from ._linear import fit_inertia_linear as fit_inertia_linear
+from ._recording_data import Recording as Recording
 from ._result import FitResult as FitResult
+from ._throws import find_throws as find_throws
+from ._throws import plot_throws as plot_throws
 
-__all__ = ["FitResult", "fit_inertia", "fit_inertia_linear"]
+__all__ = ["FitResult", "Recording", "find_throws", "fit_inertia", "fit_inertia_linear", "plot_throws"]

@@ -38,6 +38,7 @@ from ._checks import check_arrays, check_options
 from ._model import model_residuals
 from ._problem import prepare
 from ._queue import run_queue, stage_widths
+from ._recording_data import Recording, to_fit_arguments
 from ._result import FitResult, summarise
 from ._solver import LMMember
 
@@ -140,7 +141,7 @@ _SLOTS = 64
 
 
 def fit_inertia(
-    times: Float[ArrayLike, " T"],
+    times: Float[ArrayLike, " T"] | Recording | list[Recording],
     orientations: Float[ArrayLike, "*N T 4"] | None = None,
     *,
     body_rates: Float[ArrayLike, "*N T 3"] | None = None,
@@ -181,6 +182,11 @@ def fit_inertia(
             the same number of segments padded to the longest, masked, and fitted
             as one batch: one compiled program), and the result has a leading
             ``N`` axis, its per-sample fields padded with NaN to the longest.
+            Or a :class:`rbjax.Recording` (or a list of them): its ``orientations``,
+            ``gyro`` (as ``body_rates``), ``torques``, ``body_torques`` and
+            ``accelerations`` are passed on, and the data arguments must be left
+            out (every recording of a list must carry the same sensors;
+            ``dataclasses.replace(rec, accelerations=None)`` drops one).
         orientations: ``(T, 4)`` unit quaternions ``[w, x, y, z]`` body to world,
             or ``(N, T, 4)`` for ``N`` recordings fitted together (one compiled
             program, a work queue in which each recording stops on its own:
@@ -294,6 +300,33 @@ def fit_inertia(
             or too little excitation (naming the unidentifiable directions), or
             ``body_rates`` that look world-frame (``check_gyro_frame``).
     """
+    if isinstance(times, Recording) or (
+        isinstance(times, (list, tuple)) and len(times) > 0 and all(isinstance(r, Recording) for r in times)
+    ):
+        given = [
+            k
+            for k, v in dict(
+                orientations=orientations,
+                body_rates=body_rates,
+                torques=torques,
+                body_torques=body_torques,
+                accelerations=accelerations,
+            ).items()
+            if v is not None
+        ]
+        if given:
+            raise TypeError(
+                f"fit_inertia: the first argument is a Recording, which carries the data; do not also pass {given} "
+                "(build the Recording with them instead)"
+            )
+        times, data = to_fit_arguments(times)
+        orientations, body_rates, torques, body_torques, accelerations = (
+            data["orientations"],
+            data["body_rates"],
+            data["torques"],
+            data["body_torques"],
+            data["accelerations"],
+        )
     options = dict(
         initial_inertia=initial_inertia,
         method=method,
