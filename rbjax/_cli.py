@@ -100,6 +100,11 @@ def _fit(args: argparse.Namespace) -> int:
     from . import fit_inertia
     from ._recording import RecordingError, read_recording, time_unit_hint
 
+    if _is_phyphox(Path(args.recording)):
+        return _fit_throws(args)
+    for flag in ("threshold", "margin", "min_duration", "plot"):
+        if getattr(args, flag) is not None:
+            raise CLIError(f"--{flag.replace('_', '-')} applies to phyphox exports (throws), not to {args.recording}")
     try:
         rec = read_recording(Path(args.recording), args.time_unit or "s")
     except RecordingError as e:
@@ -168,6 +173,203 @@ def _fit(args: argparse.Namespace) -> int:
         Path(args.out).write_text(json.dumps(out, indent=1))
         print(f"saved: {args.out}")
     return 0 if out["converged"] else 1
+
+
+def _is_phyphox(path: Path) -> bool:
+    """A phyphox export: a directory, a ``.zip``, or a ``.csv`` whose header names ``Time (s)``."""
+    if path.is_dir() or path.suffix.lower() == ".zip":
+        return True
+    if path.suffix.lower() != ".csv" or not path.is_file():
+        return False
+    with path.open(encoding="utf-8-sig", errors="replace") as f:
+        return "time (s)" in f.readline().lower()
+
+
+def _fit_throws(args: argparse.Namespace) -> int:
+    """``fit`` of a phyphox export: find the throws, fit the gyro of each (one ragged call), report."""
+    import dataclasses
+    import json
+
+    import numpy as np
+
+    from . import Recording, RecordingError, find_throws, fit_inertia
+
+    unsupported = [
+        flag
+        for flag, on in (
+            ("--time-unit", args.time_unit is not None),
+            ("--accelerometer", args.accelerometer),
+            ("--gyro-rotation", args.gyro_rotation),
+            ("--orientation-std", args.orientation_std is not None),
+            ("--acceleration-std", args.acceleration_std is not None),
+        )
+        if on
+    ]
+    if unsupported:
+        raise CLIError(
+            f"{args.recording}: {', '.join(unsupported)} do(es) not apply to a phyphox export "
+            "(times in s; each throw is fitted from the gyroscope alone)"
+        )
+    try:
+        rec = Recording.from_phyphox(args.recording)
+    except RecordingError as e:
+        raise CLIError(str(e)) from e
+    if rec.gyro is None:
+        raise CLIError(f"{args.recording}: no gyroscope columns; record 'Gyroscope rotation rate' with phyphox")
+    found = {k: getattr(args, k) for k in ("threshold", "margin", "min_duration") if getattr(args, k) is not None}
+    try:
+        windows = find_throws(rec, **found)
+    except ValueError as e:
+        raise CLIError(f"{args.recording}: {e}") from e
+    if not windows:
+        raise CLIError(
+            f"{args.recording}: no free flight found (|a| below the threshold for at least the minimum duration); "
+            "check with rbjax.plot_throws, or lower --min-duration / raise --threshold"
+        )
+    throws = [dataclasses.replace(rec.window(t0, t1), accelerations=None) for t0, t1 in windows]
+    kwargs = {kw: getattr(args, dest) for dest, kw in _FIT_OPTIONS.items() if getattr(args, dest) is not None}
+    if args.gyro_bias:
+        kwargs["gyro_bias"] = True
+    try:
+        res = fit_inertia(throws, **kwargs)
+    except (ValueError, TypeError) as e:
+        raise CLIError(str(e)) from e
+    report = _throws_report(res, windows, [len(r) for r in throws])
+    print(f"{args.recording}: {len(windows)} throw(s); principal moments as I_k / tr I (ascending), gyro-only fits")
+    for k, row in enumerate(report["throws"]):
+        head = f"throw {k + 1}: t = {row['t0']:.3f}-{row['t1']:.3f} s ({row['samples']} samples): "
+        if row["failed"]:
+            print(head + f"not fitted: {row['error']}")
+            continue
+        moments = ", ".join(f"{m:.4f} ± {s:.4f}" for m, s in zip(row["moments"], row["moment_std"]))
+        ratios = ", ".join(f"{m:.4f} ± {s:.4f}" for m, s in zip(row["ratios"], row["ratio_std"]))
+        print(head + f"I/trI = {moments}; I1/I3, I2/I3 = {ratios}")
+        print(
+            f"    converged {row['converged']} (chi2 p-value {row['pvalue']:.3g}, "
+            f"gyro rms {row['rate_rms']:.3g} rad/s, {row['iterations']} iterations)"
+        )
+    comb = report["combined"]
+    if comb is None:
+        print("combined: no throw converged; nothing to combine (see the diagnostics above)")
+    else:
+        med = ", ".join(f"{m:.4f} ± {s:.4f}" for m, s in zip(comb["moments"], comb["moments_spread"]))
+        rat = ", ".join(f"{m:.4f} ± {s:.4f}" for m, s in zip(comb["ratios"], comb["ratios_spread"]))
+        print(
+            f"combined over {comb['throws']} converged throw(s), median ± spread: I/trI = {med}; I1/I3, I2/I3 = {rat}"
+        )
+    if args.plot:
+        _plot_throw_fits(args.plot, throws, res)
+        print(f"plot: {args.plot}")
+    if args.out:
+        Path(args.out).write_text(json.dumps(report, indent=1, default=lambda v: np.asarray(v).tolist()))
+        print(f"saved: {args.out}")
+    return 0 if comb is not None else 1
+
+
+def _throws_report(res, windows, samples) -> dict:
+    """Per throw: window, normalised moments ± σ, the ratios ``I1/I3, I2/I3`` ± σ, diagnostics; and the combination.
+
+    The ratios' σ propagates the moments' σ to first order as if independent,
+    ``σ(a/b)² ≈ (a/b)² ((σ_a/a)² + (σ_b/b)²)`` (:class:`FitResult` holds no
+    covariance between the moments). The combination is over the converged
+    throws: the median, and as spread the sample standard deviation (0 for one throw).
+    """
+    import numpy as np
+
+    m, s = np.asarray(res.principal_moments), np.asarray(res.moment_std)
+    m, s = m / m.sum(-1, keepdims=True), s / m.sum(-1, keepdims=True)
+    ratios = m[:, :2] / m[:, 2:]
+    ratio_std = ratios * np.sqrt((s[:, :2] / m[:, :2]) ** 2 + (s[:, 2:] / m[:, 2:]) ** 2)
+    errors = {int(e.split(":")[0].split()[-1]): e.split(":", 1)[1].strip() for e in res.member_errors}
+    rows = []
+    for k, (t0, t1) in enumerate(windows):
+        rows.append(
+            dict(
+                t0=t0,
+                t1=t1,
+                samples=samples[k],
+                failed=bool(np.asarray(res.failed)[k]),
+                error=errors.get(k, ""),
+                moments=m[k].tolist(),
+                moment_std=s[k].tolist(),
+                ratios=ratios[k].tolist(),
+                ratio_std=ratio_std[k].tolist(),
+                converged=bool(np.asarray(res.converged)[k]),
+                pvalue=float(np.asarray(res.consistency_pvalue)[k]),
+                rate_rms=float(np.asarray(res.rate_rms)[k]),
+                iterations=int(np.asarray(res.iterations)[k]),
+            )
+        )
+    ok = np.asarray(res.converged) & ~np.asarray(res.failed)
+    combined = None
+    if ok.any():
+
+        def spread(x):
+            return np.std(x, 0, ddof=1) if len(x) > 1 else np.zeros(x.shape[1:])
+
+        combined = dict(
+            throws=int(ok.sum()),
+            moments=np.median(m[ok], 0).tolist(),
+            moments_spread=spread(m[ok]).tolist(),
+            ratios=np.median(ratios[ok], 0).tolist(),
+            ratios_spread=spread(ratios[ok]).tolist(),
+        )
+    return {"throws": rows, "combined": combined}
+
+
+def _plot_throw_fits(path: str, throws, res) -> None:
+    """A PNG with one panel per throw: measured gyro (dots) against the fitted model's rates (lines)."""
+    import numpy as np
+
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError as e:
+        raise CLIError("--plot needs matplotlib: pip install 'rbjax[demo]'") from e
+    n = len(throws)
+    fig, axes = plt.subplots(n, 1, figsize=(8, 2.6 * n), squeeze=False)
+    for k, (rec, ax) in enumerate(zip(throws, axes[:, 0])):
+        t = rec.times
+        for j, c in enumerate("xyz"):
+            ax.plot(t, rec.gyro[:, j], ".", ms=3, color=f"C{j}", label=f"ω{c} measured")
+        if not bool(np.asarray(res.failed)[k]):
+            I = np.asarray(res.inertia)[k]
+            w0 = np.asarray(res.initial_angular_velocity)[k]
+            w = _euler_rates(I, w0, t) + np.asarray(res.gyro_bias)[k]
+            for j, c in enumerate("xyz"):
+                ax.plot(t, w[:, j], "-", lw=1, color=f"C{j}", label=f"ω{c} fitted")
+        ax.set_ylabel("ω (rad/s, body)")
+        ax.set_title(f"throw {k + 1}", fontsize=9)
+    axes[-1, 0].set_xlabel("t (s)")
+    axes[0, 0].legend(ncol=6, fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def _euler_rates(I, w0, t, steps: int = 20):
+    """Body rates ``(T, 3)`` at ``t`` of the torque-free body ``I ω̇ = (I ω) × ω`` from ``ω(t[0]) = w0`` (RK4)."""
+    import numpy as np
+
+    Iinv = np.linalg.inv(I)
+
+    def f(w):
+        return Iinv @ np.cross(I @ w, w)
+
+    out = [w0]
+    w = np.asarray(w0, float)
+    for a, b in zip(t[:-1], t[1:]):
+        h = (b - a) / steps
+        for _ in range(steps):
+            k1 = f(w)
+            k2 = f(w + h / 2 * k1)
+            k3 = f(w + h / 2 * k2)
+            k4 = f(w + h * k3)
+            w = w + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        out.append(w)
+    return np.array(out)
 
 
 def _fit_report(res) -> dict:
@@ -250,7 +452,11 @@ def build_parser() -> argparse.ArgumentParser:
         "converged (see the diagnostics printed); 2: an error.\n\n" + _recording_help(),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    fit.add_argument("recording", help="a .csv or .npz recording (see above)")
+    fit.add_argument(
+        "recording",
+        help="a .csv or .npz recording (see above), or a phyphox export (a directory or .zip of CSVs, "
+        "or one CSV with 'Time (s)' columns): its throws are found and each is fitted from the gyroscope",
+    )
     fit.add_argument("--out", default=None, help="write the result as JSON to this path")
     fit.add_argument("--time-unit", choices=["s", "ms", "us"], default=None, help="unit of the t column (default s)")
     fit.add_argument(
@@ -281,6 +487,11 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="use the ax,ay,az columns: fit the lever arm and accelerometer bias",
     )
+    throws = fit.add_argument_group("phyphox exports: finding the throws (see rbjax.find_throws)")
+    throws.add_argument("--threshold", type=float, default=None, metavar="M_S2", help="free fall: |a| below this")
+    throws.add_argument("--margin", type=float, default=None, metavar="S", help="trimmed at both ends of a flight")
+    throws.add_argument("--min-duration", type=float, default=None, metavar="S", help="shortest throw kept")
+    throws.add_argument("--plot", default=None, metavar="PNG", help="write measured against fitted rates per throw")
     robust = fit.add_argument_group("robust fitting")
     robust.add_argument("--loss", choices=["squared", "huber", "cauchy"], default=None, help="default squared")
     robust.add_argument("--loss-scale", type=float, default=None, metavar="SIGMAS", help="where the robust loss bends")

@@ -32,14 +32,16 @@ def save(
     t0: Any = None,
     trajectory: bool | None = None,
 ) -> None:
-    """Save a state, trajectory, :class:`Body` or :class:`Forces` to an ``.npz`` file.
+    """Save a state, trajectory, :class:`Body`, :class:`Forces` or :class:`FitResult` to an ``.npz`` file.
 
     Args:
         path: file to write (written as given; no ``.npz`` is appended). Written
             atomically: a temporary file renamed into place.
         obj: a :class:`State`, :class:`MatrixState`, :class:`ParticleState` (one
             body, a batch ``(*B, ...)`` or a trajectory ``(T, *B, ...)``), a :class:`Body` or
-            :class:`Forces`. Leaves are stored exactly, in their dtype.
+            :class:`Forces`, or a :class:`FitResult` (one fit or a batch; its
+            flags and ``member_errors`` are kept in the metadata record).
+            Leaves are stored exactly, in their dtype.
         method, dt, save_every, t0: optional metadata describing how a
             trajectory was made (``dt``, ``t0`` in s); see :func:`read_metadata`.
         trajectory: whether the leading axis of the changing fields is time

@@ -1,7 +1,8 @@
 """Checks of a loaded file's arrays against its metadata, generic over the pytree dataclasses.
 
-Each array is checked against its field's declaration: present, a real dtype
-equal to the recorded one, and the per-body trailing shape read from the
+Each array is checked against its field's declaration: present, of the
+annotation's kind (``Float``: a real dtype equal to the recorded one;
+``Bool``: bool; ``Int``: an integer dtype recorded), and the per-body trailing shape read from the
 field's jaxtyping annotation (``Float[Array, "*B 4"]`` with ``core_ndim=1``:
 ends in ``(4,)``), so a new field is checked without listing it here. Batch
 shapes must broadcast across an object's fields, and the time axis of a
@@ -46,6 +47,15 @@ def core_shape(cls: type, name: str) -> tuple[int | None, ...] | None:
     return None
 
 
+def _kind(cls: type, name: str) -> str:
+    """``"bool"``, ``"int"`` or ``"float"``: the dtype kind of field ``name``'s jaxtyping annotation."""
+    for f in dataclasses.fields(cls):
+        if f.name == name:
+            text = str(f.type)
+            return "bool" if text.startswith("Bool[") else "int" if text.startswith("Int[") else "float"
+    return "float"
+
+
 def check_arrays(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: Path) -> None:
     """``ValueError`` unless ``arrays`` are exactly what ``meta["tree"]`` describes."""
     wanted = meta.get("dtype")
@@ -73,7 +83,7 @@ def _check_object(spec, prefix, arrays, path, dtypes, expected, stacked, lengths
     batches = []
     for name, sub in fields.items():
         key = f"{prefix}{name}"
-        if sub is None:
+        if sub is None or (isinstance(sub, dict) and "static" in sub):
             continue
         if sub != "array":
             batches += _check_object(sub, key + ".", arrays, path, dtypes, expected, stacked, lengths, top=False)
@@ -82,7 +92,12 @@ def _check_object(spec, prefix, arrays, path, dtypes, expected, stacked, lengths
         if key not in arrays:
             raise ValueError(f"load: {path} lacks the array {key!r} that its metadata lists (truncated or edited?)")
         a = arrays[key]
-        if not np.issubdtype(a.dtype, np.floating) or str(a.dtype) not in dtypes:
+        kind = _kind(cls, name)
+        if kind == "bool":
+            ok = a.dtype == np.bool_
+        else:
+            ok = np.issubdtype(a.dtype, np.integer if kind == "int" else np.floating) and str(a.dtype) in dtypes
+        if not ok:
             raise ValueError(f"load: {path}: {key!r} has dtype {a.dtype}, but the metadata records {sorted(dtypes)}")
         core = cores.get(name, 0)
         want = core_shape(cls, name)

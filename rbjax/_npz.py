@@ -31,6 +31,7 @@ import numpy as np
 from ._body import Body
 from ._pytree import is_rbjax_dataclass, new_unchecked
 from ._state import Forces, MatrixState, ParticleState, State
+from .identification._result import FitResult
 
 __all__ = [
     "META_KEY",
@@ -48,7 +49,7 @@ _FORMAT = "rbjax-npz"
 _FORMAT_VERSION = 1
 META_KEY = "__rbjax__"
 # the pytree types a file may hold, by name
-TYPES: dict[str, type] = {t.__name__: t for t in (State, MatrixState, ParticleState, Body, Forces)}
+TYPES: dict[str, type] = {t.__name__: t for t in (State, MatrixState, ParticleState, Body, Forces, FitResult)}
 
 
 def _version() -> str:
@@ -81,12 +82,17 @@ def write_atomic(path: Path, write: Callable[[IO[bytes]], object]) -> None:
 def _structure(obj: Any, prefix: str, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
     """JSON description of ``obj``; fills ``arrays`` with its leaves by dotted path."""
     if type(obj).__name__ not in TYPES or type(obj) is not TYPES[type(obj).__name__]:
-        raise TypeError(f"save: can store State, MatrixState, ParticleState, Body or Forces, got {type(obj)}")
+        raise TypeError(
+            f"save: can store State, MatrixState, ParticleState, Body, Forces or FitResult, got {type(obj)}"
+        )
     fields: dict[str, Any] = {}
     for f in dataclasses.fields(obj):
         v = getattr(obj, f.name)
         path = f"{prefix}{f.name}"
-        if v is None:
+        if f.metadata.get("static"):
+            # a static field (a flag, a count, messages) is part of the structure: stored in the JSON record
+            fields[f.name] = {"static": list(v) if isinstance(v, tuple) else v}
+        elif v is None:
             fields[f.name] = None
         elif is_rbjax_dataclass(v):
             fields[f.name] = _structure(v, path + ".", arrays)
@@ -108,6 +114,8 @@ def rebuild(spec: dict[str, Any], prefix: str, arrays: dict[str, Any]) -> Any:
         path = f"{prefix}{name}"
         if sub is None:
             values[name] = None
+        elif isinstance(sub, dict) and "static" in sub:
+            values[name] = tuple(sub["static"]) if isinstance(sub["static"], list) else sub["static"]
         elif sub == "array":
             values[name] = arrays[path]
         else:
