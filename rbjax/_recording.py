@@ -44,7 +44,12 @@ _SECONDS = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
 
 
 class RecordingError(ValueError):
-    """A recording that cannot be read; the message is one line naming the file and the remedy."""
+    """A recording that cannot be read; the message is one line naming the file and the remedy.
+
+    Raised by :meth:`rbjax.Recording.from_file` and :meth:`rbjax.Recording.from_phyphox`
+    (and by ``python -m rbjax fit``) for a missing or malformed file: the line
+    of a CSV (1-based, header included) and what to change. A ``ValueError``.
+    """
 
 
 def read_recording(path: Path, time_unit: str = "s") -> dict[str, np.ndarray]:

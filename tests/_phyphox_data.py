@@ -34,15 +34,13 @@ def make_recording(seed=0, flights=((1.0, 0.6), (2.4, 0.8), (4.0, 0.5)), hold_en
     n = int(t_end / dt) + 1
     tg = np.cumsum(np.full(n, dt) + rng.uniform(-0.2, 0.2, n) * dt)  # jittered sampling
     ta = tg + 0.5 * dt + rng.uniform(-0.1, 0.1, n) * dt  # the accelerometer's own clock
-    g_world = np.array([0.0, 0.0, -9.81])
     gyro = 0.2 * np.sin(np.outer(tg, [1.3, 2.1, 0.7])) + rng.normal(0, GYRO_STD, (n, 3))
     # held: the specific force is -g in the body frame (phone tilted a little) plus the hand's motion
     tilt = np.array([0.3, -0.2, 9.81 * 0.99])
     accel = tilt / np.linalg.norm(tilt) * 9.81 + 1.0 * np.sin(np.outer(ta, [2.0, 3.0, 1.5]))
     accel = accel + rng.normal(0, ACCEL_STD, (n, 3))
-    del g_world
     out_flights = []
-    for k, (t_rel, length) in enumerate(flights):
+    for t_rel, length in flights:
         t_catch = t_rel + length
         w0 = rng.normal(0, 1, 3)
         w0 = w0 / np.linalg.norm(w0) * rng.uniform(8, 12)

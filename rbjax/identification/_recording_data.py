@@ -15,6 +15,7 @@ import dataclasses
 import re
 import zipfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -261,6 +262,7 @@ def _read_phyphox_csv(name: str, data: bytes) -> dict[str, tuple[np.ndarray, np.
     if not groups:
         return {}
     rows: dict[str, list] = {k: [] for k in groups}
+    line_of: dict[str, list] = {k: [] for k in groups}  # file line of each sample, for messages
     ended: dict[str, int] = {}
     for n, line in lines[1:]:
         fields = next(csv.reader([line], delimiter=delimiter))
@@ -277,6 +279,7 @@ def _read_phyphox_csv(name: str, data: bytes) -> dict[str, tuple[np.ndarray, np.
                 )
             try:
                 rows[group].append([float(c.replace(",", ".") if semicolon else c) for c in cells])
+                line_of[group].append(n)
             except ValueError:
                 bad = next(c for c in cells if not _is_number(c.replace(",", ".") if semicolon else c))
                 raise RecordingError(
@@ -290,9 +293,10 @@ def _read_phyphox_csv(name: str, data: bytes) -> dict[str, tuple[np.ndarray, np.
         a = np.asarray(r)
         bad = np.flatnonzero(np.diff(a[:, 0]) <= 0)
         if bad.size:
+            i = int(bad[0])
             raise RecordingError(
-                f"{name}: sample {bad[0] + 2} of the {group} columns: time {a[bad[0] + 1, 0]!r} s does not "
-                f"follow {a[bad[0], 0]!r} s; the times must increase (was the file edited or merged?)"
+                f"{name}: line {line_of[group][i + 1]}: the {group} time {a[i + 1, 0]:.10g} s does not follow "
+                f"{a[i, 0]:.10g} s (line {line_of[group][i]}); the times must increase (was the file edited or merged?)"
             )
         out[group] = (a[:, 0], a[:, 1:])
     return out
@@ -306,12 +310,12 @@ def _is_number(s: str) -> bool:
     return True
 
 
-def to_fit_arguments(recordings) -> tuple[object, dict[str, object]]:
+def to_fit_arguments(recordings) -> tuple[Any, dict[str, Any]]:
     """``(times, {keyword: data})`` for :func:`rbjax.fit_inertia` from a :class:`Recording` or a list of them."""
     if isinstance(recordings, Recording):
         return recordings.times, {kw: getattr(recordings, f) for f, kw in _FIT_KEYWORDS.items()}
     recs = list(recordings)
-    out: dict[str, object] = {}
+    out: dict[str, Any] = {}
     for field_name, keyword in _FIT_KEYWORDS.items():
         have = [getattr(r, field_name) is not None for r in recs]
         if any(have) and not all(have):
