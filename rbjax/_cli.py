@@ -417,6 +417,15 @@ def _fit_default(name: str) -> object:
     return inspect.signature(fit_inertia).parameters[name].default
 
 
+def _throws_default(name: str) -> float:
+    """The default of ``find_throws``' keyword ``name``, quoted in the help."""
+    import inspect
+
+    from .identification import find_throws
+
+    return inspect.signature(find_throws).parameters[name].default
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``argparse`` parser of ``python -m rbjax`` (subcommands demo, bench, fit)."""
     common = _Parser(add_help=False)
@@ -455,7 +464,8 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument(
         "recording",
         help="a .csv or .npz recording (see above), or a phyphox export (a directory or .zip of CSVs, "
-        "or one CSV with 'Time (s)' columns): its throws are found and each is fitted from the gyroscope",
+        "or one CSV with 'Time (s)' columns): its throws are found and each is fitted from the gyroscope "
+        "(exit status 0 when at least one throw converged)",
     )
     fit.add_argument("--out", default=None, help="write the result as JSON to this path")
     fit.add_argument("--time-unit", choices=["s", "ms", "us"], default=None, help="unit of the t column (default s)")
@@ -488,9 +498,27 @@ def build_parser() -> argparse.ArgumentParser:
         help="use the ax,ay,az columns: fit the lever arm and accelerometer bias",
     )
     throws = fit.add_argument_group("phyphox exports: finding the throws (see rbjax.find_throws)")
-    throws.add_argument("--threshold", type=float, default=None, metavar="M_S2", help="free fall: |a| below this")
-    throws.add_argument("--margin", type=float, default=None, metavar="S", help="trimmed at both ends of a flight")
-    throws.add_argument("--min-duration", type=float, default=None, metavar="S", help="shortest throw kept")
+    throws.add_argument(
+        "--threshold",
+        type=float,
+        default=None,
+        metavar="M_S2",
+        help=f"free fall: |a| below this (default {_throws_default('threshold'):.3g})",
+    )
+    throws.add_argument(
+        "--margin",
+        type=float,
+        default=None,
+        metavar="S",
+        help=f"trimmed at both ends of a flight (default {_throws_default('margin'):g})",
+    )
+    throws.add_argument(
+        "--min-duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help=f"shortest throw kept (default {_throws_default('min_duration'):g})",
+    )
     throws.add_argument("--plot", default=None, metavar="PNG", help="write measured against fitted rates per throw")
     robust = fit.add_argument_group("robust fitting")
     robust.add_argument("--loss", choices=["squared", "huber", "cauchy"], default=None, help="default squared")

@@ -200,7 +200,8 @@ class Recording:
             raise RecordingError(
                 f"{path}: no gyroscope or accelerometer columns found (expected headers such as "
                 "'Time (s)', 'Gyroscope x (rad/s)', 'Acceleration x (m/s^2)'); export the experiment's "
-                "raw data as CSV from phyphox"
+                "raw data as CSV from phyphox ('Linear Acceleration' columns are not read: with gravity removed, "
+                "free flight does not show as |a| ≈ 0; record 'Accelerometer' instead)"
             )
         if "gyro" not in found:
             _, t, a = found["accelerations"]
