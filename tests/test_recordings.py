@@ -105,6 +105,36 @@ def test_from_phyphox_reads_semicolons_with_decimal_commas(tmp_path):
     assert rec.accelerations is None
 
 
+def test_from_phyphox_ignores_linear_acceleration_and_refuses_two_gyro_files(export, tmp_path):
+    import shutil
+
+    d = tmp_path / "export"
+    shutil.copytree(export, d)
+    (d / "Linear Acceleration.csv").write_text(
+        '"Time (s)","Linear Acceleration x (m/s^2)","Linear Acceleration y (m/s^2)","Linear Acceleration z (m/s^2)"\n'
+        "0.01,0,0,-9.81\n0.02,0,0,-9.81\n"
+    )
+    rec = rb.Recording.from_phyphox(d)
+    np.testing.assert_array_equal(rec.accelerations, rb.Recording.from_phyphox(export).accelerations)
+    shutil.copy(d / "Gyroscope rotation rate.csv", d / "Gyroscope copy.csv")
+    with pytest.raises(rb.RecordingError, match="holds gyro columns, and so does"):
+        rb.Recording.from_phyphox(d)
+
+
+def test_a_combined_table_with_a_shorter_sensor_ends_its_samples_at_the_empty_cells(synthetic, tmp_path):
+    tg, gyro, ta, accel, _ = synthetic
+    path = write_phyphox(tmp_path, tg[:200], gyro[:200], ta[:150], accel[:150], combined=True)
+    rec = rb.Recording.from_phyphox(path)
+    # the gyro's samples inside the accelerometer's 150
+    tw = _as_written(tg)
+    assert rec.times[-1] <= ta[149] < tw[tw > rec.times[-1]][0]
+    lines = path.read_text().splitlines()
+    lines[160] = lines[160] + "1"  # a value after the accelerometer's buffer ended
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(rb.RecordingError, match=r"line 161: the accelerations columns have after its samples ended"):
+        rb.Recording.from_phyphox(path)
+
+
 GYRO_HEADER = '"Time (s)","Gyroscope x (rad/s)","Gyroscope y (rad/s)","Gyroscope z (rad/s)"\n'
 
 
@@ -175,6 +205,16 @@ def test_find_throws_drops_short_flights_and_needs_accelerations(export):
         rb.find_throws(rec, margin=-0.1)
 
 
+def test_a_glitch_in_flight_does_not_split_it():
+    t = np.arange(200) * 0.01
+    a = np.tile([0.0, 0.0, 9.81], (200, 1))
+    a[50:150] = 0.0  # free from t = 0.50 to 1.49 s
+    a[100] = [0.0, 0.0, 20.0]  # one sample's glitch: the 3-sample median sets it aside
+    windows = rb.find_throws(rb.Recording(t, accelerations=a), margin=0.02)
+    assert len(windows) == 1
+    np.testing.assert_allclose(windows[0], (0.52, 1.47))
+
+
 def test_plot_throws_shades_the_windows(export):
     pytest.importorskip("matplotlib")
     import matplotlib
@@ -213,6 +253,14 @@ def test_fit_inertia_takes_recordings(throws_fit, export):
     mixed = [rec.window(*windows[0]), dataclasses.replace(rec.window(*windows[1]), accelerations=None)]
     with pytest.raises(ValueError, match=r"recordings \[1\] have no accelerations"):
         rb.fit_inertia(mixed)
+
+
+def test_fit_inertia_passes_a_recordings_gyro_on():
+    t = np.arange(5) * 0.01
+    rec = rb.Recording(t, gyro=np.tile([1.0, 2.0, 3.0], (5, 1)))
+    # a constant rate excites nothing: fit_inertia's own check of the body rates it was given
+    with pytest.raises(ValueError, match="fit_inertia: too little excitation"):
+        rb.fit_inertia(rec)
 
 
 def test_a_fit_result_round_trips_bit_for_bit(throws_fit, tmp_path):
