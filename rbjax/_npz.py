@@ -109,7 +109,8 @@ def rebuild(spec: dict[str, Any], prefix: str, arrays: dict[str, Any]) -> Any:
     values = {}
     for f in dataclasses.fields(cls):
         if f.name not in spec["fields"] and f.default is not dataclasses.MISSING:
-            values[f.name] = None if f.default is None else jnp.asarray(f.default)  # a field newer than the file
+            # a field newer than the file
+            values[f.name] = f.default if f.default is None or f.metadata.get("static") else jnp.asarray(f.default)
     for name, sub in spec["fields"].items():
         path = f"{prefix}{name}"
         if sub is None:

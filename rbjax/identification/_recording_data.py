@@ -249,10 +249,16 @@ def _read_phyphox_csv(name: str, data: bytes) -> dict[str, tuple[np.ndarray, np.
                 f"{name}: line {header_no}: column {col!r} is in {unit!r}; rbjax reads {what} in {_UNITS[what][0]}"
             )
         if time_col is None:
-            raise RecordingError(f"{name}: line {header_no}: column {col!r} has no 'Time (s)' column to its left")
+            raise RecordingError(
+                f"{name}: line {header_no}: column {col!r} has no 'Time (s)' column to its left; phyphox writes "
+                "each sensor's time first: export the raw data again (or move the time column first)"
+            )
         g = groups.setdefault(_GROUP[what], {"time": time_col, "axes": {}})
         if m["axis"] in g["axes"]:
-            raise RecordingError(f"{name}: line {header_no}: column {col!r} appears twice")
+            raise RecordingError(
+                f"{name}: line {header_no}: column {col!r} appears twice after one time column; "
+                "give each sensor's x, y, z once, after its 'Time (s)'"
+            )
         g["axes"][m["axis"]] = i
     for group, g in groups.items():
         missing = [a for a in "xyz" if a not in g["axes"]]
