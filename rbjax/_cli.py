@@ -343,8 +343,9 @@ def _plot_throw_fits(path: str, throws, res) -> None:
         ax.set_ylabel("ω (rad/s, body)")
         ax.set_title(f"throw {k + 1}", fontsize=9)
     axes[-1, 0].set_xlabel("t (s)")
-    axes[0, 0].legend(ncol=6, fontsize=7)
-    fig.tight_layout()
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="upper center", ncol=6, fontsize=7)  # above the panels, hiding no data
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.35 / (2.6 * n)))
     fig.savefig(path, dpi=100)
     plt.close(fig)
 
