@@ -19,6 +19,7 @@ from ._body import prepare
 from ._forces import ForceModel
 from ._methods import DEFAULT_METHOD
 from ._pytree import replace
+from ._scan import check_checkpoint, checkpointed_scan, frames_as_outputs, frames_in_buffer
 from ._state import AnyState, ForceLike, Forces, ParticleState, StateT, split_constants
 from ._trajectory import stack_frames
 from ._typing import ArrayLike
@@ -227,7 +228,7 @@ def simulate(
             states instead of ``O(steps)``, for about one extra forward pass
             (``checkpoint ≈ √steps`` minimises memory). Must divide ``steps`` and
             either divide ``save_every`` or be a multiple of it. Values and
-            gradients are unchanged (to round-off). See :func:`_checkpointed_scan`.
+            gradients are unchanged (to round-off). See :func:`rbjax._scan.checkpointed_scan`.
         native: which implementation steps the bodies. ``None`` (default): the
             native CPU kernel where one applies (``"euler"``, ``"rk4"``, ``"splitting"`` on
             :class:`State` batches, float32/float64, no force or constant,
@@ -314,7 +315,7 @@ def run_simulation(
     errors count from it.
     """
     steps, save_every = check_run(state, dt, steps, method, save_every, t0, "simulate")
-    _check_checkpoint(checkpoint, steps, save_every)
+    check_checkpoint(checkpoint, steps, save_every)
     force_fn = None
     state = _canonical(state)
     t0 = start_time(state) if t0 is None else t0
@@ -448,7 +449,7 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
     outer = checkpoint // save_every if checkpoint is not None and checkpoint >= save_every else None
 
     def advance_jax(carry, xs):
-        (dyn, rec), _ = _checkpointed_scan(one, carry, xs, inner)
+        (dyn, rec), _ = checkpointed_scan(one, carry, xs, inner)
         if checks is not None:
             rec = _checked.after_save(rec, replace(to_aos(dyn), **consts), xs[0][-1] + 1, checks, steps)
         return dyn, rec
@@ -478,87 +479,10 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
     carry0 = (to_soa(dyn0), rec0)
     fs = jax.tree.map(lambda a: a.reshape((n_out, save_every) + a.shape[1:]), forces) if series else None
     if outer is None:
-        traj, rec = _frames_in_buffer(advance, carry0, (ks, fs), dyn0, to_aos)
+        traj, rec = frames_in_buffer(advance, carry0, (ks, fs), dyn0, to_aos)
     else:
-        traj, rec = _frames_as_outputs(advance, carry0, (ks, fs), dyn0, to_aos, outer)
+        traj, rec = frames_as_outputs(advance, carry0, (ks, fs), dyn0, to_aos, outer)
     # t0 + (absolute step) dt, as the steps saw it: a chunked run gives the same bits
     times = t0 + (k0 + save_every * jnp.arange(n_out + 1)).astype(dtype) * dt
     traj = stack_frames(traj, initial, times)
     return traj if checks is None else (traj, rec)
-
-
-def _frames_in_buffer(advance, carry0, xs, first, to_aos):
-    """The saved frames and the checked-mode record: ``advance`` once per saved chunk, frames in one buffer.
-
-    The saved frames go straight into the trajectory: one (n_out + 1)-frame
-    buffer, filled with the initial state ``first`` and carried through the
-    scan, each chunk's state written in place at its index. Scan outputs would
-    need the initial frame put in front afterwards, a second copy of every saved
-    frame (peak memory); emitting each chunk's state before advancing it would
-    need a ``lax.cond`` to skip the last advance, and work in a cond branch is not
-    hoisted out of the loop (splitting's per-body ``eigh`` then ran every step).
-    The buffer is linear in the loop (``dynamic_update_slice``), so reverse mode
-    stores no copy of it per chunk.
-    """
-    n_out = xs[0].shape[0]
-    buf0 = jax.tree.map(lambda a: jnp.broadcast_to(a[None], (n_out + 1,) + a.shape), first)
-
-    def chunk(carry, xs):
-        i, xs = xs
-        inner_carry, buf = carry
-        inner_carry = advance(inner_carry, xs)
-        put = lambda b, a: jax.lax.dynamic_update_index_in_dim(b, a, i + 1, 0)
-        return (inner_carry, jax.tree.map(put, buf, to_aos(inner_carry[0]))), None
-
-    ((_, rec), traj), _ = jax.lax.scan(chunk, (carry0, buf0), (jnp.arange(n_out), xs))
-    return traj, rec
-
-
-def _frames_as_outputs(advance, carry0, xs, first, to_aos, segment: int):
-    """As :func:`_frames_in_buffer`, in checkpointed segments of ``segment`` chunks.
-
-    Checkpointed segments save their carry entering each segment for reverse
-    mode: a carried buffer would be stored once per segment, so the frames are
-    scan outputs here, with the initial one ``first`` put in front (a copy).
-    """
-
-    def emit(carry, xs):
-        carry = advance(carry, xs)
-        return carry, to_aos(carry[0])
-
-    (_, rec), traj = _checkpointed_scan(emit, carry0, xs, segment)
-    return jax.tree.map(lambda a0, a: jnp.concatenate([a0[None], a]), first, traj), rec
-
-
-# --- gradient checkpointing (the ``checkpoint=`` option of ``simulate``) ---
-
-
-def _check_checkpoint(checkpoint: Any, steps: int, save_every: int) -> None:
-    if checkpoint is None:
-        return
-    bad = isinstance(checkpoint, bool) or not isinstance(checkpoint, (int, np.integer))
-    if bad or checkpoint < 1 or steps % checkpoint:
-        raise ValueError(f"checkpoint must be None or a positive int dividing steps={steps}, got {checkpoint!r}")
-    if save_every % checkpoint and checkpoint % save_every:
-        raise ValueError(f"checkpoint={checkpoint} must divide save_every={save_every} or be a multiple of it")
-
-
-def _checkpointed_scan(f, carry, xs, segment: int | None):
-    """``lax.scan(f, carry, xs)``, rematerialised in segments of ``segment`` iterations.
-
-    The scan is split into an outer scan over segments whose body, an inner scan
-    over one segment, is wrapped in ``jax.checkpoint``: reverse mode saves only
-    the carry entering each segment and recomputes the segment's residuals when
-    it reaches it. ``segment=None`` is the plain scan.
-    """
-    if segment is None:
-        return jax.lax.scan(f, carry, xs)
-    n = jax.tree.leaves(xs)[0].shape[0]
-    split = lambda a: a.reshape((n // segment, segment) + a.shape[1:])
-
-    @jax.checkpoint
-    def run_segment(c, seg_xs):
-        return jax.lax.scan(f, c, seg_xs)
-
-    carry, ys = jax.lax.scan(run_segment, carry, jax.tree.map(split, xs))
-    return carry, jax.tree.map(lambda a: a.reshape((n,) + a.shape[2:]), ys)
