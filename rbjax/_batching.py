@@ -111,18 +111,7 @@ def in_axes_of(obj: Any, level: int, nd: int, last: bool) -> Any:
     """
     if not is_rbjax_dataclass(obj):
         return None
-    changes = {}
-    for name in type(obj)._rbjax_data_fields:
-        v = getattr(obj, name)
-        if v is None:
-            changes[name] = None
-        elif is_rbjax_dataclass(v):
-            changes[name] = in_axes_of(v, level, nd, last)
-        else:
-            core = type(obj)._rbjax_core_ndim[name]
-            k = v.ndim - core
-            changes[name] = (core if last else 0) if k >= nd - level else None
-    return replace(obj, **changes)
+    return map_leaves(obj, lambda v, core: (core if last else 0) if v.ndim - core >= nd - level else None)
 
 
 def _expand_ones(obj: Any, full: tuple[int, ...], last: bool) -> Any:

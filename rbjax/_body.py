@@ -181,11 +181,11 @@ class Body(BatchIndexing):
     ``ValueError`` otherwise. Under tracing it checks shapes only.
     """
 
-    mass: Float[Array, "*B"] = field(core_ndim=0)
-    inertia: Float[Array, "*B 3 3"] = field(core_ndim=2)
+    mass: Float[Array, "*B"] = field(core_shape=())
+    inertia: Float[Array, "*B 3 3"] = field(core_shape=(3, 3))
     # Set only inside step/simulate (see `prepare`): the inverse computed once from
     # the symmetrised inertia, so the time loop never inverts. Never user-facing.
-    _inverse: Float[Array, "*B 3 3"] | None = field(core_ndim=2, default=None, repr=False)
+    _inverse: Float[Array, "*B 3 3"] | None = field(core_shape=(3, 3), default=None, repr=False)
 
     if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
 

@@ -33,7 +33,6 @@ import numpy as np
 
 from ._pytree import core_ndim_of
 from ._quantities import kinetic_energy
-from ._simulate_support import constant_fields
 from ._state import MatrixState, State, quat_tolerance
 
 __all__ = ["Checks", "resolve", "init_record", "after_step", "after_save", "raise_on_failure"]
@@ -140,7 +139,7 @@ def after_step(rec: dict, state: Any, step: Any, checks: Checks, steps: int) -> 
     """Test the state reached by step number ``step`` (1-based) for every body."""
     assert checks.quat_tol is not None  # resolve() fills it in
     batch = state.batch_shape
-    consts = constant_fields(state)
+    consts = state.constant_fields
     cores = core_ndim_of(state)
     nonfinite = jnp.zeros(batch, bool)
     for name in type(state)._rbjax_data_fields:

@@ -20,11 +20,10 @@ from jaxtyping import Float
 from ._checked import Checks
 from ._chunk_dir import ChunkWriter, chunk_files, fingerprint
 from ._io import load
-from ._simulate import is_time_series, run_simulation, start_time
-from ._simulate_support import DEFAULT_METHOD
+from ._methods import DEFAULT_METHOD
+from ._simulate import check_run, is_time_series, run_simulation, start_time
 from ._state import ForceLike, Forces, StateT
 from ._typing import ArrayLike
-from ._validate import check_count, check_dt, check_state
 
 __all__ = ["simulate_chunked"]
 
@@ -102,14 +101,8 @@ def simulate_chunked(
     above, marked complete after the last chunk), so ``rbjax.load`` refuses an
     interrupted run unless asked (``allow_incomplete=True``).
     """
-    check_state(state, "simulate_chunked")
-    steps = check_count("steps", steps, 0)
-    save_every = check_count("save_every", save_every, 1)
-    if steps % save_every:
-        raise ValueError(f"save_every must be a positive int dividing steps={steps}, got {save_every!r}")
-    check_dt(dt)
+    steps, save_every = check_run(state, dt, steps, method, save_every, t0, "simulate_chunked")
     t0 = start_time(state) if t0 is None else t0
-    check_dt(t0, "t0", positive=False)
     if chunk_steps is None:
         chunk_steps = -(-10_000 // save_every) * save_every
     if isinstance(chunk_steps, bool) or not isinstance(chunk_steps, (int, np.integer)) or chunk_steps < 1:

@@ -217,7 +217,7 @@ class Gravity(ForceModel):
     to ``(g, g, g)``; give the vector, e.g. ``(0, 0, -9.81)``.
     """
 
-    g: Float[Array, "*B 3"] = field(core_ndim=1, default=(0.0, 0.0, -9.81))
+    g: Float[Array, "*B 3"] = field(core_shape=(3,), default=(0.0, 0.0, -9.81))
 
     if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
 

@@ -2,11 +2,11 @@
 
 Each array is checked against its field's declaration: present, of the
 annotation's kind (``Float``: a real dtype equal to the recorded one;
-``Bool``: bool; ``Int``: an integer dtype recorded), and the per-body trailing shape read from the
-field's jaxtyping annotation (``Float[Array, "*B 4"]`` with ``core_ndim=1``:
-ends in ``(4,)``), so a new field is checked without listing it here. Batch
-shapes must broadcast across an object's fields, and the time axis of a
-trajectory must have one length. Two semantic checks know field names, the
+``Bool``: bool; ``Int``: an integer dtype recorded), and the per-body trailing
+shape the field declares (``field(core_shape=(4,))``: ends in ``(4,)``), so a
+new field is checked without listing it here. Batch shapes must broadcast
+across an object's fields, and the time axis of a trajectory must have one
+length. Two semantic checks know field names, the
 orientation kinds: ``orientation`` must hold unit quaternions and ``rotation``
 rotation matrices (tolerance :func:`rbjax._state.quat_tolerance`), in every
 frame that is finite; non-finite frames load as saved (a run that blew up).
@@ -16,35 +16,21 @@ Errors are ``ValueError`` naming the file and the field.
 from __future__ import annotations
 
 import dataclasses
-import re
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ._npz import TYPES
+from ._pytree import core_shape_of
 from ._state import quat_tolerance
 
 __all__ = ["check_arrays", "core_shape"]
 
-_DIMS = re.compile(r"\[\s*\w+\s*,\s*[\"']([^\"']*)[\"']")
 
-
-def core_shape(cls: type, name: str) -> tuple[int | None, ...] | None:
-    """Declared per-body trailing shape of field ``name`` (``None`` entries: symbolic sizes).
-
-    ``None`` when the field is not an array or its annotation gives no shape.
-    """
-    core = cls._rbjax_core_ndim.get(name, 0)  # type: ignore[attr-defined]
-    for f in dataclasses.fields(cls):
-        if f.name == name:
-            m = _DIMS.search(str(f.type))
-            if m is None:
-                return None
-            dims = m.group(1).split()
-            tail = dims[len(dims) - core :] if core else []
-            return tuple(int(d) if d.isdigit() else None for d in tail)
-    return None
+def core_shape(cls: type, name: str) -> tuple[int, ...] | None:
+    """Declared per-body trailing shape of field ``name`` (``field(core_shape=...)``); ``None`` if it declares none."""
+    return core_shape_of(cls).get(name)
 
 
 def _kind(cls: type, name: str) -> str:
@@ -104,10 +90,9 @@ def _check_object(spec, prefix, arrays, path, dtypes, expected, stacked, lengths
         lead = 1 if top and name in stacked else 0
         if a.ndim < core + lead:
             raise ValueError(f"load: {path}: {key!r} has shape {a.shape}, too few axes for {cls.__name__}.{name}")
-        if want is not None and any(w is not None and w != g for w, g in zip(want, a.shape[a.ndim - core :])):
+        if want is not None and a.shape[a.ndim - core :] != want:
             raise ValueError(
-                f"load: {path}: {key!r} has shape {a.shape}, but {cls.__name__}.{name} ends in "
-                f"{tuple('?' if w is None else w for w in want)} per body"
+                f"load: {path}: {key!r} has shape {a.shape}, but {cls.__name__}.{name} ends in {want} per body"
             )
         if lead:
             lengths[key] = a.shape[0]

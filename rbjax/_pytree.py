@@ -22,18 +22,31 @@ else:  # typing_extensions comes with jax's dependencies (equinox, chex)
 
 T = TypeVar("T")
 
-__all__ = ["pytree_dataclass", "field", "static_field", "replace", "new_unchecked", "core_ndim_of", "data_fields"]
+__all__ = [
+    "pytree_dataclass",
+    "field",
+    "static_field",
+    "replace",
+    "new_unchecked",
+    "core_ndim_of",
+    "core_shape_of",
+    "data_fields",
+]
 
 
-def field(*, core_ndim: int = 0, **kwargs: Any) -> Any:
+def field(*, core_ndim: int = 0, core_shape: tuple[int, ...] | None = None, **kwargs: Any) -> Any:
     """A data field (a pytree leaf or subtree) of rank ``core_ndim`` per body.
 
     ``core_ndim`` is the rank of the field for a single body (0 for a mass, 1 for
     a vector, 2 for a 3x3 tensor). Leading dimensions beyond it are batch
-    dimensions; see :mod:`rbjax._batching`.
+    dimensions; see :mod:`rbjax._batching`. ``core_shape`` declares the
+    single-body shape itself (``(3,)``, ``(4,)``, ``(3, 3)``; its length is the
+    rank): constructors and :func:`rbjax.load` check arrays against it.
     """
     metadata = dict(kwargs.pop("metadata", {}))
-    metadata["core_ndim"] = core_ndim
+    metadata["core_ndim"] = core_ndim if core_shape is None else len(core_shape)
+    if core_shape is not None:
+        metadata["core_shape"] = tuple(core_shape)
     return dataclasses.field(metadata=metadata, **kwargs)
 
 
@@ -86,6 +99,7 @@ def pytree_dataclass(cls: type[T]) -> type[T]:
     jax.tree_util.register_pytree_with_keys(cls, flatten_with_keys, unflatten, flatten)
     cls._rbjax_data_fields = data  # type: ignore[attr-defined]
     cls._rbjax_core_ndim = {f.name: f.metadata.get("core_ndim", 0) for f in fields}  # type: ignore[attr-defined]
+    cls._rbjax_core_shape = {f.name: f.metadata["core_shape"] for f in fields if "core_shape" in f.metadata}  # type: ignore[attr-defined]
     return cls
 
 
@@ -109,6 +123,11 @@ def new_unchecked(cls: type[T], **fields: Any) -> T:
 def core_ndim_of(obj: Any) -> dict[str, int]:
     """Per-field single-body rank of a pytree dataclass made by this module."""
     return type(obj)._rbjax_core_ndim  # type: ignore[attr-defined]
+
+
+def core_shape_of(cls: type) -> dict[str, tuple[int, ...]]:
+    """The declared single-body shape of each field of ``cls`` that declares one (``field(core_shape=...)``)."""
+    return cls._rbjax_core_shape  # type: ignore[attr-defined]
 
 
 def data_fields(obj: Any) -> tuple[str, ...]:

@@ -6,6 +6,8 @@ Each is written for one body and lifted over the batch with ``vmap``
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax.numpy as jnp
 from jax import Array
 from jaxtyping import Float
@@ -186,16 +188,7 @@ def to_matrix_state(state: State) -> MatrixState:
     ``R = R(q)`` (body to world, ``(*B, 3, 3)``), ``ω = I_w⁻¹ L`` (world frame).
     """
     _expect(state, "to_matrix_state", (State,))
-    R, w = rotation_matrix(state), angular_velocity(state)
-    return new_unchecked(
-        MatrixState,
-        body=state.body,
-        position=state.position,
-        velocity=state.velocity,
-        rotation=R,
-        angular_velocity=w,
-        time=state.time,
-    )
+    return _same_motion(MatrixState, state, rotation=rotation_matrix(state), angular_velocity=angular_velocity(state))
 
 
 def to_state(state: MatrixState) -> State:
@@ -204,13 +197,11 @@ def to_state(state: MatrixState) -> State:
     ``q`` from ``R`` (body to world, ``(*B, 4)``), ``L = I_w ω`` (world frame).
     """
     _expect(state, "to_state", (MatrixState,))
-    q, L = orientation(state), angular_momentum(state)
+    return _same_motion(State, state, orientation=orientation(state), angular_momentum=angular_momentum(state))
+
+
+def _same_motion(cls: type, state: RigidState, **rotational: Array) -> Any:
+    """A ``cls`` with ``state``'s body, position, velocity and time and the given rotational fields (unchecked)."""
     return new_unchecked(
-        State,
-        body=state.body,
-        position=state.position,
-        velocity=state.velocity,
-        orientation=q,
-        angular_momentum=L,
-        time=state.time,
+        cls, body=state.body, position=state.position, velocity=state.velocity, time=state.time, **rotational
     )

@@ -37,10 +37,10 @@ from jaxtyping import Float
 from . import _methods, _specialise
 from ._body import Body, is_concrete
 from ._forces import ForceModel, ForceSum
+from ._methods import DEFAULT_METHOD
 from ._pytree import pytree_dataclass, static_field
 from ._simulate import simulate as _simulate_fn
 from ._simulate import step as _step_fn
-from ._simulate_support import DEFAULT_METHOD
 from ._state import AnyState, MatrixState, ParticleState, State, StateT
 from ._typing import ArrayLike
 

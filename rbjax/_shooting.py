@@ -36,10 +36,10 @@ from jaxtyping import Float
 from . import _methods
 from ._batching import batch_shape, in_axes_of
 from ._math import quat_conjugate, quat_log, quat_multiply
+from ._methods import DEFAULT_METHOD
 from ._pytree import replace
 from ._simulate import as_force_fn, simulate, start_time
-from ._simulate_support import DEFAULT_METHOD, constant_fields
-from ._state import AnyState, ForceLike, Forces, State
+from ._state import AnyState, ForceLike, Forces, State, split_constants
 from ._trajectory import stack_frames
 from ._typing import ArrayLike
 from ._validate import check_dt, check_state
@@ -53,19 +53,17 @@ def _scan_segment(state: Any, force_fn: Callable, dts: Array, t0: Array, step_fn
     Returns the trajectory with a leading time axis of ``n_save + 1`` (initial
     state first). A step with ``dt = 0`` leaves the state unchanged (padding).
     """
-    consts = {k: getattr(state, k) for k in constant_fields(state)}
-    strip = lambda s: replace(s, **{k: None for k in consts})
+    dyn0, consts = split_constants(state)
 
     def sub(carry, dt):
         dyn, t = carry
         new = step_fn(replace(dyn, **consts), force_fn, t, dt)
-        return (strip(new), t + dt), None
+        return (split_constants(new)[0], t + dt), None
 
     def row(carry, dts_row):
         carry, _ = jax.lax.scan(sub, carry, dts_row)
         return carry, carry
 
-    dyn0 = strip(state)
     _, (frames, times) = jax.lax.scan(row, (dyn0, t0), dts)
     traj = jax.tree.map(lambda a0, a: jnp.concatenate([a0[None], a]), dyn0, frames)
     return replace(traj, **{**consts, "time": jnp.concatenate([t0[None], times])})
@@ -141,7 +139,7 @@ def shoot(
     n_save = steps // save_every
     run = lambda s, d, t: _scan_segment(s, force_fn, d.reshape(n_save, save_every), t, step_fn)
     traj = jax.vmap(run, in_axes=(in_axes_of(starts, 0, nd, last=False), 0, 0))(starts, dts, t0)
-    consts = constant_fields(starts)
+    consts = starts.constant_fields
     # vmap put segments first; time leads in rbjax trajectories
     moved = {
         n: jax.tree.map(lambda a: jnp.moveaxis(a, 1, 0), getattr(traj, n))
@@ -240,9 +238,7 @@ def simulate_truncated(
             f"and a multiple of save_every={save_every}"
         )
     n_chunks = steps // k
-    consts = constant_fields(state)
-    const_vals = {n: getattr(state, n) for n in consts}
-    strip = lambda s: replace(s, **{n: None for n in consts})
+    const_vals = split_constants(state)[1]
     series = isinstance(forces, Forces) and any(
         a is not None and a.ndim >= 2 and a.shape[0] == steps and a.ndim - 1 > len(state.batch_shape)
         for a in (forces.force, forces.torque)
@@ -255,12 +251,12 @@ def simulate_truncated(
         i, f = xs
         s = replace(jax.lax.stop_gradient(dyn), **const_vals)
         traj = simulate(s, f if series else forces, dt, k, method, save_every=save_every, t0=t0 + i * k * dt)
-        traj = strip(traj)
+        traj = split_constants(traj)[0]
         return jax.tree.map(lambda a: a[-1], traj), jax.tree.map(lambda a: a[1:], traj)
 
     # the first chunk starts from the caller's state, with its derivatives
     f0 = jax.tree.map(lambda a: a[0], fs) if series else forces
-    first = strip(simulate(state, f0, dt, k, method, save_every=save_every, t0=t0))
+    first = split_constants(simulate(state, f0, dt, k, method, save_every=save_every, t0=t0))[0]
     carry = jax.tree.map(lambda a: a[-1], first)
     rest_f = jax.tree.map(lambda a: a[1:], fs) if series else None
     _, rest = jax.lax.scan(chunk, carry, (jnp.arange(1, n_chunks, dtype=dtype), rest_f))

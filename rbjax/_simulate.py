@@ -17,9 +17,10 @@ from . import _checked, _methods, _native
 from ._batching import batch_last, batch_shape, lift, map_leaves, to_batch_first, to_batch_last
 from ._body import prepare
 from ._forces import ForceModel
+from ._methods import DEFAULT_METHOD
 from ._pytree import replace
-from ._simulate_support import DEFAULT_METHOD, constant_fields
-from ._state import AnyState, ForceLike, Forces, ParticleState, StateT
+from ._scan import check_checkpoint, checkpointed_scan, frames_as_outputs, frames_in_buffer
+from ._state import AnyState, ForceLike, Forces, ParticleState, StateT, split_constants
 from ._trajectory import stack_frames
 from ._typing import ArrayLike
 from ._validate import check_count, check_dt, check_state, checked_force_fn, traced_step_size
@@ -150,7 +151,7 @@ def step(
     dt = jnp.asarray(dt, dtype)
     t = start_time(state) if t is None else jnp.asarray(t, dtype)
     new = fn(_prepared(_canonical(state)), checked_force_fn(as_force_fn(forces)), t, dt)
-    keep = {k: getattr(state, k) for k in constant_fields(state) if k != "time"}
+    keep = {k: getattr(state, k) for k in state.constant_fields if k != "time"}
     return replace(new, **keep, time=jnp.broadcast_to(t + dt, jnp.shape(state.time)).astype(dtype))
 
 
@@ -227,7 +228,7 @@ def simulate(
             states instead of ``O(steps)``, for about one extra forward pass
             (``checkpoint ≈ √steps`` minimises memory). Must divide ``steps`` and
             either divide ``save_every`` or be a multiple of it. Values and
-            gradients are unchanged (to round-off). See :func:`_checkpointed_scan`.
+            gradients are unchanged (to round-off). See :func:`rbjax._scan.checkpointed_scan`.
         native: which implementation steps the bodies. ``None`` (default): the
             native CPU kernel where one applies (``"euler"``, ``"rk4"``, ``"splitting"`` on
             :class:`State` batches, float32/float64, no force or constant,
@@ -285,16 +286,13 @@ def _native_path(native: bool | None, state, forces, method, *, series: bool, ch
     return not reason
 
 
-def run_simulation(
-    state, forces, dt, steps, method, *, save_every, t0, checked, checkpoint=None, step_offset=0, native=None
-):
-    """``simulate`` after its signature.
+def check_run(state, dt, steps, method, save_every, t0, fn: str) -> tuple[int, int]:
+    """``TypeError``/``ValueError`` for a bad argument of a run (``simulate``, ``simulate_chunked``).
 
-    ``step_offset`` is the number of steps already done from ``t0`` (a chunked
-    run): step ``k`` runs at ``t0 + (step_offset + k) dt``, and checked-mode
-    errors count from it.
+    Returns ``(steps, save_every)`` as ints. A concrete ``dt`` and ``t0`` are
+    checked here; traced ones only in checked mode, at run time.
     """
-    check_state(state, "simulate")
+    check_state(state, fn)
     if not callable(method):  # a callable is a step fn, e.g. a Scene's specialised kernel
         _methods.get(method, type(state))
     steps = check_count("steps", steps, 0)
@@ -304,7 +302,20 @@ def run_simulation(
     check_dt(dt)
     if t0 is not None:
         check_dt(t0, "t0", positive=False)
-    _check_checkpoint(checkpoint, steps, save_every)
+    return steps, save_every
+
+
+def run_simulation(
+    state, forces, dt, steps, method, *, save_every, t0, checked, checkpoint=None, step_offset=0, native=None
+):
+    """``simulate`` after its signature.
+
+    ``step_offset`` is the number of steps already done from ``t0`` (a chunked
+    run): step ``k`` runs at ``t0 + (step_offset + k) dt``, and checked-mode
+    errors count from it.
+    """
+    steps, save_every = check_run(state, dt, steps, method, save_every, t0, "simulate")
+    check_checkpoint(checkpoint, steps, save_every)
     force_fn = None
     state = _canonical(state)
     t0 = start_time(state) if t0 is None else t0
@@ -385,14 +396,13 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
     to_aos = to_batch_first if soa else (lambda x: x)
 
     initial = state
-    consts = {k: getattr(state, k) for k in constant_fields(state)}
+    dyn0, consts = split_constants(state)
     consts_soa = {k: to_soa(v) for k, v in consts.items()}
     if "body" in consts_soa:
         # the inverse inertia, once per call, in the scan's layout (contiguous rows per component)
         with batch_last(soa):
             consts_soa["body"] = lift(prepare)(consts_soa["body"])
     # the time rides outside the carry too: one scalar per step, not one per body
-    strip = lambda s: replace(s, **{k: None for k in consts})
     # wrapped here, not by the caller: force_fn is static, and a new wrapper per call would recompile;
     # it checks the callable's output while tracing and casts it to the state's dtype
     user_fn = checked_force_fn(force_fn if force_fn is not None else as_force_fn(forces))
@@ -402,27 +412,34 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
         with batch_last(False):
             # the batch's one clock as a scalar time: it broadcasts, and a sharded batch needs
             # no unsharded (N,) array beside its sharded fields
-            out = user_fn(replace(to_aos(strip(state)), **{**consts, "time": t}), t)
+            out = user_fn(replace(to_aos(split_constants(state)[0]), **{**consts, "time": t}), t)
         return to_soa(out)
 
-    const_forces = to_soa(forces) if isinstance(forces, Forces) and not series else None
+    def batch_first_forces(state, t):
+        return user_fn(replace(state, time=t), t)
+
+    # the steps' force function, chosen once; time-series forces give one per step, from its slice
+    if series:
+
+        def step_forces(f):
+            f = to_soa(f)
+            return lambda state, t: f
+
+    else:
+        if isinstance(forces, Forces):
+            const_forces = to_soa(forces)
+            fn = lambda state, t: const_forces
+        else:
+            fn = soa_forces if soa else batch_first_forces
+        step_forces = lambda f: fn
 
     # the checked-mode record rides in the carry; None (an empty pytree) when off
     def one(carry, k_and_f):
         dyn, rec = carry
         k, f = k_and_f
         s = replace(dyn, **consts_soa)
-        if series:
-            f = to_soa(f)
-            fn = lambda state, t: f
-        elif const_forces is not None:
-            fn = lambda state, t: const_forces
-        elif soa:
-            fn = soa_forces
-        else:
-            fn = lambda state, t: user_fn(replace(state, time=t), t)
         with batch_last(soa):
-            new = strip(step_fn(s, fn, t0 + (k0 + k).astype(dtype) * dt, dt))
+            new = split_constants(step_fn(s, step_forces(f), t0 + (k0 + k).astype(dtype) * dt, dt))[0]
         if checks is not None:
             rec = _checked.after_step(rec, replace(to_aos(new), **consts), k + 1, checks, steps)
         return (new, rec), None
@@ -432,7 +449,7 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
     outer = checkpoint // save_every if checkpoint is not None and checkpoint >= save_every else None
 
     def advance_jax(carry, xs):
-        (dyn, rec), _ = _checkpointed_scan(one, carry, xs, inner)
+        (dyn, rec), _ = checkpointed_scan(one, carry, xs, inner)
         if checks is not None:
             rec = _checked.after_save(rec, replace(to_aos(dyn), **consts), xs[0][-1] + 1, checks, steps)
         return dyn, rec
@@ -443,10 +460,10 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
             frc_fn = checked_force_fn(as_force_fn(frc))
 
             def fn(s, tt):
-                return frc_fn(replace(strip(s), **{**cs, "time": tt}), tt)
+                return frc_fn(replace(split_constants(s)[0], **{**cs, "time": tt}), tt)
 
             def one_step(d, j):  # batch-first, as the kernel's state
-                return strip(step_fn(replace(d, **cs_soa), fn, t + j.astype(dtype) * h, h)), None
+                return split_constants(step_fn(replace(d, **cs_soa), fn, t + j.astype(dtype) * h, h))[0], None
 
             return jax.lax.scan(one_step, dyn, jnp.arange(save_every))[0]
 
@@ -459,74 +476,13 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
 
     ks = jnp.arange(steps).reshape(n_out, save_every)
     rec0 = None if checks is None else _checked.init_record(state, checks)
-    carry0 = (to_soa(strip(state)), rec0)
+    carry0 = (to_soa(dyn0), rec0)
     fs = jax.tree.map(lambda a: a.reshape((n_out, save_every) + a.shape[1:]), forces) if series else None
-
     if outer is None:
-        # The saved frames go straight into the trajectory: one (n_out + 1)-frame
-        # buffer, filled with the initial state and carried through the scan, each
-        # chunk's state written in place at its index. Scan outputs would need the
-        # initial frame put in front afterwards, a second copy of every saved frame
-        # (peak memory); emitting each chunk's state before advancing it would need a
-        # ``lax.cond`` to skip the last advance, and work in a cond branch is not
-        # hoisted out of the loop (splitting's per-body ``eigh`` then ran every step).
-        # The buffer is linear in the loop (``dynamic_update_slice``), so reverse mode
-        # stores no copy of it per chunk.
-        buf0 = jax.tree.map(lambda a: jnp.broadcast_to(a[None], (n_out + 1,) + a.shape), strip(state))
-
-        def chunk(carry, xs):
-            i, xs = xs
-            inner_carry, buf = carry
-            inner_carry = advance(inner_carry, xs)
-            put = lambda b, a: jax.lax.dynamic_update_index_in_dim(b, a, i + 1, 0)
-            return (inner_carry, jax.tree.map(put, buf, to_aos(inner_carry[0]))), None
-
-        ((_, rec), traj), _ = jax.lax.scan(chunk, (carry0, buf0), (jnp.arange(n_out), (ks, fs)))
+        traj, rec = frames_in_buffer(advance, carry0, (ks, fs), dyn0, to_aos)
     else:
-        # checkpointed segments of chunks save their carry entering each segment for
-        # reverse mode: a carried buffer would be stored once per segment, so the
-        # frames are scan outputs here, with the initial one put in front (a copy)
-        def emit(carry, xs):
-            carry = advance(carry, xs)
-            return carry, to_aos(carry[0])
-
-        (_, rec), traj = _checkpointed_scan(emit, carry0, (ks, fs), outer)
-        traj = jax.tree.map(lambda a0, a: jnp.concatenate([a0[None], a]), strip(state), traj)
+        traj, rec = frames_as_outputs(advance, carry0, (ks, fs), dyn0, to_aos, outer)
     # t0 + (absolute step) dt, as the steps saw it: a chunked run gives the same bits
     times = t0 + (k0 + save_every * jnp.arange(n_out + 1)).astype(dtype) * dt
     traj = stack_frames(traj, initial, times)
     return traj if checks is None else (traj, rec)
-
-
-# --- gradient checkpointing (the ``checkpoint=`` option of ``simulate``) ---
-
-
-def _check_checkpoint(checkpoint: Any, steps: int, save_every: int) -> None:
-    if checkpoint is None:
-        return
-    bad = isinstance(checkpoint, bool) or not isinstance(checkpoint, (int, np.integer))
-    if bad or checkpoint < 1 or steps % checkpoint:
-        raise ValueError(f"checkpoint must be None or a positive int dividing steps={steps}, got {checkpoint!r}")
-    if save_every % checkpoint and checkpoint % save_every:
-        raise ValueError(f"checkpoint={checkpoint} must divide save_every={save_every} or be a multiple of it")
-
-
-def _checkpointed_scan(f, carry, xs, segment: int | None):
-    """``lax.scan(f, carry, xs)``, rematerialised in segments of ``segment`` iterations.
-
-    The scan is split into an outer scan over segments whose body, an inner scan
-    over one segment, is wrapped in ``jax.checkpoint``: reverse mode saves only
-    the carry entering each segment and recomputes the segment's residuals when
-    it reaches it. ``segment=None`` is the plain scan.
-    """
-    if segment is None:
-        return jax.lax.scan(f, carry, xs)
-    n = jax.tree.leaves(xs)[0].shape[0]
-    split = lambda a: a.reshape((n // segment, segment) + a.shape[1:])
-
-    @jax.checkpoint
-    def run_segment(c, seg_xs):
-        return jax.lax.scan(f, c, seg_xs)
-
-    carry, ys = jax.lax.scan(run_segment, carry, jax.tree.map(split, xs))
-    return carry, jax.tree.map(lambda a: a.reshape((n,) + a.shape[2:]), ys)

@@ -7,7 +7,7 @@ All vectors are in the world frame unless a name says otherwise; SI units
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, TypeVar, Union
+from typing import TYPE_CHECKING, Any, ClassVar, TypeVar, Union
 
 import jax
 import jax.core
@@ -18,7 +18,7 @@ from jaxtyping import Float
 
 from ._body import Body, as_float, finite_float, floats, inertia_of, is_concrete
 from ._math import array_arg, cross, matvec3, quat_conjugate, quat_rotate, quat_to_matrix
-from ._pytree import field, pytree_dataclass
+from ._pytree import core_shape_of, field, pytree_dataclass, replace
 from ._trajectory import BatchIndexing
 from ._typing import ArrayLike
 
@@ -31,6 +31,7 @@ __all__ = [
     "State",
     "StateT",
     "quat_tolerance",
+    "split_constants",
 ]
 
 
@@ -45,17 +46,23 @@ def quat_tolerance(dtype: Any) -> float:
 
 
 def _check_vectors(cls: str, **arrays: Array | None) -> None:
+    """``ValueError`` unless each array ends in its field's declared single-body shape and is finite."""
     for name, a in arrays.items():
         if a is None:
             continue
-        want = 4 if name == "orientation" else 3
-        if name == "rotation":
-            if a.shape[-2:] != (3, 3):
-                raise ValueError(f"{cls}: rotation must end in (3, 3), got shape {a.shape}")
-        elif a.shape[-1:] != (want,):
-            raise ValueError(f"{cls}: {name} must end in ({want},), got shape {a.shape}")
+        want = _CORE_SHAPES[name]
+        if a.shape[a.ndim - len(want) :] != want:
+            raise ValueError(f"{cls}: {name} must end in {want}, got shape {a.shape}")
         if is_concrete(a) and not np.all(np.isfinite(np.asarray(a))):
             raise ValueError(f"{cls}: {name} must be finite, got non-finite entries")
+
+
+def _convert_and_check(obj: Any) -> None:
+    """In ``__post_init__``: convert the array fields (:func:`_convert`), check the vectors (:func:`_check_vectors`)."""
+    shapes = core_shape_of(type(obj))
+    names = [n for n in shapes if n != "time"]
+    _convert(obj, *names)
+    _check_vectors(type(obj).__name__, **{n: getattr(obj, n) for n in names if shapes[n]})
 
 
 def _check_unit_quaternion(cls: str, q: Array) -> None:
@@ -159,6 +166,38 @@ def _vec(x: ArrayLike | None, default: tuple[float, ...], dtype: Any) -> Array:
     return jnp.asarray(default if x is None else as_float(x), dtype=dtype)
 
 
+def _kinematics(body: Body, position: Any, velocity: Any, orientation: Any, angular_velocity: Any) -> tuple:
+    """``create``'s arguments in the state's dtype: the body, and ``x``, ``v``, orientation, ``ω`` as arrays.
+
+    Missing ones are zero, and the identity quaternion ``[1, 0, 0, 0]`` for the orientation.
+    """
+    dtype = _dtype_of(body, position, velocity, orientation, angular_velocity)
+    return (
+        _body_as(body, dtype),
+        _vec(position, (0.0, 0.0, 0.0), dtype),
+        _vec(velocity, (0.0, 0.0, 0.0), dtype),
+        _vec(orientation, (1.0, 0.0, 0.0, 0.0), dtype),
+        _vec(angular_velocity, (0.0, 0.0, 0.0), dtype),
+    )
+
+
+def _rigid_batch(cls: str, body: Body, x: Array, v: Array, w: Array, **orientation: Array) -> tuple[int, ...]:
+    """``create``'s vectors checked (:func:`_check_vectors`) and their broadcast batch shape (:func:`_batch`).
+
+    ``orientation``: one keyword, the state's orientation field (``orientation=q`` or ``rotation=R``).
+    """
+    ((name, o),) = orientation.items()
+    _check_vectors(cls, position=x, velocity=v, **orientation, angular_velocity=w)
+    return _batch(
+        cls,
+        body.batch_shape,
+        position=x.shape[:-1],
+        velocity=v.shape[:-1],
+        orientation=o.shape[: o.ndim - len(_CORE_SHAPES[name])],
+        angular_velocity=w.shape[:-1],
+    )
+
+
 def _batch(cls: str, body_shape: tuple[int, ...] | None, **shapes: tuple[int, ...]) -> tuple[int, ...]:
     """The broadcast batch shape of ``create``'s arguments; ``ValueError`` naming each one's otherwise."""
     named = ({"body": body_shape} if body_shape is not None else {}) | shapes
@@ -172,8 +211,30 @@ def _batch(cls: str, body_shape: tuple[int, ...] | None, **shapes: tuple[int, ..
         ) from None
 
 
+class _StateBase(BatchIndexing):
+    """What the state types share: the batch shape and dtype, read from ``position``, and ``constant_fields``."""
+
+    #: Fields that no integrator method changes: carried outside a time loop (see
+    #: :func:`split_constants`). ``time`` is among them because a method is given
+    #: ``t`` as an argument; ``step`` and ``simulate`` advance it.
+    constant_fields: ClassVar[tuple[str, ...]] = ("body", "time")
+
+    if TYPE_CHECKING:
+        position: Array
+
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        """Leading batch shape ``B`` (``()`` for a single body)."""
+        return tuple(self.position.shape[:-1])
+
+    @property
+    def dtype(self) -> Any:
+        """Floating dtype of the state's arrays (float32 or float64)."""
+        return self.position.dtype
+
+
 @pytree_dataclass
-class State(BatchIndexing):
+class State(_StateBase):
     """Rigid-body state in the notes' ``(x, v, q, L)`` form.
 
     Attributes:
@@ -202,11 +263,11 @@ class State(BatchIndexing):
     """
 
     body: Body
-    position: Float[Array, "*B 3"] = field(core_ndim=1)
-    velocity: Float[Array, "*B 3"] = field(core_ndim=1)
-    orientation: Float[Array, "*B 4"] = field(core_ndim=1)
-    angular_momentum: Float[Array, "*B 3"] = field(core_ndim=1)
-    time: Float[Array, "*B"] = field(core_ndim=0, default=0.0)
+    position: Float[Array, "*B 3"] = field(core_shape=(3,))
+    velocity: Float[Array, "*B 3"] = field(core_shape=(3,))
+    orientation: Float[Array, "*B 4"] = field(core_shape=(4,))
+    angular_momentum: Float[Array, "*B 3"] = field(core_shape=(3,))
+    time: Float[Array, "*B"] = field(core_shape=(), default=0.0)
 
     if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
 
@@ -221,14 +282,7 @@ class State(BatchIndexing):
         ) -> None: ...
 
     def __post_init__(self) -> None:
-        _convert(self, "position", "velocity", "orientation", "angular_momentum")
-        _check_vectors(
-            "State",
-            position=self.position,
-            velocity=self.velocity,
-            orientation=self.orientation,
-            angular_momentum=self.angular_momentum,
-        )
+        _convert_and_check(self)
         _check_unit_quaternion("State", self.orientation)
 
     @classmethod
@@ -248,39 +302,16 @@ class State(BatchIndexing):
         momentum is ``L = R I_L Rᵀ ω``. All arguments broadcast against the
         body's batch shape; ``time`` (s) is the state's ``t``.
         """
-        dtype = _dtype_of(body, position, velocity, orientation, angular_velocity)
-        body = _body_as(body, dtype)
-        q = _vec(orientation, (1.0, 0.0, 0.0, 0.0), dtype)
-        w = _vec(angular_velocity, (0.0, 0.0, 0.0), dtype)
-        x = _vec(position, (0.0, 0.0, 0.0), dtype)
-        v = _vec(velocity, (0.0, 0.0, 0.0), dtype)
-        _check_vectors("State.create", position=x, velocity=v, orientation=q, angular_velocity=w)
-        shape = _batch(
-            "State.create",
-            body.batch_shape,
-            position=x.shape[:-1],
-            velocity=v.shape[:-1],
-            orientation=q.shape[:-1],
-            angular_velocity=w.shape[:-1],
-        )
+        body, x, v, q, w = _kinematics(body, position, velocity, orientation, angular_velocity)
+        shape = _rigid_batch("State.create", body, x, v, w, orientation=q)
         _check_unit_quaternion("State.create", q)
         L = quat_rotate(q, matvec3(inertia_of(body), quat_rotate(quat_conjugate(q), w)))
         bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])
-        return cls(body, bc(x), bc(v), bc(q), bc(L), _time("State.create", time, dtype, shape))
-
-    @property
-    def batch_shape(self) -> tuple[int, ...]:
-        """Leading batch shape ``B`` (``()`` for a single body)."""
-        return tuple(self.position.shape[:-1])
-
-    @property
-    def dtype(self) -> Any:
-        """Floating dtype of the state's arrays (float32 or float64)."""
-        return self.position.dtype
+        return cls(body, bc(x), bc(v), bc(q), bc(L), _time("State.create", time, x.dtype, shape))
 
 
 @pytree_dataclass
-class MatrixState(BatchIndexing):
+class MatrixState(_StateBase):
     """Rigid-body state in the notes' ``(x, v, R, ω)`` form.
 
     Attributes:
@@ -294,11 +325,11 @@ class MatrixState(BatchIndexing):
     """
 
     body: Body
-    position: Float[Array, "*B 3"] = field(core_ndim=1)
-    velocity: Float[Array, "*B 3"] = field(core_ndim=1)
-    rotation: Float[Array, "*B 3 3"] = field(core_ndim=2)
-    angular_velocity: Float[Array, "*B 3"] = field(core_ndim=1)
-    time: Float[Array, "*B"] = field(core_ndim=0, default=0.0)
+    position: Float[Array, "*B 3"] = field(core_shape=(3,))
+    velocity: Float[Array, "*B 3"] = field(core_shape=(3,))
+    rotation: Float[Array, "*B 3 3"] = field(core_shape=(3, 3))
+    angular_velocity: Float[Array, "*B 3"] = field(core_shape=(3,))
+    time: Float[Array, "*B"] = field(core_shape=(), default=0.0)
 
     if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
 
@@ -313,14 +344,7 @@ class MatrixState(BatchIndexing):
         ) -> None: ...
 
     def __post_init__(self) -> None:
-        _convert(self, "position", "velocity", "rotation", "angular_velocity")
-        _check_vectors(
-            "MatrixState",
-            position=self.position,
-            velocity=self.velocity,
-            rotation=self.rotation,
-            angular_velocity=self.angular_velocity,
-        )
+        _convert_and_check(self)
         _check_rotation("MatrixState", self.rotation)
 
     @classmethod
@@ -339,43 +363,20 @@ class MatrixState(BatchIndexing):
         ``orientation`` is a unit quaternion ``[w, x, y, z]`` or a ``(3, 3)``
         rotation matrix; ``angular_velocity`` is world-frame ``ω`` (rad/s).
         """
-        dtype = _dtype_of(body, position, velocity, orientation, angular_velocity)
-        body = _body_as(body, dtype)
-        o = _vec(orientation, (1.0, 0.0, 0.0, 0.0), dtype)
+        body, x, v, o, w = _kinematics(body, position, velocity, orientation, angular_velocity)
         if o.shape[-1:] == (4,):
             _check_unit_quaternion("MatrixState.create", o)
             R = quat_to_matrix(o)
         else:
             R = o
-        w = _vec(angular_velocity, (0.0, 0.0, 0.0), dtype)
-        x = _vec(position, (0.0, 0.0, 0.0), dtype)
-        v = _vec(velocity, (0.0, 0.0, 0.0), dtype)
-        _check_vectors("MatrixState.create", position=x, velocity=v, rotation=R, angular_velocity=w)
-        shape = _batch(
-            "MatrixState.create",
-            body.batch_shape,
-            position=x.shape[:-1],
-            velocity=v.shape[:-1],
-            orientation=R.shape[:-2],
-            angular_velocity=w.shape[:-1],
-        )
+        shape = _rigid_batch("MatrixState.create", body, x, v, w, rotation=R)
         bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])
         R = jnp.broadcast_to(R, shape + (3, 3))
-        return cls(body, bc(x), bc(v), R, bc(w), _time("MatrixState.create", time, dtype, shape))
-
-    @property
-    def batch_shape(self) -> tuple[int, ...]:
-        """Leading batch shape ``B`` (``()`` for a single body)."""
-        return tuple(self.position.shape[:-1])
-
-    @property
-    def dtype(self) -> Any:
-        """Floating dtype of the state's arrays (float32 or float64)."""
-        return self.position.dtype
+        return cls(body, bc(x), bc(v), R, bc(w), _time("MatrixState.create", time, x.dtype, shape))
 
 
 @pytree_dataclass
-class ParticleState(BatchIndexing):
+class ParticleState(_StateBase):
     """Point masses (the notes' first slide): no orientation, nothing rotational.
 
     Attributes:
@@ -385,10 +386,12 @@ class ParticleState(BatchIndexing):
         time: ``(*B,)`` time ``t`` (s), as in :class:`State`.
     """
 
-    position: Float[Array, "*B 3"] = field(core_ndim=1)
-    velocity: Float[Array, "*B 3"] = field(core_ndim=1)
-    mass: Float[Array, "*B"] = field(core_ndim=0)
-    time: Float[Array, "*B"] = field(core_ndim=0, default=0.0)
+    position: Float[Array, "*B 3"] = field(core_shape=(3,))
+    velocity: Float[Array, "*B 3"] = field(core_shape=(3,))
+    mass: Float[Array, "*B"] = field(core_shape=())
+    time: Float[Array, "*B"] = field(core_shape=(), default=0.0)
+
+    constant_fields: ClassVar[tuple[str, ...]] = ("mass", "time")
 
     if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
 
@@ -401,8 +404,7 @@ class ParticleState(BatchIndexing):
         ) -> None: ...
 
     def __post_init__(self) -> None:
-        _convert(self, "position", "velocity", "mass")
-        _check_vectors("ParticleState", position=self.position, velocity=self.velocity)
+        _convert_and_check(self)
         if is_concrete(self.mass):
             m = np.asarray(self.mass)
             if not np.all(np.isfinite(m)) or np.any(m <= 0):
@@ -431,22 +433,23 @@ class ParticleState(BatchIndexing):
             _time("ParticleState.create", time, dtype, shape),
         )
 
-    @property
-    def batch_shape(self) -> tuple[int, ...]:
-        """Leading batch shape ``B`` (``()`` for a single body)."""
-        return tuple(self.position.shape[:-1])
-
-    @property
-    def dtype(self) -> Any:
-        """Floating dtype of the state's arrays (float32 or float64)."""
-        return self.position.dtype
-
 
 RigidState = Union[State, MatrixState]
 AnyState = Union[State, MatrixState, ParticleState]
 # a function returning "the same state type as its input" (step, simulate, ...)
 StateT = TypeVar("StateT", bound=AnyState)
 RigidStateT = TypeVar("RigidStateT", bound=RigidState)
+
+
+def split_constants(state: Any) -> tuple[Any, dict[str, Any]]:
+    """``(changing, constants)``: ``state`` with its ``constant_fields`` set to ``None``, and those fields by name.
+
+    A time loop carries ``changing`` and closes over ``constants``: the body's
+    per-call set-up stays loop-invariant, and a shared body is not copied per
+    step. ``replace(changing, **constants)`` is the state again.
+    """
+    constants = {n: getattr(state, n) for n in state.constant_fields}
+    return replace(state, **dict.fromkeys(constants)), constants
 
 
 @pytree_dataclass
@@ -461,8 +464,8 @@ class Forces:
     Forces add with ``+``.
     """
 
-    force: Float[Array, "*B 3"] | None = field(core_ndim=1, default=None)
-    torque: Float[Array, "*B 3"] | None = field(core_ndim=1, default=None)
+    force: Float[Array, "*B 3"] | None = field(core_shape=(3,), default=None)
+    torque: Float[Array, "*B 3"] | None = field(core_shape=(3,), default=None)
 
     if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
 
@@ -522,3 +525,8 @@ class Forces:
 
 
 ForceLike = Union[Forces, Callable[[Any, Array], Forces], None]
+
+# every vector field's single-body shape, by name, as its class declares it (the names agree across classes)
+_CORE_SHAPES: dict[str, tuple[int, ...]] = {
+    name: shape for cls in (State, MatrixState, ParticleState, Forces) for name, shape in core_shape_of(cls).items()
+}

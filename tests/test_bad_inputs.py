@@ -841,7 +841,7 @@ def test_animate_labels_its_axes_and_draws_the_arrow_over_the_body(_batch_traj, 
 def test_every_public_method_default_is_the_house_default():
     """Every public function or constructor with a ``method`` parameter defaults to ``"splitting"``
     (``fit_inertia`` excepted: rbjax/identification keeps ``"rk4"``)."""
-    from rbjax._simulate_support import DEFAULT_METHOD
+    from rbjax._methods import DEFAULT_METHOD
 
     assert DEFAULT_METHOD == "splitting"
     seen = []

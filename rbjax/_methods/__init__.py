@@ -25,6 +25,6 @@ from . import splitting as splitting
 # isort: split
 # composition builds on registered methods ("splitting"): it must come after them
 from . import composition as composition
-from ._registry import Method, StepFn, available, get, register
+from ._registry import DEFAULT_METHOD, Method, StepFn, available, get, register
 
-__all__ = ["Method", "StepFn", "register", "get", "available"]
+__all__ = ["DEFAULT_METHOD", "Method", "StepFn", "register", "get", "available"]

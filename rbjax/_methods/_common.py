@@ -15,8 +15,8 @@ from .._batching import lift
 from .._math import cross, dot3, kick3, matrix_to_quat, orthonormalize_unchecked, quat_multiply, quat_normalize
 from .._pytree import replace
 from .._quantities import to_matrix_state, to_state
-from .._simulate_support import constant_fields
 from .._state import Forces, MatrixState, State
+from ._registry import StepFn
 
 
 def kick(s: State, f: Forces, h) -> State:
@@ -148,6 +148,11 @@ def via_state(state_step):
     return step
 
 
+def rigid_steps(state_step: StepFn) -> dict[type, StepFn]:
+    """``Method.steps`` of a ``State`` step: on ``State``, and on ``MatrixState`` through :func:`via_state`."""
+    return {State: state_step, MatrixState: via_state(state_step)}
+
+
 def torque_varies(force_fn, state, t) -> bool:
     """Whether ``force_fn(state, t)``'s torque depends on ``t`` or on the fields a step changes.
 
@@ -155,7 +160,7 @@ def torque_varies(force_fn, state, t) -> bool:
     function of ``t`` and the changing fields (the body is held fixed).
     Conservative: an equation depends on them if any of its inputs does.
     """
-    consts = constant_fields(state)
+    consts = state.constant_fields
     names = [n for n in type(state)._rbjax_data_fields if n not in consts and getattr(state, n) is not None]
 
     def torque(dyn, tt):

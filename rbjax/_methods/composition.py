@@ -60,7 +60,7 @@ import jax
 import jax.numpy as jnp
 
 from .._pytree import replace
-from .._simulate_support import constant_fields
+from .._state import split_constants
 from ._registry import Method, StepFn, available, register
 
 __all__ = ["COEFFICIENTS", "compose", "palindrome"]
@@ -131,12 +131,11 @@ def compose(base_step: StepFn, gammas: Sequence[float]) -> StepFn:
     starts = tuple(math.fsum(gammas[:i]) for i in range(len(gammas)))
 
     def step(state, force_fn, t, dt):
-        consts = {n: getattr(state, n) for n in constant_fields(state)}
-        strip = lambda s: replace(s, **dict.fromkeys(consts))
+        dyn0, consts = split_constants(state)
 
         def sub(dyn, gc):
             g, c = gc
-            return strip(base_step(replace(dyn, **consts), force_fn, t + c * dt, g * dt)), None
+            return split_constants(base_step(replace(dyn, **consts), force_fn, t + c * dt, g * dt))[0], None
 
         # γ_i, c_i of the current sub-step are carried (the scan reads the next ones), so that
         # the sub-step's kernels see a loop-carried scalar, not a dynamic-slice of the table
@@ -147,7 +146,7 @@ def compose(base_step: StepFn, gammas: Sequence[float]) -> StepFn:
             return (sub(dyn, gc)[0], gc_next), None
 
         first = (jnp.asarray(gammas[0], state.dtype), jnp.asarray(starts[0], state.dtype))
-        (dyn, _), _ = jax.lax.scan(carried, (strip(state), first), nxt)
+        (dyn, _), _ = jax.lax.scan(carried, (dyn0, first), nxt)
         return replace(dyn, **consts)
 
     return step

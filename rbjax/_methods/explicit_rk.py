@@ -22,7 +22,6 @@ import jax.numpy as jnp
 
 from .._dynamics import derivative
 from .._pytree import replace
-from .._simulate_support import constant_fields
 from .._state import MatrixState, ParticleState, State
 from ._common import materialise, project, torque_varies
 from ._registry import Method, StepFn, register
@@ -35,7 +34,7 @@ def combine(state, dt, weights: Sequence[float], ks: Sequence):
     terms = [(w, k) for w, k in zip(weights, ks, strict=True) if w != 0.0]
     if not terms:
         return state
-    consts = constant_fields(state)
+    consts = state.constant_fields
     out = {}
     for n in type(state)._rbjax_data_fields:
         if n in consts:

@@ -33,8 +33,8 @@ from .._math import (
     skew,
 )
 from .._pytree import replace
-from .._state import Forces, MatrixState, State
-from ._common import batch, solve3, via_state
+from .._state import Forces, State
+from ._common import batch, rigid_steps, solve3
 from ._registry import Method, register
 
 
@@ -60,7 +60,7 @@ register(
     Method(
         name="implicit_gyroscopic",
         order=1,
-        steps={State: implicit_gyroscopic, MatrixState: via_state(implicit_gyroscopic)},
+        steps=rigid_steps(implicit_gyroscopic),
         conserves="nothing; dissipates rotational energy and |L| (stable at large dt)",
         cost=2.8,
     )

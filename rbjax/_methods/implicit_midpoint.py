@@ -53,8 +53,8 @@ import jax.numpy as jnp
 from .._batching import lift
 from .._math import cross, dot3, matmul3, matvec3, quat_conjugate, quat_multiply, quat_normalize, quat_rotate, skew
 from .._pytree import replace
-from .._state import MatrixState, State
-from ._common import kick, solve3, via_state
+from .._state import State
+from ._common import kick, rigid_steps, solve3
 from ._registry import Method, register
 
 # Newton iterations before the differentiated one. From Π_½ = Π₀ the residual
@@ -189,7 +189,7 @@ register(
     Method(
         name="implicit_midpoint",
         order=2,
-        steps={State: implicit_midpoint_state, MatrixState: via_state(implicit_midpoint_state)},
+        steps=rigid_steps(implicit_midpoint_state),
         conserves=(
             "torque-free: L exactly; |L| and energy to Newton tolerance where the solve converges "
             "(all tested bodies to dt·|ω| = 3, ~99% at 10-100); a failed solve gives NaN, never a wrong state"

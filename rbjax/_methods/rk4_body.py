@@ -31,8 +31,8 @@ import jax.numpy as jnp
 from .._batching import lift
 from .._math import cross, matvec3, over, quat_conjugate, quat_multiply, quat_rotate
 from .._pytree import replace
-from .._state import Forces, MatrixState, State
-from ._common import project, via_state
+from .._state import Forces, State
+from ._common import project, rigid_steps
 from ._registry import Method, register
 from .explicit_rk import combine
 
@@ -79,7 +79,7 @@ register(
     Method(
         name="rk4_body",
         order=4,
-        steps={State: rk4_body, MatrixState: via_state(rk4_body)},
+        steps=rigid_steps(rk4_body),
         conserves=(
             "nothing exactly; the rates have the error of RK4 on Euler's equations (energy ~300x below "
             "'rk4' on the T-handle); world L drifts at O(dt^4) where 'rk4' keeps it exact torque-free"

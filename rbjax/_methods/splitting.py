@@ -79,8 +79,8 @@ import jax.numpy as jnp
 from .._batching import lift
 from .._math import dot3, kick3, quat_conjugate, quat_multiply, quat_normalize, quat_rotate
 from .._pytree import replace
-from .._state import MatrixState, ParticleState, State
-from ._common import degenerate_flow, kick, principal_frame, via_state
+from .._state import ParticleState, State
+from ._common import degenerate_flow, kick, principal_frame, rigid_steps
 from ._registry import Method, register
 
 # (principal axis, fraction of h) of the symmetric composition H₃(h/2) H₁(h) H₃(h/2)
@@ -225,8 +225,7 @@ register(
         name="splitting",
         order=2,
         steps={
-            State: splitting_state,
-            MatrixState: via_state(splitting_state),
+            **rigid_steps(splitting_state),
             ParticleState: _strang(_kick_particles, _drift_particles),
         },
         conserves=(

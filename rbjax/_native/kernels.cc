@@ -86,22 +86,14 @@ int isa() {
 #endif
 }
 
-inline void block_steps(Block<float>& B, const Consts<float>& k, const float (*frame)[kBlock], int n, float dt,
-                        int64_t steps, int64_t method, bool forces, bool quad) {
+template <typename T>
+inline void block_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], int n, T dt, int64_t steps,
+                        int64_t method, bool forces, bool quad) {
 #ifdef RBJAX_X86
-  if (isa() == 2) return avx512::block_steps_f32(B, k, frame, n, dt, steps, method, forces, quad);
-  if (isa() == 1) return avx2::block_steps_f32(B, k, frame, n, dt, steps, method, forces, quad);
+  if (isa() == 2) return avx512::block_steps<T>(B, k, frame, n, dt, steps, method, forces, quad);
+  if (isa() == 1) return avx2::block_steps<T>(B, k, frame, n, dt, steps, method, forces, quad);
 #endif
-  baseline::block_steps_f32(B, k, frame, n, dt, steps, method, forces, quad);
-}
-
-inline void block_steps(Block<double>& B, const Consts<double>& k, const double (*frame)[kBlock], int n, double dt,
-                        int64_t steps, int64_t method, bool forces, bool quad) {
-#ifdef RBJAX_X86
-  if (isa() == 2) return avx512::block_steps_f64(B, k, frame, n, dt, steps, method, forces, quad);
-  if (isa() == 1) return avx2::block_steps_f64(B, k, frame, n, dt, steps, method, forces, quad);
-#endif
-  baseline::block_steps_f64(B, k, frame, n, dt, steps, method, forces, quad);
+  baseline::block_steps<T>(B, k, frame, n, dt, steps, method, forces, quad);
 }
 
 // A per-body parameter of `comps` components, (V, n, comps) with n = N or 1 (shared).

@@ -77,6 +77,20 @@ RBJAX_INLINE void forces(const Consts<T>& k, int j, const T v[3], const T w[3], 
   }
 }
 
+// Body j's quaternion, momentum, velocity and inverse inertia, out of the block's rows.
+template <typename T>
+RBJAX_INLINE void load_body(const Block<T>& B, const Consts<T>& k, int j, T q[4], T L[3], T v[3], T inv[9]) {
+#pragma GCC unroll 16
+  for (int c = 0; c < 4; ++c) q[c] = B.q[c][j];
+#pragma GCC unroll 16
+  for (int c = 0; c < 3; ++c) {
+    L[c] = B.L[c][j];
+    v[c] = B.v[c][j];
+  }
+#pragma GCC unroll 16
+  for (int c = 0; c < 9; ++c) inv[c] = k.inv[c][j];
+}
+
 // `steps` explicit-Euler steps of a block (rbjax/_methods/euler.py: euler_state).
 // kForces: whether any force or torque acts (else v and L do not change).
 template <typename T, bool kForces, bool kQuad>
@@ -85,12 +99,8 @@ void euler_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
   for (int64_t s = 0; s < steps; ++s) {
 #pragma GCC ivdep
     for (int j = 0; j < n; ++j) {
-      T q[4] = {B.q[0][j], B.q[1][j], B.q[2][j], B.q[3][j]};
-      T L[3] = {B.L[0][j], B.L[1][j], B.L[2][j]};
-      T v[3] = {B.v[0][j], B.v[1][j], B.v[2][j]};
-      T inv[9], w[3], p[4];
-      #pragma GCC unroll 16
-      for (int c = 0; c < 9; ++c) inv[c] = k.inv[c][j];
+      T q[4], L[3], v[3], inv[9], w[3], p[4];
+      load_body(B, k, j, q, L, v, inv);
       omega(q, L, inv, w);
       if (kForces) {
         T F[3], tau[3];
@@ -268,6 +278,19 @@ RBJAX_INLINE void free_rotor(T q[4], const T L[3], const T p[4], const T e[3], T
   normalize(q);
 }
 
+// splitting's kick(h/2) of body j: v += F/m h/2, L += τ h/2, with the forces at (q, L, v).
+template <typename T, bool kQuad>
+RBJAX_INLINE void half_kick(const Consts<T>& k, int j, const T q[4], const T inv[9], T half, T v[3], T L[3]) {
+  T w[3], F[3], tau[3];
+  omega(q, L, inv, w);
+  forces<T, kQuad>(k, j, v, w, F, tau);
+#pragma GCC unroll 16
+  for (int c = 0; c < 3; ++c) {
+    v[c] = v[c] + F[c] / k.m[j] * half;
+    L[c] = L[c] + tau[c] * half;
+  }
+}
+
 // `steps` steps of "splitting" (rbjax/_methods/splitting.py): kick(h/2) drift(h) kick(h/2), the
 // forces at the step's start and after the drift. frame: the principal frame's quaternion p
 // (rows 0-3) and inverse moments e (rows 4-6) per body.
@@ -277,35 +300,15 @@ void splitting_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], 
   for (int64_t s = 0; s < steps; ++s) {
 #pragma GCC ivdep
     for (int j = 0; j < n; ++j) {
-      T q[4] = {B.q[0][j], B.q[1][j], B.q[2][j], B.q[3][j]};
-      T L[3] = {B.L[0][j], B.L[1][j], B.L[2][j]};
-      T v[3] = {B.v[0][j], B.v[1][j], B.v[2][j]};
-      T inv[9], w[3], F[3], tau[3];
-#pragma GCC unroll 16
-      for (int c = 0; c < 9; ++c) inv[c] = k.inv[c][j];
-      if (kForces) {  // kick(h/2) with the forces at the start
-        omega(q, L, inv, w);
-        forces<T, kQuad>(k, j, v, w, F, tau);
-#pragma GCC unroll 16
-        for (int c = 0; c < 3; ++c) {
-          v[c] = v[c] + F[c] / k.m[j] * half;
-          L[c] = L[c] + tau[c] * half;
-        }
-      }
+      T q[4], L[3], v[3], inv[9];
+      load_body(B, k, j, q, L, v, inv);
+      if (kForces) half_kick<T, kQuad>(k, j, q, inv, half, v, L);  // with the forces at the start
       const T p[4] = {frame[0][j], frame[1][j], frame[2][j], frame[3][j]};
       const T e[3] = {frame[4][j], frame[5][j], frame[6][j]};
 #pragma GCC unroll 16
       for (int c = 0; c < 3; ++c) B.x[c][j] = B.x[c][j] + v[c] * dt;
       free_rotor(q, L, p, e, dt);
-      if (kForces) {  // kick(h/2) with the forces after the drift
-        omega(q, L, inv, w);
-        forces<T, kQuad>(k, j, v, w, F, tau);
-#pragma GCC unroll 16
-        for (int c = 0; c < 3; ++c) {
-          v[c] = v[c] + F[c] / k.m[j] * half;
-          L[c] = L[c] + tau[c] * half;
-        }
-      }
+      if (kForces) half_kick<T, kQuad>(k, j, q, inv, half, v, L);  // with the forces after the drift
 #pragma GCC unroll 16
       for (int c = 0; c < 4; ++c) B.q[c][j] = q[c];
 #pragma GCC unroll 16
@@ -336,12 +339,8 @@ void block_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], int 
   return rk4_steps<T, true, true>(B, k, n, dt, steps);
 }
 
-void block_steps_f32(Block<float>& B, const Consts<float>& k, const float (*frame)[kBlock], int n, float dt,
-                     int64_t steps, int64_t method, bool forces, bool quad) {
-  block_steps<float>(B, k, frame, n, dt, steps, method, forces, quad);
-}
-
-void block_steps_f64(Block<double>& B, const Consts<double>& k, const double (*frame)[kBlock], int n, double dt,
-                     int64_t steps, int64_t method, bool forces, bool quad) {
-  block_steps<double>(B, k, frame, n, dt, steps, method, forces, quad);
-}
+// instantiated here, inside the includer's instruction-set region, for both float types
+template void block_steps<float>(Block<float>&, const Consts<float>&, const float (*)[kBlock], int, float, int64_t,
+                                 int64_t, bool, bool);
+template void block_steps<double>(Block<double>&, const Consts<double>&, const double (*)[kBlock], int, double,
+                                  int64_t, int64_t, bool, bool);
