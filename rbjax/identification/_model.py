@@ -10,6 +10,7 @@ import functools
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
 
 from .. import _methods
@@ -265,12 +266,15 @@ def model_residuals(
     use_orientations=True,
     gyro_rotation=False,
     use_accel=False,
+    joins=None,
 ):
     """Residual vector ``r`` (segments' data rows, then join rows) and its dense Jacobian ``∂r/∂y``.
 
     ``y = (θ, [b], p_0, ..., p_{S-1})``: inertia parameters θ (5 or 6), with
     ``gyro_bias`` a constant body-frame gyro bias ``b`` (3, rad/s), with
     ``gyro_rotation`` the gyro-to-body rotation vector ``ρ`` (3, rad), then 6 per segment.
+    ``joins``: the segments ``s`` whose end is joined to the start of ``s + 1``
+    (a static tuple); ``None``: every one (one recording).
     """
     seg = data["seg"]
     S = seg["dt"].shape[0]
@@ -293,18 +297,22 @@ def model_residuals(
     B, K1 = sw.shape[1:]
     r_seg = (r_seg.reshape(S, B, K1, 3) * sw[..., None]).reshape(S, m)
     J_seg = (J_seg.reshape(S, B, K1, 3, -1) * sw[..., None, None]).reshape(S, m, -1)
+    # the joined segments s -> s + 1: all, or (several recordings of one body) those inside a recording
+    at = np.arange(S - 1) if joins is None else np.asarray(joins, int)
     if S == 1:  # single shooting: no joins
         return r_seg.reshape(-1), J_seg.reshape(m, -1)
-    c = functools.partial(_continuity, continuity_weight=data["continuity_weight"])  # traced: no recompile
-    nxt = jax.tree.map(lambda a: a[1:], seg)
-    cj = jax.jacfwd(lambda e, pn, dn: (c(e, pn, dn),) * 2, argnums=(0, 1), has_aux=True)
-    (Dc_end, Dc_p), r_c = jax.vmap(cj)(ends[:-1], P[1:], nxt)
     eye = jnp.eye(S, dtype=y.dtype)
     blocks = lambda B, E: jnp.einsum("sra,st->srta", B, E).reshape(B.shape[0] * B.shape[1], -1)
     J_top = jnp.concatenate([J_seg[..., :n_theta].reshape(S * m, n_theta), blocks(J_seg[..., n_theta:], eye)], -1)
-    Je = J_end[:-1]  # chain rule through the end state of segment s
+    if at.size == 0:  # recordings of one segment each: nothing joined
+        return r_seg.reshape(-1), J_top
+    c = functools.partial(_continuity, continuity_weight=data["continuity_weight"])  # traced: no recompile
+    nxt = jax.tree.map(lambda a: a[at + 1], seg)
+    cj = jax.jacfwd(lambda e, pn, dn: (c(e, pn, dn),) * 2, argnums=(0, 1), has_aux=True)
+    (Dc_end, Dc_p), r_c = jax.vmap(cj)(ends[at], P[at + 1], nxt)
+    Je = J_end[at]  # chain rule through the end state of segment s
     Jc_theta = jnp.einsum("sre,sea->sra", Dc_end, Je[..., :n_theta]).reshape(-1, n_theta)
-    Jc_p = blocks(jnp.einsum("sre,sea->sra", Dc_end, Je[..., n_theta:]), eye[:-1]) + blocks(Dc_p, eye[1:])
+    Jc_p = blocks(jnp.einsum("sre,sea->sra", Dc_end, Je[..., n_theta:]), eye[at]) + blocks(Dc_p, eye[at + 1])
     J = jnp.concatenate([J_top, jnp.concatenate([Jc_theta, Jc_p], -1)], 0)
     return jnp.concatenate([r_seg.reshape(-1), r_c.reshape(-1)]), J
 

@@ -364,3 +364,67 @@ def prepare(
         + (("gyro",) if use_rates else ())
         + (("accelerometer",) if use_accel else ()),
     )
+
+
+def _median_finite(a: np.ndarray) -> np.ndarray:
+    """Column medians of ``a (n, k)`` over its finite entries; NaN for a column without any."""
+    return np.array([np.median(c[np.isfinite(c)]) if np.isfinite(c).any() else np.nan for c in a.T])
+
+
+def join_problems(problems: list[Problem]) -> Problem:
+    """One problem of several single recordings of one body (``fit_inertia(..., joint=True)``).
+
+    Each recording keeps its segments and their nuisance parameters
+    ``(δ_s, ω_s)``; the shared block (inertia, sensor parameters) is one. The
+    segments are stacked in recording order and only the joins inside a
+    recording are kept (the static ``joins``: the segments ``s`` joined to
+    ``s + 1``), so the throws are independent motions of the same body. All
+    must be packed alike (``segments`` each, one ``pad_intervals`` and
+    ``substeps``). Start: the mean of the recordings' shared blocks. Each
+    sensor's noise level is the median of the recordings' (one sensor, one
+    level; each estimate on a short throw is noisy), ``noise_dof`` their sum. Sample indices
+    count the recordings' samples one after the other.
+    """
+    first = problems[0]
+    n_shared = first.y0.shape[1] - 6 * first.segments
+    shared = np.mean([p.y0[0, :n_shared] for p in problems], 0)
+    y0 = np.concatenate([shared] + [p.y0[0, n_shared:] for p in problems])[None]
+    stack = lambda name: np.stack([p.data[name][0] for p in problems])
+    noise = _median_finite(stack("noise_std"))
+    use_q, use_rates = first.static["use_orientations"], first.static["use_rates"]
+    segs = []
+    for p in problems:
+        # one sensor, one noise level: every recording weighted by the median of their levels
+        f_q, f_w, f_a = np.where(np.isfinite(noise), p.data["noise_std"][0] / noise, 1.0)
+        seg = dict(p.data["seg"])
+        seg["wq"], seg["ww"] = seg["wq"] * (f_q if use_q else 1.0), seg["ww"] * (f_w if use_rates else 1.0)
+        seg["wc"] = seg["wc"] * (f_w if use_rates else f_q)  # the rate join in the gyro's (or attitude's) units
+        seg["wcq"] = seg["wcq"] * (f_q if use_q else f_w)
+        if "wa" in seg:
+            seg["wa"] = seg["wa"] * f_a
+        segs.append(seg)
+    seg = jax.tree.map(lambda *a: np.concatenate(a, 1), *segs)
+    data = dict(
+        first.data,
+        seg=seg,
+        noise_std=noise[None],
+        noise_dof=stack("noise_dof").sum(0)[None],
+        n_data=stack("n_data").sum(0)[None],
+        n_unused=stack("n_unused").sum(0)[None],
+    )
+    joins, offset, index, valid = [], 0, [], []
+    sample_offset = 0
+    for p in problems:
+        joins += [offset + s for s in range(p.segments - 1)]
+        offset += p.segments
+        index.append(p.sample_index + sample_offset)
+        valid.append(p.sample_valid)
+        sample_offset += int(p.sample_index.max()) + 1
+    return first._replace(
+        y0=y0,
+        data=data,
+        static=dict(first.static, joins=tuple(joins)),
+        segments=offset,
+        sample_index=np.concatenate(index),
+        sample_valid=np.concatenate(valid),
+    )

@@ -132,7 +132,32 @@ class FitResult:
             fitted one by one: the largest).
         member_errors: for a batch or list with recordings that could not be
             fitted, one ``"recording i: reason"`` per such recording (the
-            ``ValueError`` a single fit of it raises); ``()`` otherwise.
+            ``ValueError`` a single fit of it raises); ``()`` otherwise. With
+            ``joint=True`` these recordings were left out of the joint fit.
+        joint: ``True`` for ``fit_inertia(..., joint=True)``: one inertia (and one
+            set of sensor parameters) fitted to all recordings; the fields above
+            then have no batch axis, ``initial_angular_velocity`` and
+            ``initial_orientation`` are the first fitted recording's,
+            ``robust_weights`` and ``outliers`` run over the fitted recordings'
+            samples one after the other, and ``failed`` is ``False``.
+        member_rms: joint fits: per recording given (``()`` otherwise), the RMS
+            of its whitened data residuals per degree of freedom relative to
+            the joint fit's, ``sqrt(χ²_i / (ν_i s²))`` with ``s = residual_ratio``
+            (dimensionless, ≈ 1 for a recording that agrees with the others);
+            NaN for a recording left out.
+        member_chi2: per recording, its whitened data sum of squares ``χ²_i = Σ r²``.
+        member_dof: per recording, ``ν_i = n_i - (6 - u_i) - p_s n_i / n``:
+            its residual count ``n_i`` less its own free start state (6, or 3
+            without orientations: ``u_i = 3``) and its share of the ``p_s``
+            shared parameters.
+        member_pvalue: per recording, ``P(χ²(ν_i) ≥ χ²_i / s²)``: the chance of
+            residuals this much larger than the joint fit's level if it were
+            like the others. One below ``CONSISTENCY_ALPHA`` disagrees with
+            the rest (a different body, a collision, a gyro glitch) and is the
+            one to inspect. (Against ``s²`` rather than the estimated noise
+            levels: on short, fast throws the second differences include the
+            motion's and over-estimate the noise; ``s²`` is checked by
+            ``model_consistent``.)
     """
 
     inertia: Float[Array, "*N 3 3"] = field(core_ndim=2)
@@ -172,6 +197,11 @@ class FitResult:
     scale_fixed: bool = static_field(default=False)
     segments: int = static_field(default=1)
     member_errors: tuple = static_field(default=())
+    joint: bool = static_field(default=False)
+    member_rms: tuple = static_field(default=())
+    member_chi2: tuple = static_field(default=())
+    member_dof: tuple = static_field(default=())
+    member_pvalue: tuple = static_field(default=())
 
 
 _BOUNDARY_RTOL = 1e-3  # (I1 + I2 - I3) / tr I below this: on the edge of the consistent set
@@ -320,11 +350,16 @@ def summarise(
     else:
         rot, rot_std = jnp.zeros(4, y.dtype).at[0].set(1), nan3
     n_kept = 3 * jnp.sum(kept, (0, 2))  # per sensor block
-    rms = jnp.sqrt(jnp.sum(r_kept**2 / seg["rw"][..., None], (0, 2, 3)) / n_kept)  # undo √w: σ units
+    # undo √w and each segment's inverse noise level (recordings fitted jointly have their own): sensor units
+    inv_noise = jnp.stack(
+        [seg[k] for k, on in (("wq", use_orientations), ("ww", use_rates), ("wa", use_accel)) if on], 1
+    )
+    r_units = r_kept / (jnp.sqrt(seg["rw"]) * inv_noise[..., None])[..., None]
+    rms = jnp.sqrt(jnp.sum(r_units**2, (0, 2, 3)) / n_kept)
     nan = jnp.full((), jnp.nan, r.dtype)
-    q_rms = rms[0] / seg["wq"][0] if use_orientations else nan
-    w_rms = rms[int(use_orientations)] / seg["ww"][0] if use_rates else nan
-    a_rms = rms[-1] / seg["wa"][0] if use_accel else nan
+    q_rms = rms[0] if use_orientations else nan
+    w_rms = rms[int(use_orientations)] if use_rates else nan
+    a_rms = rms[-1] if use_accel else nan
     # honest failure: the triangle margin I1 + I2 - I3 = 2 λ_min(Σ) near zero, or residuals
     # far above the noise model
     on_boundary = (moments[0] + moments[1] - moments[2]) < _BOUNDARY_RTOL * jnp.sum(moments)
