@@ -88,6 +88,7 @@ _FIT_OPTIONS = {  # CLI flag destination -> fit_inertia keyword, passed only whe
     "max_steps": "max_steps",
     "loss": "loss",
     "loss_scale": "loss_scale",
+    "drag": "drag",
 }
 
 
@@ -160,6 +161,9 @@ def _fit(args: argparse.Namespace) -> int:
         if key in out:
             values = zip(out[key], out[key + "_std"], strict=True)
             print(f"{label} ({unit}): " + ", ".join(f"{v: .4e} ± {s:.1e}" for v, s in values))
+    if "drag" in out:
+        values = zip(out["drag"], out["drag_std"], strict=True)
+        print("drag (c1, c2; relative to tr I without torques): " + ", ".join(f"{v: .4e} ± {s:.1e}" for v, s in values))
     if "gyro_rotation" in out:
         print("gyro to body rotation [w, x, y, z]: " + ", ".join(f"{v: .6f}" for v in out["gyro_rotation"]))
     if out.get("outliers"):
@@ -448,6 +452,8 @@ def _fit_report(res) -> dict:
         std = getattr(res, k + "_std")
         if np.all(np.isfinite(np.asarray(std))):
             out[k], out[k + "_std"] = np.asarray(getattr(res, k)).tolist(), np.asarray(std).tolist()
+    if np.any(np.isfinite(np.asarray(res.drag))):  # NaN unless drag= was given
+        out["drag"], out["drag_std"] = np.asarray(res.drag).tolist(), np.asarray(res.drag_std).tolist()
     if np.all(np.isfinite(np.asarray(res.gyro_rotation_std))):  # NaN unless gyro_rotation=True
         out["gyro_rotation"] = np.asarray(res.gyro_rotation).tolist()
         out["gyro_rotation_std_rad"] = np.asarray(res.gyro_rotation_std).tolist()
@@ -541,6 +547,12 @@ def build_parser() -> argparse.ArgumentParser:
     noise.add_argument("--acceleration-std", type=float, default=None, metavar="M_S2", help="accelerometer noise")
     sensors = fit.add_argument_group("sensor models (each opt-in)")
     sensors.add_argument("--gyro-only", action="store_true", help="ignore the quaternion columns: fit body rates alone")
+    sensors.add_argument(
+        "--drag",
+        choices=["linear", "quadratic"],
+        default=None,
+        help="fit a body-frame air-drag torque -(c1 + c2|w|) w (default: none)",
+    )
     sensors.add_argument("--gyro-bias", action="store_true", help="fit a constant gyro bias (rad/s)")
     sensors.add_argument(
         "--gyro-rotation", action="store_true", help="fit a fixed rotation from the gyro frame to the body frame"

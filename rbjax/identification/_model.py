@@ -90,6 +90,7 @@ def _segments(
     use_orientations=True,
     gyro_rotation=False,
     use_accel=False,
+    drag=0,
 ):
     """Data residuals ``(S, m)`` and end states ``(q, ω_body)`` ``(S, 7)`` of all segments, and
     their derivatives ``(S, m, n)``, ``(S, 7, n)`` in each segment's ``x_s = X[s]`` (``n = n_θ + 6``).
@@ -171,7 +172,15 @@ def _segments(
         args = dict(q=r0[0], L=r0[1], inv=inv, dq=dr0[0], dL=dr0[1], dinv=dinv, dt=seg["dt"], obs=obs, const=const)
         if frame is not None:
             args["tau"] = seg["tau" if frame == "world" else "tau_b"]
-        (q_end, dq_end), y, dy = flow(substeps, frame, _observe)(args)
+        if drag:  # the coefficients (c₁, c₂) close the shared block; "linear" fits c₁ alone
+            k = jnp.zeros((X.shape[0], 2), X.dtype).at[:, :drag].set(X[:, n_theta - drag : n_theta])
+            dk = (
+                jnp.zeros((X.shape[0], X.shape[1], 2), X.dtype)
+                .at[:, :, :drag]
+                .set(jnp.broadcast_to(basis[:, n_theta - drag : n_theta], (X.shape[0], X.shape[1], drag)))
+            )
+            args.update(drag=k, ddrag=dk)
+        (q_end, dq_end), y, dy = flow(substeps, frame, _observe, bool(drag))(args)
     else:
         K = seg["dt"].shape[1]
         dts = jnp.broadcast_to((seg["dt"] / substeps).T[:, None], (K, substeps, X.shape[0]))
@@ -267,18 +276,20 @@ def model_residuals(
     gyro_rotation=False,
     use_accel=False,
     joins=None,
+    drag=0,
 ):
     """Residual vector ``r`` (segments' data rows, then join rows) and its dense Jacobian ``∂r/∂y``.
 
     ``y = (θ, [b], p_0, ..., p_{S-1})``: inertia parameters θ (5 or 6), with
     ``gyro_bias`` a constant body-frame gyro bias ``b`` (3, rad/s), with
     ``gyro_rotation`` the gyro-to-body rotation vector ``ρ`` (3, rad), then 6 per segment.
+    ``drag``: 0, 1 or 2 drag coefficients ``(c₁[, c₂])`` closing the shared block.
     ``joins``: the segments ``s`` whose end is joined to the start of ``s + 1``
     (a static tuple); ``None``: every one (one recording).
     """
     seg = data["seg"]
     S = seg["dt"].shape[0]
-    n_theta = (6 if scale_fixed else 5) + 3 * gyro_bias + 3 * gyro_rotation + 6 * use_accel  # shared block
+    n_theta = (6 if scale_fixed else 5) + 3 * gyro_bias + 3 * gyro_rotation + 6 * use_accel + drag  # shared block
     theta, P = unpack(y, n_theta, S)
     X = jnp.concatenate([jnp.broadcast_to(theta, (S, n_theta)), P], -1)  # x_s = (θ, p_s)
     kw = dict(n_theta=n_theta, scale_fixed=scale_fixed, method=method, substeps=substeps, use_rates=use_rates)
@@ -290,6 +301,7 @@ def model_residuals(
         use_orientations=use_orientations,
         gyro_rotation=gyro_rotation,
         use_accel=use_accel,
+        drag=drag,
     )
     m = r_seg.shape[1]
     # robust (IRLS) weights per sample and sensor block, rw (S, blocks, K+1): rows scaled by √w
@@ -315,6 +327,21 @@ def model_residuals(
     Jc_p = blocks(jnp.einsum("sre,sea->sra", Dc_end, Je[..., n_theta:]), eye[at]) + blocks(Dc_p, eye[at + 1])
     J = jnp.concatenate([J_top, jnp.concatenate([Jc_theta, Jc_p], -1)], 0)
     return jnp.concatenate([r_seg.reshape(-1), r_c.reshape(-1)]), J
+
+
+def drag_coefficients(y, scale_fixed, at, n):
+    """The ``n`` fitted drag coefficients ``y[at:at+n]`` padded to ``(c₁, c₂)``, in reported units.
+
+    Without torques only ``I / tr I`` is identifiable and the damping torque
+    scales with the inertia (``I ω̇ + ω × I ω = -(c₁ + c₂|ω|) ω`` is unchanged by
+    ``(I, c) → (λI, λc)``): the coefficients are reported relative to ``tr I``
+    (``c₁ / tr I`` in 1/s, ``c₂ / tr I`` in 1/rad); with torques absolute
+    (N m s, N m s²).
+    """
+    c = jnp.zeros(2, y.dtype).at[:n].set(y[at : at + n])
+    if scale_fixed:
+        return c
+    return c / jnp.trace(_inertia(y[:5], scale_fixed))
 
 
 def normalised_moments(y, scale_fixed):

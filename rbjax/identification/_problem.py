@@ -90,6 +90,10 @@ def _check_gyro_units(rates: np.ndarray, implied: np.ndarray) -> None:
             )
 
 
+# fitted drag coefficients per model: "linear" c₁, "quadratic" c₁ and c₂ (τ_b = -(c₁ + c₂|ω|) ω)
+_DRAG_COEFFICIENTS = {None: 0, "linear": 1, "quadratic": 2}
+
+
 class Problem(NamedTuple):
     """Recordings packed for the solver: start ``y0 (N, p)``, segment data (leading ``N``), static options."""
 
@@ -124,6 +128,7 @@ def prepare(
     accelerations=None,
     acceleration_std=None,
     pad_intervals=None,
+    drag=None,
 ) -> Problem:
     """Validate recordings and pack them for :func:`rbjax.fit_inertia` (arguments as there).
 
@@ -178,6 +183,18 @@ def prepare(
                 "fit_inertia: accelerations= are modelled for free flight only (ω̇ from the torque-free "
                 "Euler equations); omit torques=/body_torques= or accelerations="
             )
+    if drag not in _DRAG_COEFFICIENTS:
+        raise ValueError(
+            f"fit_inertia: drag must be None, 'linear' or 'quadratic' (the body-frame damping model), got {drag!r}"
+        )
+    n_drag = _DRAG_COEFFICIENTS[drag]
+    if n_drag and method not in ("rk4",):
+        raise ValueError(f"fit_inertia: drag= is modelled with method='rk4' only, got method={method!r}")
+    if n_drag and use_accel:
+        raise ValueError(
+            "fit_inertia: accelerations= are modelled for free flight without torques (ω̇ from the "
+            "torque-free Euler equations); omit drag= or accelerations="
+        )
     if gyro_bias and not use_rates:
         raise ValueError("fit_inertia: gyro_bias=True needs body_rates (there is no gyro to be biased)")
 
@@ -198,7 +215,7 @@ def prepare(
     if S < 1 or (T - 1) // S < 2:
         raise ValueError(f"fit_inertia: segments={segments} needs at least 2 intervals each; T = {T}")
     n_theta = 5 if torque_free else 6
-    n_params = n_theta + 3 * gyro_bias + 3 * gyro_rotation + 6 * use_accel + 6 * S
+    n_params = n_theta + 3 * gyro_bias + 3 * gyro_rotation + 6 * use_accel + n_drag + 6 * S
     n_data = 3 * T * (int(use_q) + int(use_rates) + int(use_accel))
     if n_data <= n_params + 1:
         raise ValueError(
@@ -282,6 +299,7 @@ def prepare(
             Wx = skew(wn)
             A = np.concatenate([skew(wd) + Wx @ Wx, np.broadcast_to(np.eye(3), (T, 3, 3))], -1).reshape(-1, 6)
             theta0 = np.concatenate([theta0, np.linalg.lstsq(A, acc[n].reshape(-1), rcond=None)[0]])
+        theta0 = np.concatenate([theta0, np.zeros(n_drag)])  # drag starts at none
         w_start = rates[n][starts]
         y0s.append(np.concatenate([theta0, np.column_stack([np.zeros((S, 3)), w_start]).reshape(-1)]))
         first = (np.arange(S) == 0).astype(np.float64)
@@ -355,6 +373,7 @@ def prepare(
             use_orientations=use_q,
             gyro_rotation=gyro_rotation,
             use_accel=use_accel,
+            drag=n_drag,
         ),
         batched=batched,
         segments=S,

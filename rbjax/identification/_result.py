@@ -9,7 +9,7 @@ from jaxtyping import Bool, Float, Int
 
 from .._math import quat_exp, quat_multiply
 from .._pytree import field, pytree_dataclass, static_field
-from ._model import normalised_moments, unpack
+from ._model import drag_coefficients, normalised_moments, unpack
 
 
 @pytree_dataclass
@@ -123,6 +123,14 @@ class FitResult:
             noise level is ``noise_std · noise_scale``, and the covariance
             uses it (so a wrong or guessed level does not mis-state σ; the
             consistency test says whether the difference is noise).
+        drag: ``(2,)`` fitted drag coefficients ``(c₁, c₂)`` of the body-frame
+            damping torque ``τ_b = -(c₁ + c₂ |ω|) ω`` with ``fit_inertia(...,
+            drag=...)`` (``c₂ = 0`` for ``"linear"``); NaN without drag.
+            Relative to ``tr I`` when the scale is free (``c₁ / tr I`` in 1/s,
+            ``c₂ / tr I`` in 1/rad: only ``I / tr I`` is identifiable, and the
+            damping scales with it); absolute (N m s, N m s²) with torques.
+        drag_std: ``(2,)`` their one-sigma uncertainty (same units and covariance
+            as ``moment_std``); NaN for a coefficient not fitted.
         failed: ``True`` for a recording of a batch or list that could not be
             fitted (its reason in ``member_errors``); its other fields are NaN
             (``False``, 0). Always ``False`` for a single recording, which raises instead.
@@ -194,6 +202,8 @@ class FitResult:
     noise_estimated: Bool[Array, "*N 3"] = field(core_ndim=1)
     noise_scale: Float[Array, "*N 3"] = field(core_ndim=1)
     failed: Bool[Array, "*N"] = field(core_ndim=0)
+    drag: Float[Array, "*N 2"] = field(core_ndim=1, default=(float("nan"),) * 2)
+    drag_std: Float[Array, "*N 2"] = field(core_ndim=1, default=(float("nan"),) * 2)
     scale_fixed: bool = static_field(default=False)
     segments: int = static_field(default=1)
     member_errors: tuple = static_field(default=())
@@ -271,6 +281,7 @@ def summarise(
     outlier_weight=0.0,
     gyro_rotation=False,
     use_accel=False,
+    drag=0,
 ):
     """FitResult fields of one recording from the solver's final ``y``, residuals ``r`` and Jacobian ``J``.
 
@@ -306,7 +317,11 @@ def summarise(
     _, V = jnp.linalg.eigh(I)
     V = jax.lax.stop_gradient(V)
     G = jax.jacfwd(lambda yy: jnp.einsum("ik,ij,jk->k", V, normalised_moments(yy, scale_fixed)[0], V))(y)
-    var = _variances(J, n_rows, n_cont, row_s2, jnp.concatenate([G, jnp.eye(p, dtype=y.dtype)]))
+    n_D = (6 if scale_fixed else 5) + 3 * gyro_bias + 3 * gyro_rotation + 6 * use_accel  # drag closes the block
+    c_drag = lambda yy: drag_coefficients(yy, scale_fixed, n_D, drag)
+    G_drag = jax.jacfwd(c_drag)(y)
+    var = _variances(J, n_rows, n_cont, row_s2, jnp.concatenate([G, jnp.eye(p, dtype=y.dtype), G_drag]))
+    var, var_drag = var[:-2], var[-2:]
     # on the edge of the consistent set (I1 + I2 ≈ I3) the log-Cholesky map flattens: J's inertia
     # columns and G both vanish along the flat direction, and a rounding-level cut would read
     # "independent of it" (σ ~1e-7 on a degenerate fit). There the moments' σ is taken in the
@@ -334,7 +349,10 @@ def summarise(
     n_I = 6 if scale_fixed else 5
     n_R = n_I + (3 if gyro_bias else 0)
     n_A = n_R + (3 if gyro_rotation else 0)
-    _, P = unpack(y, n_A + (6 if use_accel else 0), S)
+    _, P = unpack(y, n_A + (6 if use_accel else 0) + drag, S)
+    nan2 = jnp.full(2, jnp.nan, y.dtype)
+    drag_value = c_drag(y) if drag else nan2
+    drag_std = jnp.where(jnp.arange(2) < drag, jnp.sqrt(var_drag), jnp.nan) if drag else nan2
     if use_accel:
         a_std = param_std[n_A : n_A + 6]
         lever, lever_std, a_bias, a_bias_std = y[n_A : n_A + 3], a_std[:3], y[n_A + 3 : n_A + 6], a_std[3:]
@@ -410,4 +428,6 @@ def summarise(
         noise_std=noise_std,
         noise_estimated=~jnp.isinf(data["noise_dof"]) & ~jnp.isnan(noise_std),
         noise_scale=noise_scale,
+        drag=drag_value,
+        drag_std=drag_std,
     )
