@@ -13,6 +13,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import rbjax as rb
+from rbjax.identification import _fit
 
 jax.config.update("jax_enable_x64", True)
 
@@ -91,6 +92,17 @@ def test_joint_fit_leaves_out_a_bad_throw_and_names_a_disagreeing_one(five):
     assert p[2] < 1e-3 and np.all(np.delete(p, 2) > 1e-3), p
     assert int(np.argmax(res.member_rms[:5])) == 2
     assert not bool(res.model_consistent)  # the joint χ² sees the other body too
+
+
+def test_joint_fit_of_new_lengths_in_the_same_buckets_does_not_recompile(five):
+    # throws a few samples shorter: the same segments (1 each), the longest's intervals in the same
+    # bucket (98 and 99 → 104 padded), the same substeps: the compiled joint program is reused
+    ts, ws, _ = five
+    cut = (38, 53, 66, 84, 99)
+    n_compiled = _fit._fit_batch_jit(jax.default_backend())._cache_size()
+    res = rb.fit_inertia([t[:n] for t, n in zip(ts, cut)], body_rates=[w[:n] for w, n in zip(ws, cut)], joint=True)
+    assert _fit._fit_batch_jit(jax.default_backend())._cache_size() == n_compiled
+    np.testing.assert_array_less(np.abs(np.asarray(res.principal_moments) - TRUTH), 3 * np.asarray(res.moment_std))
 
 
 def test_joint_needs_several_recordings():
