@@ -128,7 +128,7 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
     return summary(jax.lax.while_loop(lambda c: c[0], body, (jnp.array(True), first, out0))[2], member(data, 0))
 
 
-_SUMMARY_OPTS = ("scale_fixed", "use_rates", "gyro_bias", "use_orientations", "gyro_rotation", "use_accel", "drag")
+_SUMMARY_OPTS = ("scale_fixed", "use_rates", "use_orientations", "layout")
 # Levenberg–Marquardt steps per round of the queue between retiring and refilling slots
 _STEPS_PER_ROUND = 4
 # the queue's width: per recording, the model of 64 slots of 1 s @ 200 Hz was 1.25-1.5x cheaper
@@ -335,33 +335,24 @@ def fit_inertia(
             or too little excitation (naming the unidentifiable directions), or
             ``body_rates`` that look world-frame (``check_gyro_frame``).
     """
+    arrays = dict(
+        orientations=orientations,
+        body_rates=body_rates,
+        torques=torques,
+        body_torques=body_torques,
+        accelerations=accelerations,
+    )
     if isinstance(times, Recording) or (
         isinstance(times, (list, tuple)) and len(times) > 0 and all(isinstance(r, Recording) for r in times)
     ):
-        given = [
-            k
-            for k, v in dict(
-                orientations=orientations,
-                body_rates=body_rates,
-                torques=torques,
-                body_torques=body_torques,
-                accelerations=accelerations,
-            ).items()
-            if v is not None
-        ]
+        given = [k for k, v in arrays.items() if v is not None]
         if given:
             raise TypeError(
                 f"fit_inertia: the first argument is a Recording, which carries the data; do not also pass {given} "
                 "(build the Recording with them instead)"
             )
         times, data = to_fit_arguments(times)
-        orientations, body_rates, torques, body_torques, accelerations = (
-            data["orientations"],
-            data["body_rates"],
-            data["torques"],
-            data["body_torques"],
-            data["accelerations"],
-        )
+        arrays = {k: data[k] for k in arrays}
     options = dict(
         initial_inertia=initial_inertia,
         method=method,
@@ -382,13 +373,6 @@ def fit_inertia(
         loss_scale=loss_scale,
         drag=drag,
     )
-    arrays = dict(
-        orientations=orientations,
-        body_rates=body_rates,
-        torques=torques,
-        body_torques=body_torques,
-        accelerations=accelerations,
-    )
     if not isinstance(joint, (bool, np.bool_)):
         raise TypeError(f"fit_inertia: joint must be True or False, got {type(joint).__name__}")
     if joint:
@@ -402,7 +386,7 @@ def fit_inertia(
     if _is_ragged(times):
         return _fit_members(_ragged_members(times, arrays), options)
     try:
-        return _fit_regular(times, **arrays, **options)
+        return _fit_regular(times, arrays, options)
     except ValueError:
         members = _batch_members(times, arrays)
         if members is None:  # one recording, or a batch-wide problem: the message stands
@@ -410,82 +394,12 @@ def fit_inertia(
         return _fit_members(members, options)
 
 
-def _fit_regular(
-    times,
-    orientations,
-    *,
-    body_rates,
-    torques,
-    body_torques,
-    initial_inertia,
-    method,
-    segments,
-    substeps,
-    orientation_std,
-    rate_std,
-    continuity_weight,
-    excitation_tol,
-    rtol,
-    atol,
-    max_steps,
-    check_gyro_frame,
-    gyro_bias,
-    gyro_rotation,
-    accelerations,
-    acceleration_std,
-    loss,
-    loss_scale,
-    drag=None,
-) -> FitResult:
+def _fit_regular(times, arrays, options) -> FitResult:
     """:func:`fit_inertia` on one recording or a regular batch ``(N, T, ...)``: any bad input raises."""
-    check_arrays(
-        times=times,
-        orientations=orientations,
-        body_rates=body_rates,
-        torques=torques,
-        body_torques=body_torques,
-        initial_inertia=initial_inertia,
-        accelerations=accelerations,
-        orientation_std=orientation_std,
-        rate_std=rate_std,
-        acceleration_std=acceleration_std,
-    )
-    check_options(
-        orientation_std=orientation_std,
-        rate_std=rate_std,
-        continuity_weight=continuity_weight,
-        excitation_tol=excitation_tol,
-        rtol=rtol,
-        atol=atol,
-        max_steps=max_steps,
-        segments=segments,
-        substeps=substeps,
-        loss=loss,
-        loss_scale=loss_scale,
-        acceleration_std=acceleration_std,
-    )
-    prob = prepare(
-        times,
-        orientations,
-        body_rates,
-        torques,
-        initial_inertia=initial_inertia,
-        method=method,
-        segments=segments,
-        substeps=substeps,
-        orientation_std=orientation_std,
-        rate_std=rate_std,
-        continuity_weight=continuity_weight,
-        excitation_tol=excitation_tol,
-        check_gyro_frame=bool(check_gyro_frame),
-        gyro_bias=gyro_bias,
-        body_torques=body_torques,
-        gyro_rotation=gyro_rotation,
-        accelerations=accelerations,
-        acceleration_std=None if acceleration_std is None else float(acceleration_std),
-        drag=drag,
-    )
-    return _solve(prob, dict(loss=loss, loss_scale=loss_scale, rtol=rtol, atol=atol, max_steps=max_steps))
+    stds = {k: options[k] for k in ("initial_inertia", "orientation_std", "rate_std", "acceleration_std")}
+    check_arrays(times=times, **arrays, **stds)
+    check_options(**{k: options[k] for k in _OPTION_NAMES})
+    return _solve(_fit_regular_check(times, arrays, options), options)
 
 
 _OPTION_NAMES = (
@@ -601,7 +515,7 @@ def _fit_members(members, options) -> FitResult:
     if len(lengths) == 1 and all(members[i][0] is members[good[0]][0] for i in good):
         t = members[good[0]][0]
         stacked = {k: _stack_or_share([members[i][1][k] for i in good]) for k in _PER_MEMBER_NDIM}
-        batch = _fit_regular(t, **stacked, **options)
+        batch = _fit_regular(t, stacked, options)
         for j, i in enumerate(good):
             results[i] = jax.tree.map(lambda a, j=j: a[j], batch)
     else:
@@ -656,7 +570,7 @@ def _fit_joint(members, options) -> FitResult:
     r = np.asarray(res.residuals)[: S * blocks * K1 * 3].reshape(S, blocks, K1, 3)
     valid = np.concatenate([seg["first"][0][:, None], seg["mask"][0]], 1)  # (S, K+1)
     n_all = 3 * blocks * valid.sum()
-    n_shared = prob.y0.shape[1] - 6 * S
+    n_shared = prob.static["layout"].shared
     s2 = float(res.residual_ratio) ** 2
     stats = {}
     start = 0

@@ -18,6 +18,7 @@ from .. import _methods
 from .._body import Body
 from .._state import State
 from ._checks import check_inputs, gyro_frame_check
+from ._layout import Layout
 from ._linear import (
     body_momentum_system,
     check_identifiability,
@@ -99,7 +100,7 @@ class Problem(NamedTuple):
 
     y0: np.ndarray
     data: dict
-    static: dict  # scale_fixed, method, substeps, use_rates: fixed per compiled program
+    static: dict  # scale_fixed, method, substeps, use_rates, use_orientations, layout: fixed per compiled program
     batched: bool
     segments: int
     sample_index: np.ndarray  # (S, K+1) recording sample of each segment row
@@ -214,8 +215,14 @@ def prepare(
     S = int(segments)
     if S < 1 or (T - 1) // S < 2:
         raise ValueError(f"fit_inertia: segments={segments} needs at least 2 intervals each; T = {T}")
-    n_theta = 5 if torque_free else 6
-    n_params = n_theta + 3 * gyro_bias + 3 * gyro_rotation + 6 * use_accel + n_drag + 6 * S
+    layout = Layout(
+        inertia=5 if torque_free else 6,
+        gyro_bias=3 * gyro_bias,
+        gyro_rotation=3 * gyro_rotation,
+        accelerometer=6 * use_accel,
+        drag=n_drag,
+    )
+    n_theta, n_params = layout.inertia, layout.size(S)
     n_data = 3 * T * (int(use_q) + int(use_rates) + int(use_accel))
     if n_data <= n_params + 1:
         raise ValueError(
@@ -286,11 +293,9 @@ def prepare(
             Body(1.0, I0)  # validates a user guess
         if torque_free:  # the gauge log L00 = 0: rescale so that Σ_xx = 1, drop θ0
             I0 = I0 / (0.5 * np.trace(I0) - I0[0, 0])
-        theta0 = np_params_from_inertia(I0)[(1 if torque_free else 0) :]
-        if gyro_bias:
-            theta0 = np.concatenate([theta0, np.zeros(3)])  # the bias starts at zero
-        if gyro_rotation:
-            theta0 = np.concatenate([theta0, np.zeros(3)])  # and the gyro frame at the body frame
+        # the gyro bias, the gyro frame's rotation and the drag start at zero
+        theta0 = np.zeros(layout.shared)
+        theta0[layout.span("inertia")] = np_params_from_inertia(I0)[(1 if torque_free else 0) :]
         if use_accel:
             # lever arm and bias from linear least squares: a = ([ω̇]× + [ω]×²) r + b_a with the
             # start inertia's ω̇ = -I⁻¹ (ω × I ω), linear in (r, b_a)
@@ -298,8 +303,7 @@ def prepare(
             wd = -np.linalg.solve(I0, np.cross(wn, wn @ I0.T).T).T
             Wx = skew(wn)
             A = np.concatenate([skew(wd) + Wx @ Wx, np.broadcast_to(np.eye(3), (T, 3, 3))], -1).reshape(-1, 6)
-            theta0 = np.concatenate([theta0, np.linalg.lstsq(A, acc[n].reshape(-1), rcond=None)[0]])
-        theta0 = np.concatenate([theta0, np.zeros(n_drag)])  # drag starts at none
+            theta0[layout.span("accelerometer")] = np.linalg.lstsq(A, acc[n].reshape(-1), rcond=None)[0]
         w_start = rates[n][starts]
         y0s.append(np.concatenate([theta0, np.column_stack([np.zeros((S, 3)), w_start]).reshape(-1)]))
         first = (np.arange(S) == 0).astype(np.float64)
@@ -369,11 +373,8 @@ def prepare(
             method=method,
             substeps=int(substeps),
             use_rates=use_rates,
-            gyro_bias=gyro_bias,
             use_orientations=use_q,
-            gyro_rotation=gyro_rotation,
-            use_accel=use_accel,
-            drag=n_drag,
+            layout=layout,
         ),
         batched=batched,
         segments=S,
@@ -405,7 +406,7 @@ def join_problems(problems: list[Problem]) -> Problem:
     count the recordings' samples one after the other.
     """
     first = problems[0]
-    n_shared = first.y0.shape[1] - 6 * first.segments
+    n_shared = first.static["layout"].shared
     shared = np.mean([p.y0[0, :n_shared] for p in problems], 0)
     y0 = np.concatenate([shared] + [p.y0[0, n_shared:] for p in problems])[None]
     stack = lambda name: np.stack([p.data[name][0] for p in problems])

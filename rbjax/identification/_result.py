@@ -9,6 +9,7 @@ from jaxtyping import Bool, Float, Int
 
 from .._math import quat_exp, quat_multiply
 from .._pytree import field, pytree_dataclass, static_field
+from ._layout import Layout
 from ._model import drag_coefficients, normalised_moments, unpack
 
 
@@ -276,12 +277,9 @@ def summarise(
     *,
     scale_fixed,
     use_rates,
-    gyro_bias,
+    layout: Layout,
     use_orientations=True,
     outlier_weight=0.0,
-    gyro_rotation=False,
-    use_accel=False,
-    drag=0,
 ):
     """FitResult fields of one recording from the solver's final ``y``, residuals ``r`` and Jacobian ``J``.
 
@@ -292,6 +290,7 @@ def summarise(
     seg = data["seg"]
     S, K = seg["dt"].shape
     p = y.shape[0]
+    use_accel = bool(layout.accelerometer)
     n_blocks = int(use_orientations) + int(use_rates) + int(use_accel)
     n_rows = S * (3 + 3 * K) * n_blocks  # data rows, incl. zero padding
     n_cont = r.shape[0] - n_rows
@@ -317,8 +316,7 @@ def summarise(
     _, V = jnp.linalg.eigh(I)
     V = jax.lax.stop_gradient(V)
     G = jax.jacfwd(lambda yy: jnp.einsum("ik,ij,jk->k", V, normalised_moments(yy, scale_fixed)[0], V))(y)
-    n_D = (6 if scale_fixed else 5) + 3 * gyro_bias + 3 * gyro_rotation + 6 * use_accel  # drag closes the block
-    c_drag = lambda yy: drag_coefficients(yy, scale_fixed, n_D, drag)
+    c_drag = lambda yy: drag_coefficients(yy, scale_fixed, layout)
     G_drag = jax.jacfwd(c_drag)(y)
     var = _variances(J, n_rows, n_cont, row_s2, jnp.concatenate([G, jnp.eye(p, dtype=y.dtype), G_drag]))
     var, var_drag = var[:-2], var[-2:]
@@ -327,7 +325,7 @@ def summarise(
     # "independent of it" (σ ~1e-7 on a degenerate fit). There the moments' σ is taken in the
     # inertia's own coordinates c (the 6 entries, or 5 of the unit-trace ones): J_c = J_θ (∂c/∂θ)⁻¹,
     # where the flat direction is a small singular value of J_c with an O(1) G_c: σ finite or inf
-    n_I = 6 if scale_fixed else 5
+    n_I = layout.inertia
     pick = jnp.array([0, 4, 8, 1, 2, 5]) if scale_fixed else jnp.array([0, 4, 1, 2, 5])
     c_of = lambda th: normalised_moments(jnp.concatenate([th, y[n_I:]]), scale_fixed)[0].reshape(-1)[pick]
     M = jax.jacfwd(c_of)(y[:n_I])  # (n_I, n_I)
@@ -346,25 +344,25 @@ def summarise(
     std, param_std = jnp.sqrt(jnp.where(on_edge, var_c, var[:3])), jnp.sqrt(var[3:])
     _, axes = jnp.linalg.eigh(I)
     axes = axes * jnp.sign(jnp.linalg.det(axes))
-    n_I = 6 if scale_fixed else 5
-    n_R = n_I + (3 if gyro_bias else 0)
-    n_A = n_R + (3 if gyro_rotation else 0)
-    _, P = unpack(y, n_A + (6 if use_accel else 0) + drag, S)
+    _, P = unpack(y, layout.shared, S)
     nan2 = jnp.full(2, jnp.nan, y.dtype)
+    drag = layout.drag
     drag_value = c_drag(y) if drag else nan2
     drag_std = jnp.where(jnp.arange(2) < drag, jnp.sqrt(var_drag), jnp.nan) if drag else nan2
     if use_accel:
-        a_std = param_std[n_A : n_A + 6]
-        lever, lever_std, a_bias, a_bias_std = y[n_A : n_A + 3], a_std[:3], y[n_A + 3 : n_A + 6], a_std[3:]
+        at = layout.span("accelerometer")
+        (lever, a_bias), (lever_std, a_bias_std) = jnp.split(y[at], 2), jnp.split(param_std[at], 2)
     else:
         lever = lever_std = a_bias = a_bias_std = jnp.full(3, jnp.nan, y.dtype)
     nan3 = jnp.full(3, jnp.nan, y.dtype)
-    if gyro_bias:
-        bias, bias_std = y[n_I : n_I + 3], param_std[n_I : n_I + 3]
+    if layout.gyro_bias:
+        at = layout.span("gyro_bias")
+        bias, bias_std = y[at], param_std[at]
     else:
         bias, bias_std = jnp.zeros(3, y.dtype), nan3
-    if gyro_rotation:
-        rot, rot_std = quat_exp(y[n_R : n_R + 3]), param_std[n_R : n_R + 3]
+    if layout.gyro_rotation:
+        at = layout.span("gyro_rotation")
+        rot, rot_std = quat_exp(y[at]), param_std[at]
     else:
         rot, rot_std = jnp.zeros(4, y.dtype).at[0].set(1), nan3
     n_kept = 3 * jnp.sum(kept, (0, 2))  # per sensor block
