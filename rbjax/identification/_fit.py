@@ -292,7 +292,11 @@ def fit_inertia(
             fitted (too short, non-finite, unexcited) is left out and named in
             ``member_errors``. Recordings are packed with one intervals-per-segment
             and ``substeps`` (the longest's, the largest), each with its own
-            number of segments. ``False`` (default): each recording is fitted on its own.
+            number of segments: one compiled program per total number of
+            segments and padded length, so new throws of lengths in the same
+            buckets reuse it (a different number of throws compiles anew).
+            ``robust_weights`` and ``outliers`` run over the recordings' samples
+            one after the other. ``False`` (default): each recording is fitted on its own.
         drag: air drag, opt-in: ``"linear"`` adds the body-frame damping torque
             ``τ_b = -c₁ ω`` to Euler's law, ``"quadratic"`` ``τ_b = -(c₁ + c₂ |ω|) ω``
             (``ω`` body frame, rad/s; ``c₁`` N m s, ``c₂`` N m s²), with the
