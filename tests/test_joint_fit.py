@@ -105,6 +105,19 @@ def test_joint_fit_of_new_lengths_in_the_same_buckets_does_not_recompile(five):
     np.testing.assert_array_less(np.abs(np.asarray(res.principal_moments) - TRUTH), 3 * np.asarray(res.moment_std))
 
 
+def test_a_gyro_bias_is_shared_by_the_throws(five):
+    # one phone, one gyro: the same bias on every throw is one shared parameter of the joint fit
+    ts, ws, _ = five
+    bias = np.array([0.02, -0.01, 0.015])  # rad/s
+    res = rb.fit_inertia(ts, body_rates=[w + bias for w in ws], joint=True, gyro_bias=True)
+    assert bool(res.converged)
+    # within 3σ, and σ well below the bias (measured 0.0197, -0.0100, 0.0146 ± 0.0005 rad/s)
+    b, bs = np.asarray(res.gyro_bias), np.asarray(res.gyro_bias_std)
+    np.testing.assert_array_less(np.abs(b - bias), 3 * bs)
+    np.testing.assert_array_less(bs, 0.005)
+    np.testing.assert_array_less(np.abs(np.asarray(res.principal_moments) - TRUTH), 3 * np.asarray(res.moment_std))
+
+
 def test_joint_needs_several_recordings():
     t = np.arange(50) * 0.01
     with pytest.raises(ValueError, match="joint=True fits several recordings"):
