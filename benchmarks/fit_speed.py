@@ -6,13 +6,16 @@ orientation noise 1e-3 rad and gyro noise 0.01 rad/s. Reports compile time
 unit-trace inertia.
 
     python benchmarks/fit_speed.py [--quick] [--batch 10,100,1000] [--batch-duration 1.0]
-                                   [--batch-rate 200] [--json out.json]
+                                   [--batch-rate 200] [--throws 5] [--json out.json]
 
 ``--quick``: a 1 s recording at 200 Hz and a batch of 8 (< 30 s on an idle
 2-core machine); default: one 4 s recording at 1 kHz (first call incl. compile,
 then a second recording of the same shape), then batches of the given sizes of
 ``--batch-duration`` s at ``--batch-rate`` Hz recordings in one vmapped call
-(first call incl. compile, second call). Wall times and process CPU times are
+(first call incl. compile, second call). Then ``--throws`` gyro-only throws of
+one body (40-100 samples at 100 Hz) as a ragged list, fitted one by one and
+with ``joint=True``: first call and a second on new throws of other lengths in
+the same buckets (no recompile). Wall times and process CPU times are
 both reported: the CI box is shared, so wall time depends on its load.
 """
 
@@ -52,12 +55,57 @@ def timed(fn):
     return out, time.perf_counter() - t, time.process_time() - c
 
 
+def throw_set(rng, lengths, rate=100.0):
+    """Gyro-only phone-toss-like throws of one body: ``(truth, times list, gyro list)``, 0.005 rad/s noise."""
+    I = np.diag([1.0, 3.2, 4.1])
+    ts, ws = [], []
+    for n in lengths:
+        t = np.arange(n) / rate
+        w0 = rng.normal(0, 1, 3)
+        w0 = w0 / np.linalg.norm(w0) * rng.uniform(8, 12)
+        q, w = reference_rotation(I, np.array([1.0, 0, 0, 0]), w0, t, rtol=1e-10, atol=1e-10)
+        ts.append(t)
+        ws.append(to_body(q, w) + rng.normal(0, 0.005, w.shape))
+    return I / np.trace(I), ts, ws
+
+
+def throw_lists(rng, n_throws):
+    """Ragged lists of throws (40-100 samples at 100 Hz), fitted one by one and jointly.
+
+    For each mode: the first call (compile + fit) and a second call on new throws
+    whose lengths differ but fall into the same buckets (must not recompile: the
+    second call is the fit alone).
+    """
+    lengths = np.linspace(40, 100, n_throws).astype(int)
+    # the second set: a few samples shorter, the longest kept (the padded shape follows it)
+    shorter = np.maximum(lengths - 2, 38)
+    shorter[-1] = lengths[-1]
+    out = {}
+    for joint in (False, True):
+        truth, ts, ws = throw_set(rng, lengths)
+        fit = lambda ts, ws: rb.fit_inertia(ts, body_rates=ws, joint=joint)  # noqa: B023
+        _, t_first, c_first = timed(lambda: fit(ts, ws))  # noqa: B023
+        truth, ts, ws = throw_set(rng, shorter)
+        res, t_fit, c_fit = timed(lambda: fit(ts, ws))  # noqa: B023
+        err = np.abs(np.asarray(res.inertia) - truth).max()
+        out[f"throws{n_throws}_{'joint' if joint else 'separate'}"] = dict(
+            lengths=lengths.tolist(),
+            first_call_s=t_first,
+            first_call_cpu_s=c_first,
+            fit_s=t_fit,
+            fit_cpu_s=c_fit,
+            max_abs_error=float(err),
+        )
+    return out
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--batch", default="10,100,1000", help="comma-separated batch sizes")
     ap.add_argument("--batch-duration", type=float, default=1.0)
     ap.add_argument("--batch-rate", type=float, default=200.0)
+    ap.add_argument("--throws", type=int, default=5, help="throws in the ragged-list and joint fits")
     ap.add_argument("--json", default="fit_speed.json")
     args = ap.parse_args()
     dur, rate = (1.0, 200) if args.quick else (4.0, 1000)
@@ -100,6 +148,7 @@ def main():
             max_error=float(np.max(errs)),
             converged=float(np.mean(resb.converged)),
         )
+    out.update(throw_lists(rng, args.throws))
     print(json.dumps(out, indent=1))
     with open(args.json, "w") as f:
         json.dump(out, f, indent=1)

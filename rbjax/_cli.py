@@ -88,6 +88,7 @@ _FIT_OPTIONS = {  # CLI flag destination -> fit_inertia keyword, passed only whe
     "max_steps": "max_steps",
     "loss": "loss",
     "loss_scale": "loss_scale",
+    "drag": "drag",
 }
 
 
@@ -105,6 +106,8 @@ def _fit(args: argparse.Namespace) -> int:
     for flag in ("threshold", "margin", "min_duration", "plot"):
         if getattr(args, flag) is not None:
             raise CLIError(f"--{flag.replace('_', '-')} applies to phyphox exports (throws), not to {args.recording}")
+    if args.separate:
+        raise CLIError(f"--separate applies to phyphox exports (throws), not to {args.recording}")
     try:
         rec = read_recording(Path(args.recording), args.time_unit or "s")
     except RecordingError as e:
@@ -158,6 +161,9 @@ def _fit(args: argparse.Namespace) -> int:
         if key in out:
             values = zip(out[key], out[key + "_std"], strict=True)
             print(f"{label} ({unit}): " + ", ".join(f"{v: .4e} ± {s:.1e}" for v, s in values))
+    if "drag" in out:
+        values = zip(out["drag"], out["drag_std"], strict=True)
+        print("drag (c1, c2; relative to tr I without torques): " + ", ".join(f"{v: .4e} ± {s:.1e}" for v, s in values))
     if "gyro_rotation" in out:
         print("gyro to body rotation [w, x, y, z]: " + ", ".join(f"{v: .6f}" for v in out["gyro_rotation"]))
     if out.get("outliers"):
@@ -234,7 +240,13 @@ def _fit_throws(args: argparse.Namespace) -> int:
         res = fit_inertia(throws, **kwargs)
     except (ValueError, TypeError) as e:
         raise CLIError(str(e)) from e
-    report = _throws_report(res, windows, [len(r) for r in throws])
+    joint = None
+    if len(throws) > 1 and not args.separate:
+        try:
+            joint = fit_inertia(throws, **kwargs, joint=True)
+        except (ValueError, TypeError) as e:
+            raise CLIError(str(e)) from e
+    report = _throws_report(res, windows, [len(r) for r in throws], joint)
     print(f"{args.recording}: {len(windows)} throw(s); principal moments as I_k / tr I (ascending), gyro-only fits")
     for k, row in enumerate(report["throws"]):
         head = f"throw {k + 1}: t = {row['t0']:.3f}-{row['t1']:.3f} s ({row['samples']} samples): "
@@ -247,9 +259,23 @@ def _fit_throws(args: argparse.Namespace) -> int:
         print(
             f"    converged {row['converged']} (chi2 p-value {row['pvalue']:.3g}, "
             f"gyro rms {row['rate_rms']:.3g} rad/s, {row['iterations']} iterations)"
+            + (
+                ""
+                if "joint_rms" not in row
+                else f"; in the joint fit: rms {row['joint_rms']:.3g} x its level, p-value {row['joint_pvalue']:.3g}"
+            )
         )
     comb = report["combined"]
-    if comb is None:
+    if comb is not None and comb.get("joint"):
+        m = ", ".join(f"{m:.4f} ± {s:.4f}" for m, s in zip(comb["moments"], comb["moment_std"]))
+        rat = ", ".join(f"{m:.4f} ± {s:.4f}" for m, s in zip(comb["ratios"], comb["ratio_std"]))
+        print(f"combined: one inertia fitted to {comb['throws']} throw(s) jointly: I/trI = {m}; I1/I3, I2/I3 = {rat}")
+        print(
+            f"    joint fit converged: {comb['converged']} (chi2 p-value {comb['pvalue']:.3g}, gyro rms "
+            f"{comb['rate_rms']:.3g} rad/s); spread of the separate fits: "
+            + ", ".join(f"{x:.4f}" for x in comb["moments_spread"])
+        )
+    elif comb is None:
         print("combined: no throw converged; nothing to combine (see the diagnostics above)")
     else:
         med = ", ".join(f"{m:.4f} ± {s:.4f}" for m, s in zip(comb["moments"], comb["moments_spread"]))
@@ -266,20 +292,34 @@ def _fit_throws(args: argparse.Namespace) -> int:
     return 0 if comb is not None else 1
 
 
-def _throws_report(res, windows, samples) -> dict:
-    """Per throw: window, normalised moments ± σ, the ratios ``I1/I3, I2/I3`` ± σ, diagnostics; and the combination.
+def _normalised(res):
+    """``(I/trI, σ, [I1/I3, I2/I3], σ)`` of a result (any leading axes).
 
     The ratios' σ propagates the moments' σ to first order as if independent,
     ``σ(a/b)² ≈ (a/b)² ((σ_a/a)² + (σ_b/b)²)`` (:class:`FitResult` holds no
-    covariance between the moments). The combination is over the converged
-    throws: the median, and as spread the sample standard deviation (0 for one throw).
+    covariance between the moments).
     """
     import numpy as np
 
     m, s = np.asarray(res.principal_moments), np.asarray(res.moment_std)
     m, s = m / m.sum(-1, keepdims=True), s / m.sum(-1, keepdims=True)
-    ratios = m[:, :2] / m[:, 2:]
-    ratio_std = ratios * np.sqrt((s[:, :2] / m[:, :2]) ** 2 + (s[:, 2:] / m[:, 2:]) ** 2)
+    ratios = m[..., :2] / m[..., 2:]
+    ratio_std = ratios * np.sqrt((s[..., :2] / m[..., :2]) ** 2 + (s[..., 2:] / m[..., 2:]) ** 2)
+    return m, s, ratios, ratio_std
+
+
+def _throws_report(res, windows, samples, joint=None) -> dict:
+    """Per throw: window, normalised moments ± σ, the ratios ``I1/I3, I2/I3`` ± σ, diagnostics; and the combination.
+
+    The combination is the ``joint`` fit (``fit_inertia(..., joint=True)``) when
+    given: one inertia for all throws, with its σ; each throw's row then also
+    holds its residual level and p-value in it. Otherwise it is over the converged
+    throws: the median, and as spread the sample standard deviation (0 for one
+    throw); the joint one keeps that spread of the separate fits too.
+    """
+    import numpy as np
+
+    m, s, ratios, ratio_std = _normalised(res)
     errors = {int(e.split(":")[0].split()[-1]): e.split(":", 1)[1].strip() for e in res.member_errors}
     rows = []
     for k, (t0, t1) in enumerate(windows):
@@ -300,19 +340,35 @@ def _throws_report(res, windows, samples) -> dict:
                 iterations=int(np.asarray(res.iterations)[k]),
             )
         )
+        if joint is not None:
+            rows[-1].update(joint_rms=joint.member_rms[k], joint_pvalue=joint.member_pvalue[k])
     ok = np.asarray(res.converged) & ~np.asarray(res.failed)
     combined = None
+
+    def spread(x):
+        return np.std(x, 0, ddof=1) if len(x) > 1 else np.zeros(x.shape[1:])
+
     if ok.any():
-
-        def spread(x):
-            return np.std(x, 0, ddof=1) if len(x) > 1 else np.zeros(x.shape[1:])
-
         combined = dict(
             throws=int(ok.sum()),
             moments=np.median(m[ok], 0).tolist(),
             moments_spread=spread(m[ok]).tolist(),
             ratios=np.median(ratios[ok], 0).tolist(),
             ratios_spread=spread(ratios[ok]).tolist(),
+        )
+    if joint is not None:
+        jm, js, jr, jrs = _normalised(joint)
+        combined = dict(
+            joint=True,
+            throws=len(rows) - len(joint.member_errors),
+            moments=jm.tolist(),
+            moment_std=js.tolist(),
+            ratios=jr.tolist(),
+            ratio_std=jrs.tolist(),
+            moments_spread=spread(m[ok]).tolist() if ok.any() else [np.nan] * 3,
+            converged=bool(joint.converged),
+            pvalue=float(joint.consistency_pvalue),
+            rate_rms=float(joint.rate_rms),
         )
     return {"throws": rows, "combined": combined}
 
@@ -396,6 +452,8 @@ def _fit_report(res) -> dict:
         std = getattr(res, k + "_std")
         if np.all(np.isfinite(np.asarray(std))):
             out[k], out[k + "_std"] = np.asarray(getattr(res, k)).tolist(), np.asarray(std).tolist()
+    if np.any(np.isfinite(np.asarray(res.drag))):  # NaN unless drag= was given
+        out["drag"], out["drag_std"] = np.asarray(res.drag).tolist(), np.asarray(res.drag_std).tolist()
     if np.all(np.isfinite(np.asarray(res.gyro_rotation_std))):  # NaN unless gyro_rotation=True
         out["gyro_rotation"] = np.asarray(res.gyro_rotation).tolist()
         out["gyro_rotation_std_rad"] = np.asarray(res.gyro_rotation_std).tolist()
@@ -489,6 +547,12 @@ def build_parser() -> argparse.ArgumentParser:
     noise.add_argument("--acceleration-std", type=float, default=None, metavar="M_S2", help="accelerometer noise")
     sensors = fit.add_argument_group("sensor models (each opt-in)")
     sensors.add_argument("--gyro-only", action="store_true", help="ignore the quaternion columns: fit body rates alone")
+    sensors.add_argument(
+        "--drag",
+        choices=["linear", "quadratic"],
+        default=None,
+        help="fit a body-frame air-drag torque -(c1 + c2|w|) w (default: none)",
+    )
     sensors.add_argument("--gyro-bias", action="store_true", help="fit a constant gyro bias (rad/s)")
     sensors.add_argument(
         "--gyro-rotation", action="store_true", help="fit a fixed rotation from the gyro frame to the body frame"
@@ -519,6 +583,11 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="S",
         help=f"shortest throw kept (default {_throws_default('min_duration'):g})",
+    )
+    throws.add_argument(
+        "--separate",
+        action="store_true",
+        help="combine the throws as the median of separate fits (default: one joint fit of all throws)",
     )
     throws.add_argument("--plot", default=None, metavar="PNG", help="write measured against fitted rates per throw")
     robust = fit.add_argument_group("robust fitting")

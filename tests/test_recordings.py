@@ -306,3 +306,20 @@ def test_cli_refuses_options_that_do_not_apply(export, tmp_path, capsys):
     plain.write_text("t,gx,gy,gz\n0,1,2,3\n1,1,2,3\n")
     assert main(["fit", str(plain), "--plot", "x.png"]) == 2
     assert "--plot applies to phyphox exports" in capsys.readouterr().err
+
+
+def test_cli_fits_the_throws_jointly_unless_separate(export, tmp_path, capsys):
+    import json
+
+    out = tmp_path / "joint.json"
+    assert main(["fit", str(export), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "one inertia fitted to 3 throw(s) jointly" in text and text.count("in the joint fit: rms") == 3
+    comb = json.loads(out.read_text())["combined"]
+    assert comb["joint"] and comb["throws"] == 3 and comb["converged"]
+    # one body, three throws of ~60-80 samples at 0.005 rad/s: the joint σ is ~5e-4 of tr I; within 3σ
+    np.testing.assert_array_less(np.abs(np.array(comb["moments"]) - TRUTH), 3 * np.array(comb["moment_std"]))
+    assert main(["fit", str(export), "--separate", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "jointly" not in text and "median ± spread" in text
+    assert "joint" not in json.loads(out.read_text())["combined"]

@@ -31,12 +31,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Float
 
-from .._pytree import new_unchecked
+from .._pytree import new_unchecked, replace
 from .._typing import ArrayLike
 from . import _robust
 from ._checks import check_arrays, check_options
 from ._model import model_residuals
-from ._problem import prepare
+from ._problem import join_problems, prepare
 from ._queue import run_queue, stage_widths
 from ._recording_data import Recording, to_fit_arguments
 from ._result import FitResult, summarise
@@ -128,7 +128,7 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
     return summary(jax.lax.while_loop(lambda c: c[0], body, (jnp.array(True), first, out0))[2], member(data, 0))
 
 
-_SUMMARY_OPTS = ("scale_fixed", "use_rates", "gyro_bias", "use_orientations", "gyro_rotation", "use_accel")
+_SUMMARY_OPTS = ("scale_fixed", "use_rates", "use_orientations", "layout")
 # Levenberg–Marquardt steps per round of the queue between retiring and refilling slots
 _STEPS_PER_ROUND = 4
 # the queue's width: per recording, the model of 64 slots of 1 s @ 200 Hz was 1.25-1.5x cheaper
@@ -165,6 +165,8 @@ def fit_inertia(
     acceleration_std: float | None = None,
     loss: str = "squared",
     loss_scale: float = 3.0,
+    joint: bool = False,
+    drag: str | None = None,
 ) -> FitResult:
     """Fit a body-frame inertia tensor to a recording of free (or known-torque) rotation.
 
@@ -277,9 +279,46 @@ def fit_inertia(
             within ``c``, weight ``c / |r|`` beyond; Cauchy weighs
             ``1 / (1 + (|r|/c)²)``. The default 3 leaves Gaussian residual
             3-vectors (``|r|`` mostly < 3) almost untouched.
+        joint: for several recordings (a list, or a batch ``(N, T, ...)``) of one
+            body, e.g. the throws of one phone: fit ONE inertia (and one gyro
+            bias, gyro rotation, lever arm, accelerometer bias where enabled) to
+            all of them, each recording keeping its own start states (its
+            segments' ``δ_s``, ``ω_s``; the recordings are not joined to each
+            other). The residuals are those of the separate fits stacked, so
+            ``moment_std`` comes from the joint covariance: about ``1/√N`` of
+            one recording's for ``N`` alike. The result has no batch axis; per
+            recording ``member_rms``, ``member_chi2``, ``member_dof`` and
+            ``member_pvalue`` say which one disagrees, and one that cannot be
+            fitted (too short, non-finite, unexcited) is left out and named in
+            ``member_errors``. Recordings are packed with one intervals-per-segment
+            and ``substeps`` (the longest's, the largest), each with its own
+            number of segments: one compiled program per total number of
+            segments and padded length, so new throws of lengths in the same
+            buckets reuse it (a different number of throws compiles anew).
+            ``robust_weights`` and ``outliers`` run over the recordings' samples
+            one after the other. ``False`` (default): each recording is fitted on its own.
+        drag: air drag, opt-in: ``"linear"`` adds the body-frame damping torque
+            ``τ_b = -c₁ ω`` to Euler's law, ``"quadratic"`` ``τ_b = -(c₁ + c₂ |ω|) ω``
+            (``ω`` body frame, rad/s; ``c₁`` N m s, ``c₂`` N m s²), with the
+            coefficients fitted (1 or 2 shared parameters, starting at 0) and
+            reported as ``FitResult.drag``, ``drag_std``. One scalar each, the
+            same about every axis: per-axis coefficients would add 3 or 6
+            parameters that a 40-100 sample throw cannot separate from the
+            inertia's own asymmetry. What the data can tell: (1) without
+            torques only ``c / tr I`` (``I ω̇ + ω × I ω = -(c₁ + c₂|ω|) ω`` is
+            unchanged by ``(I, c) → (λI, λc)``), which is what is reported; (2)
+            ``c₁`` from ``c₂`` only as far as ``|ω|`` varies within a throw
+            (nutation, decay): both act as one rate ``c₁ + c₂|ω|``, so on a
+            near-steady spin their σ grow large and strongly correlated while the
+            inertia stays determined; (3) a body spinning about a principal axis
+            ``k`` shows drag only as the decay rate ``(c₁ + c₂|ω|) / I_k`` (and its
+            shape is unidentifiable anyway). Without ``drag`` a real throw's loss
+            of ``|L|`` (~15% in 1 s) makes the χ² test fail
+            (``model_consistent = False``). Needs ``method="rk4"``; not with
+            ``accelerations`` (their model is torque-free).
 
     Returns:
-        :class:`FitResult` (with a leading ``N`` axis for batched input). In a
+        :class:`FitResult` (with a leading ``N`` axis for batched input, none with ``joint=True``). In a
         batch or list, a recording that cannot be fitted (the ``ValueError`` a
         single fit of it would raise: too little excitation, non-finite data,
         too few samples) does not stop the others: its fields are NaN,
@@ -300,33 +339,24 @@ def fit_inertia(
             or too little excitation (naming the unidentifiable directions), or
             ``body_rates`` that look world-frame (``check_gyro_frame``).
     """
+    arrays = dict(
+        orientations=orientations,
+        body_rates=body_rates,
+        torques=torques,
+        body_torques=body_torques,
+        accelerations=accelerations,
+    )
     if isinstance(times, Recording) or (
         isinstance(times, (list, tuple)) and len(times) > 0 and all(isinstance(r, Recording) for r in times)
     ):
-        given = [
-            k
-            for k, v in dict(
-                orientations=orientations,
-                body_rates=body_rates,
-                torques=torques,
-                body_torques=body_torques,
-                accelerations=accelerations,
-            ).items()
-            if v is not None
-        ]
+        given = [k for k, v in arrays.items() if v is not None]
         if given:
             raise TypeError(
                 f"fit_inertia: the first argument is a Recording, which carries the data; do not also pass {given} "
                 "(build the Recording with them instead)"
             )
         times, data = to_fit_arguments(times)
-        orientations, body_rates, torques, body_torques, accelerations = (
-            data["orientations"],
-            data["body_rates"],
-            data["torques"],
-            data["body_torques"],
-            data["accelerations"],
-        )
+        arrays = {k: data[k] for k in arrays}
     options = dict(
         initial_inertia=initial_inertia,
         method=method,
@@ -345,18 +375,22 @@ def fit_inertia(
         acceleration_std=acceleration_std,
         loss=loss,
         loss_scale=loss_scale,
+        drag=drag,
     )
-    arrays = dict(
-        orientations=orientations,
-        body_rates=body_rates,
-        torques=torques,
-        body_torques=body_torques,
-        accelerations=accelerations,
-    )
+    if not isinstance(joint, (bool, np.bool_)):
+        raise TypeError(f"fit_inertia: joint must be True or False, got {type(joint).__name__}")
+    if joint:
+        members = _ragged_members(times, arrays) if _is_ragged(times) else _batch_members(times, arrays)
+        if members is None:
+            raise ValueError(
+                "fit_inertia: joint=True fits several recordings of one body together; pass a list of "
+                "recordings (or a batch (N, T, ...)), or leave joint=False for one recording"
+            )
+        return _fit_joint(members, options)
     if _is_ragged(times):
         return _fit_members(_ragged_members(times, arrays), options)
     try:
-        return _fit_regular(times, **arrays, **options)
+        return _fit_regular(times, arrays, options)
     except ValueError:
         members = _batch_members(times, arrays)
         if members is None:  # one recording, or a batch-wide problem: the message stands
@@ -364,80 +398,12 @@ def fit_inertia(
         return _fit_members(members, options)
 
 
-def _fit_regular(
-    times,
-    orientations,
-    *,
-    body_rates,
-    torques,
-    body_torques,
-    initial_inertia,
-    method,
-    segments,
-    substeps,
-    orientation_std,
-    rate_std,
-    continuity_weight,
-    excitation_tol,
-    rtol,
-    atol,
-    max_steps,
-    check_gyro_frame,
-    gyro_bias,
-    gyro_rotation,
-    accelerations,
-    acceleration_std,
-    loss,
-    loss_scale,
-) -> FitResult:
+def _fit_regular(times, arrays, options) -> FitResult:
     """:func:`fit_inertia` on one recording or a regular batch ``(N, T, ...)``: any bad input raises."""
-    check_arrays(
-        times=times,
-        orientations=orientations,
-        body_rates=body_rates,
-        torques=torques,
-        body_torques=body_torques,
-        initial_inertia=initial_inertia,
-        accelerations=accelerations,
-        orientation_std=orientation_std,
-        rate_std=rate_std,
-        acceleration_std=acceleration_std,
-    )
-    check_options(
-        orientation_std=orientation_std,
-        rate_std=rate_std,
-        continuity_weight=continuity_weight,
-        excitation_tol=excitation_tol,
-        rtol=rtol,
-        atol=atol,
-        max_steps=max_steps,
-        segments=segments,
-        substeps=substeps,
-        loss=loss,
-        loss_scale=loss_scale,
-        acceleration_std=acceleration_std,
-    )
-    prob = prepare(
-        times,
-        orientations,
-        body_rates,
-        torques,
-        initial_inertia=initial_inertia,
-        method=method,
-        segments=segments,
-        substeps=substeps,
-        orientation_std=orientation_std,
-        rate_std=rate_std,
-        continuity_weight=continuity_weight,
-        excitation_tol=excitation_tol,
-        check_gyro_frame=bool(check_gyro_frame),
-        gyro_bias=gyro_bias,
-        body_torques=body_torques,
-        gyro_rotation=gyro_rotation,
-        accelerations=accelerations,
-        acceleration_std=None if acceleration_std is None else float(acceleration_std),
-    )
-    return _solve(prob, dict(loss=loss, loss_scale=loss_scale, rtol=rtol, atol=atol, max_steps=max_steps))
+    stds = {k: options[k] for k in ("initial_inertia", "orientation_std", "rate_std", "acceleration_std")}
+    check_arrays(times=times, **arrays, **stds)
+    check_options(**{k: options[k] for k in _OPTION_NAMES})
+    return _solve(_fit_regular_check(times, arrays, options), options)
 
 
 _OPTION_NAMES = (
@@ -481,8 +447,17 @@ def _solve(prob, options, sample_weights: bool = True) -> FitResult:
         out["robust_weights"], out["outliers"] = jnp.asarray(rw), jnp.zeros(rw.shape[0], bool)
     out["failed"] = jnp.zeros(prob.y0.shape[0] if prob.batched else (), bool)
     return new_unchecked(
-        FitResult, **out, scale_fixed=prob.static["scale_fixed"], segments=prob.segments, member_errors=()
+        FitResult,
+        **out,
+        scale_fixed=prob.static["scale_fixed"],
+        segments=prob.segments,
+        member_errors=(),
+        **_NOT_JOINT,
     )
+
+
+# the static fields of a FitResult of recordings fitted one by one (see FitResult.joint)
+_NOT_JOINT = dict(joint=False, member_rms=(), member_chi2=(), member_dof=(), member_pvalue=())
 
 
 def _is_ragged(times) -> bool:
@@ -538,6 +513,25 @@ def _fit_members(members, options) -> FitResult:
     batch too (:func:`_fit_padded`). Arrays whose length varies (``residuals``, ``robust_weights``,
     ``outliers``) are padded with NaN (``False``) to the longest.
     """
+    probs, errors, good = _check_members(members, options)
+    lengths = {np.shape(members[i][0])[0] for i in good}
+    results: dict[int, FitResult] = {}
+    if len(lengths) == 1 and all(members[i][0] is members[good[0]][0] for i in good):
+        t = members[good[0]][0]
+        stacked = {k: _stack_or_share([members[i][1][k] for i in good]) for k in _PER_MEMBER_NDIM}
+        batch = _fit_regular(t, stacked, options)
+        for j, i in enumerate(good):
+            results[i] = jax.tree.map(lambda a, j=j: a[j], batch)
+    else:
+        results = _fit_padded(members, probs, options)
+    return _stack_results(results, len(members), errors)
+
+
+def _check_members(members, options):
+    """``(problems, errors, good)``: each member packed alone, or its ``ValueError``'s message.
+
+    Raises only when no member can be fitted (one message when all share it).
+    """
     check_options(**{k: options[k] for k in _OPTION_NAMES})  # an option's error is raised once
     errors: dict[int, str] = {}
     probs = {}
@@ -557,17 +551,55 @@ def _fit_members(members, options) -> FitResult:
             + "; ".join(f"recording {i}: {msg}" for i, msg in listed[:5])
             + (f"; and {len(listed) - 5} more" if len(listed) > 5 else "")
         )
-    lengths = {np.shape(members[i][0])[0] for i in good}
-    results: dict[int, FitResult] = {}
-    if len(lengths) == 1 and all(members[i][0] is members[good[0]][0] for i in good):
-        t = members[good[0]][0]
-        stacked = {k: _stack_or_share([members[i][1][k] for i in good]) for k in _PER_MEMBER_NDIM}
-        batch = _fit_regular(t, **stacked, **options)
-        for j, i in enumerate(good):
-            results[i] = jax.tree.map(lambda a, j=j: a[j], batch)
-    else:
-        results = _fit_padded(members, probs, options)
-    return _stack_results(results, len(members), errors)
+    return probs, errors, good
+
+
+def _fit_joint(members, options) -> FitResult:
+    """One inertia for all members (:func:`._problem.join_problems`); bad members left out and named."""
+    probs, errors, good = _check_members(members, options)
+    K = max(probs[i].data["seg"]["dt"].shape[-1] for i in good)
+    substeps = max(probs[i].static["substeps"] for i in good)  # more steps only add accuracy
+    packed = [
+        _fit_regular_check(
+            members[i][0], members[i][1], options, segments=probs[i].segments, substeps=substeps, pad_intervals=K
+        )
+        for i in good
+    ]
+    prob = join_problems(packed)
+    res = _solve(prob, options)
+    # per member: its segments' data rows (segment-major, as the model lays them out)
+    seg = prob.data["seg"]
+    S, K1 = seg["rw"].shape[1], seg["rw"].shape[-1]
+    blocks = len(prob.sensors)
+    r = np.asarray(res.residuals)[: S * blocks * K1 * 3].reshape(S, blocks, K1, 3)
+    valid = np.concatenate([seg["first"][0][:, None], seg["mask"][0]], 1)  # (S, K+1)
+    n_all = 3 * blocks * valid.sum()
+    n_shared = prob.static["layout"].shared
+    s2 = float(res.residual_ratio) ** 2
+    stats = {}
+    start = 0
+    for i, p in zip(good, packed):
+        part = slice(start, start + p.segments)
+        start += p.segments
+        chi2 = float(np.sum(r[part] ** 2))
+        n_i = 3 * blocks * float(valid[part].sum())
+        dof = n_i - (6 - float(p.data["n_unused"][0])) - n_shared * n_i / n_all
+        # against the joint fit's residual level s² (not the estimated noise levels, which the
+        # motion's own second differences inflate on short throws): which throw stands out
+        ratio = chi2 / (dof * s2)
+        pval = float(jax.scipy.special.gammaincc(dof / 2, ratio * dof / 2))
+        stats[i] = (float(np.sqrt(ratio)), chi2, dof, pval)
+    nan4 = (np.nan,) * 4
+    per = [stats.get(i, nan4) for i in range(len(members))]
+    return replace(
+        res,
+        member_errors=tuple(f"recording {i}: {msg}" for i, msg in sorted(errors.items())),
+        joint=True,
+        member_rms=tuple(x[0] for x in per),
+        member_chi2=tuple(x[1] for x in per),
+        member_dof=tuple(x[2] for x in per),
+        member_pvalue=tuple(x[3] for x in per),
+    )
 
 
 def _stack_or_share(values):
@@ -606,6 +638,7 @@ def _fit_regular_check(t, arrays, options, **fixed):
         accelerations=arrays["accelerations"],
         acceleration_std=None if options["acceleration_std"] is None else float(options["acceleration_std"]),
         pad_intervals=fixed.get("pad_intervals"),
+        drag=options["drag"],
     )
 
 
@@ -671,6 +704,7 @@ def _stack_results(results: dict, n: int, errors: dict) -> FitResult:
         scale_fixed=template.scale_fixed,
         segments=max(r.segments for r in results.values()),
         member_errors=tuple(f"recording {i}: {msg}" for i, msg in sorted(errors.items())),
+        **_NOT_JOINT,
     )
 
 

@@ -77,15 +77,18 @@ def _combine(y, dt, weights, ks):
     return tuple(x + dt * sum(w * k[i] for w, k in terms) for i, x in enumerate(y))
 
 
-def _rk4(q, L, inv, dt, torque):
-    """One step; ``torque(q_stage, c)`` is the world torque at stage node ``c``, or ``None`` (torque-free)."""
+def _rk4(q, L, inv, k, dt, torque):
+    """One step; ``torque(q_stage, L_stage, inv, k, c)`` is the world torque at stage node ``c``, or ``None``.
+
+    ``k``: the drag coefficients ``(c₁, c₂)`` (rows over the bodies) or ``()``.
+    """
     kq, kL = [], []
     for a, c in zip(_A, _C, strict=True):
         qs = _combine(q, dt, a, kq)
         Ls = _combine(L, dt, a, kL) if torque is not None else L
         kq.append(_q_rate(qs, Ls, inv))
         if torque is not None:
-            kL.append(torque(qs, c))
+            kL.append(torque(qs, Ls, inv, k, c))
     q = _combine(q, dt, _B, kq)
     if torque is not None:
         L = _combine(L, dt, _B, kL)
@@ -93,11 +96,24 @@ def _rk4(q, L, inv, dt, torque):
     return tuple(x / norm for x in q), L
 
 
-def _stage_torque(x, j, substeps, frame, qs, c):
-    """World torque at node ``c`` of sub-step ``j``: linear over the interval, turned by ``qs`` if body-frame."""
-    f = (j + c) / substeps  # where the stage lies in its sample interval
-    tau = tuple(a + f * (b - a) for a, b in zip(x["lo"], x["hi"], strict=True))
-    return _rotate(qs, tau) if frame == "body" else tau
+def _stage_torque(x, j, substeps, frame, drag, qs, Ls, inv, k, c):
+    """World torque at node ``c`` of sub-step ``j``.
+
+    Known torques: linear over the interval, turned by ``qs`` if body-frame.
+    Drag: ``τ_b = -(c₁ + c₂ |ω|) ω`` with ``ω = I⁻¹ Rᵀ L`` (body frame), turned into the world.
+    """
+    tau = (0.0, 0.0, 0.0)
+    if frame is not None:
+        f = (j + c) / substeps  # where the stage lies in its sample interval
+        tau = tuple(a + f * (b - a) for a, b in zip(x["lo"], x["hi"], strict=True))
+        tau = _rotate(qs, tau) if frame == "body" else tau
+    if drag:
+        w = _apply(inv, _rotate(_conj(qs), Ls))
+        speed = jnp.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+        damping = k[0] + k[1] * speed
+        tau_d = _rotate(qs, tuple(-damping * wi for wi in w))
+        tau = tuple(a + b for a, b in zip(tau, tau_d, strict=True))
+    return tau
 
 
 def _soa(a: Array, core: int) -> tuple:
@@ -106,9 +122,10 @@ def _soa(a: Array, core: int) -> tuple:
     return tuple(jnp.moveaxis(rows[..., i], 0, -1) for i in range(rows.shape[-1]))
 
 
-def _flow(args, *, substeps: int, torque_frame: str | None, observe):
+def _flow(args, *, substeps: int, torque_frame: str | None, observe, drag: bool = False):
     q0, L0, inv = _soa(args["q"], 1), _soa(args["L"], 1), _soa(args["inv"], 2)
     dq0, dL0, dinv = _soa(args["dq"], 1), _soa(args["dL"], 1), _soa(args["dinv"], 2)
+    k, dk = (_soa(args["drag"], 1), _soa(args["ddrag"], 1)) if drag else ((), ())
     # the body axis last: per sample (M, K, ...) -> (K, ..., M) for the scan, per body (..., M)
     xs = dict(dt=args["dt"].T, obs=jax.tree.map(lambda a: jnp.moveaxis(a, (0, 1), (-1, 0)), args["obs"]))
     const = jax.tree.map(lambda a: jnp.moveaxis(a, 0, -1), args["const"])
@@ -126,11 +143,13 @@ def _flow(args, *, substeps: int, torque_frame: str | None, observe):
         h = x["dt"] / substeps
 
         def sub(carry, j):  # sub-step j of the interval, with its tangents
-            torque = None if torque_frame is None else functools.partial(_stage_torque, x, j, substeps, torque_frame)
+            torque = None
+            if torque_frame is not None or drag:
+                torque = functools.partial(_stage_torque, x, j, substeps, torque_frame, drag)
             (q, L), (dq, dL) = carry
             step = functools.partial(_rk4, dt=h, torque=torque)
-            push = lambda tq, tL, ti: jax.jvp(step, (q, L, inv), (tq, tL, ti))
-            return jax.vmap(push, out_axes=(None, 0))(dq, dL, dinv), None
+            push = lambda tq, tL, ti, tk: jax.jvp(step, (q, L, inv, k), (tq, tL, ti, tk))
+            return jax.vmap(push, out_axes=(None, 0))(dq, dL, dinv, dk), None
 
         # a loop, not unrolled: the default substeps reach 32 on fast or glitched recordings
         steps = jnp.arange(substeps, dtype=h.dtype)
@@ -148,7 +167,7 @@ def _flow(args, *, substeps: int, torque_frame: str | None, observe):
 
 
 @functools.cache
-def flow(substeps: int, torque_frame: str | None, observe):
+def flow(substeps: int, torque_frame: str | None, observe, drag: bool = False):
     """``rk4`` on ``M`` bodies' ``(q, L)`` over ``K`` sample intervals, observed after each, with tangents.
 
     ``flow(substeps, torque_frame, observe)(args)``; ``args`` is a dict of
@@ -166,11 +185,15 @@ def flow(substeps: int, torque_frame: str | None, observe):
     arrays ``(c,)``. Returns ``(q_end (M, 4), dq_end (M, n, 4))``, the
     observations ``(M, K, c)`` and their tangents ``(M, n, K, c)``.
 
+    ``drag``: add the body-frame damping torque ``τ_b = -(c₁ + c₂ |ω|) ω``
+    (N m, ``ω`` in rad/s), ``args["drag"]`` ``(M, 2)`` the coefficients
+    ``(c₁, c₂)`` and ``args["ddrag"]`` ``(M, n, 2)`` their tangents.
+
     Under ``vmap`` (the fit's work queue) the mapped axis is folded into the
     body axis instead of being batched op by op.
     """
     fn = jax.custom_batching.custom_vmap(
-        functools.partial(_flow, substeps=substeps, torque_frame=torque_frame, observe=observe)
+        functools.partial(_flow, substeps=substeps, torque_frame=torque_frame, observe=observe, drag=drag)
     )
 
     @fn.def_vmap

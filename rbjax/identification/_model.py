@@ -10,6 +10,7 @@ import functools
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
 
 from .. import _methods
@@ -19,6 +20,7 @@ from .._math import matvec3, quat_conjugate, quat_exp, quat_log, quat_multiply, 
 from .._pytree import new_unchecked
 from .._state import Forces, State
 from ._flow import flow
+from ._layout import Layout
 from ._sensors import accelerometer_reading, gyro_reading
 
 # Layout: S segments of K sample intervals (padding intervals have dt = 0 and
@@ -76,20 +78,7 @@ def _pushforward(f, x, tx):
     return jax.vmap(lambda v: jax.jvp(f, (x,), (v,)), out_axes=(None, 0))(tx)
 
 
-def _segments(
-    X,
-    seg,
-    *,
-    n_theta,
-    scale_fixed,
-    method,
-    substeps,
-    use_rates,
-    gyro_bias=False,
-    use_orientations=True,
-    gyro_rotation=False,
-    use_accel=False,
-):
+def _segments(X, seg, *, layout: Layout, scale_fixed, method, substeps, use_rates, use_orientations=True):
     """Data residuals ``(S, m)`` and end states ``(q, ω_body)`` ``(S, 7)`` of all segments, and
     their derivatives ``(S, m, n)``, ``(S, 7, n)`` in each segment's ``x_s = X[s]`` (``n = n_θ + 6``).
 
@@ -106,6 +95,7 @@ def _segments(
     noise; the first-sample rows are non-zero in segment 0 only.
     """
     step_fn = _methods.get(method, State)
+    n_theta = layout.shared
     start = functools.partial(_start, n_theta=n_theta, scale_fixed=scale_fixed)
     basis = jnp.eye(X.shape[1], dtype=X.dtype)
     s0, ds0 = jax.vmap(lambda x, d: _pushforward(lambda x: start(x, d), x, basis))(X, seg)
@@ -170,7 +160,13 @@ def _segments(
         args = dict(q=r0[0], L=r0[1], inv=inv, dq=dr0[0], dL=dr0[1], dinv=dinv, dt=seg["dt"], obs=obs, const=const)
         if frame is not None:
             args["tau"] = seg["tau" if frame == "world" else "tau_b"]
-        (q_end, dq_end), y, dy = flow(substeps, frame, _observe)(args)
+        drag, at = layout.drag, layout.span("drag")
+        if drag:  # the coefficients (c₁, c₂); "linear" fits c₁ alone
+            k = jnp.zeros((X.shape[0], 2), X.dtype).at[:, :drag].set(X[:, at])
+            tangents = jnp.broadcast_to(basis[:, at], (X.shape[0], X.shape[1], drag))
+            dk = jnp.zeros((X.shape[0], X.shape[1], 2), X.dtype).at[:, :, :drag].set(tangents)
+            args.update(drag=k, ddrag=dk)
+        (q_end, dq_end), y, dy = flow(substeps, frame, _observe, bool(drag))(args)
     else:
         K = seg["dt"].shape[1]
         dts = jnp.broadcast_to((seg["dt"] / substeps).T[:, None], (K, substeps, X.shape[0]))
@@ -191,26 +187,26 @@ def _segments(
     w_meas = jnp.concatenate([seg["w_first"][:, None], seg["w_meas"]], 1)
     weight = jnp.concatenate([seg["first"][:, None], seg["mask"]], 1)
     S, n = X.shape
-    if gyro_rotation:  # gyro = R_gᵀ ω (+ b): R_g = exp(ρ) maps gyro-frame vectors to body-frame ones
-        n_R = (6 if scale_fixed else 5) + (3 if gyro_bias else 0)
+    if layout.gyro_rotation:  # gyro = R_gᵀ ω (+ b): R_g = exp(ρ) maps gyro-frame vectors to body-frame ones
+        at = layout.span("gyro_rotation")
         g = weight[:, :, None] * seg["ww"][:, None, None]  # (S, K+1, 1)
-        rho = X[0, n_R : n_R + 3]
+        rho = X[0, at]
 
         wg = jax.vmap(jax.vmap(lambda w: gyro_reading(rho, w)))(w)
         Fw = jax.vmap(jax.vmap(lambda w: jax.jacfwd(gyro_reading, argnums=1)(rho, w)))(w)  # (S, K+1, 3, 3)
         Fr = jax.vmap(jax.vmap(lambda w: jax.jacfwd(gyro_reading, argnums=0)(rho, w)))(w)
         r_w = g * (wg - w_meas)
         dr_w = g[:, None] * jnp.einsum("skij,snkj->snki", Fw, dw)
-        dr_w = dr_w.at[:, n_R : n_R + 3].add(jnp.moveaxis(g[..., None] * Fr, -1, 1))
-    if gyro_bias:  # gyro = ω + b (body frame, constant): b = X[s, n_I:n_I+3] enters the rate rows linearly
-        n_I = 6 if scale_fixed else 5
+        dr_w = dr_w.at[:, at].add(jnp.moveaxis(g[..., None] * Fr, -1, 1))
+    if layout.gyro_bias:  # gyro = ω + b (body frame, constant): b enters the rate rows linearly
+        at = layout.span("gyro_bias")
         g = weight[:, :, None] * seg["ww"][:, None, None]  # (S, K+1, 1)
-        r_w = r_w + g * X[:, None, n_I : n_I + 3]
+        r_w = r_w + g * X[:, None, at]
         eye = jnp.eye(3, dtype=X.dtype)
-        dr_w = dr_w.at[:, n_I : n_I + 3].add(jnp.einsum("skc,bc->sbkc", g * jnp.ones(3, X.dtype), eye))
+        dr_w = dr_w.at[:, at].add(jnp.einsum("skc,bc->sbkc", g * jnp.ones(3, X.dtype), eye))
+    use_accel = bool(layout.accelerometer)
     if use_accel:  # free flight: a = ω̇ × r + ω × (ω × r) + b_a (body frame), ω̇ = -I⁻¹ (ω × I ω)
-        n_I = 6 if scale_fixed else 5
-        n_A = n_I + (3 if gyro_bias else 0) + (3 if gyro_rotation else 0)
+        n_I, n_A = layout.inertia, layout.span("accelerometer").start
         g = weight[:, :, None] * seg["wa"][:, None, None]  # (S, K+1, 1)
         th, ra, ba = X[0, :n_I], X[0, n_A : n_A + 3], X[0, n_A + 3 : n_A + 6]
 
@@ -261,31 +257,31 @@ def model_residuals(
     method,
     substeps,
     use_rates,
-    gyro_bias=False,
+    layout: Layout,
     use_orientations=True,
-    gyro_rotation=False,
-    use_accel=False,
+    joins=None,
 ):
     """Residual vector ``r`` (segments' data rows, then join rows) and its dense Jacobian ``∂r/∂y``.
 
-    ``y = (θ, [b], p_0, ..., p_{S-1})``: inertia parameters θ (5 or 6), with
-    ``gyro_bias`` a constant body-frame gyro bias ``b`` (3, rad/s), with
-    ``gyro_rotation`` the gyro-to-body rotation vector ``ρ`` (3, rad), then 6 per segment.
+    ``y = (shared block, p_0, ..., p_{S-1})`` as ``layout`` places them
+    (:class:`._layout.Layout`: inertia θ, gyro bias, gyro rotation, accelerometer,
+    drag), then 6 per segment. ``joins``: the segments ``s`` whose end is joined to the start of ``s + 1``
+    (a static tuple); ``None``: every one (one recording).
     """
     seg = data["seg"]
     S = seg["dt"].shape[0]
-    n_theta = (6 if scale_fixed else 5) + 3 * gyro_bias + 3 * gyro_rotation + 6 * use_accel  # shared block
+    n_theta = layout.shared
     theta, P = unpack(y, n_theta, S)
     X = jnp.concatenate([jnp.broadcast_to(theta, (S, n_theta)), P], -1)  # x_s = (θ, p_s)
-    kw = dict(n_theta=n_theta, scale_fixed=scale_fixed, method=method, substeps=substeps, use_rates=use_rates)
     r_seg, ends, J_seg, J_end = _segments(
         X,
         seg,
-        **kw,
-        gyro_bias=gyro_bias,
+        layout=layout,
+        scale_fixed=scale_fixed,
+        method=method,
+        substeps=substeps,
+        use_rates=use_rates,
         use_orientations=use_orientations,
-        gyro_rotation=gyro_rotation,
-        use_accel=use_accel,
     )
     m = r_seg.shape[1]
     # robust (IRLS) weights per sample and sensor block, rw (S, blocks, K+1): rows scaled by √w
@@ -293,20 +289,39 @@ def model_residuals(
     B, K1 = sw.shape[1:]
     r_seg = (r_seg.reshape(S, B, K1, 3) * sw[..., None]).reshape(S, m)
     J_seg = (J_seg.reshape(S, B, K1, 3, -1) * sw[..., None, None]).reshape(S, m, -1)
+    # the joined segments s -> s + 1: all, or (several recordings of one body) those inside a recording
+    at = np.arange(S - 1) if joins is None else np.asarray(joins, int)
     if S == 1:  # single shooting: no joins
         return r_seg.reshape(-1), J_seg.reshape(m, -1)
-    c = functools.partial(_continuity, continuity_weight=data["continuity_weight"])  # traced: no recompile
-    nxt = jax.tree.map(lambda a: a[1:], seg)
-    cj = jax.jacfwd(lambda e, pn, dn: (c(e, pn, dn),) * 2, argnums=(0, 1), has_aux=True)
-    (Dc_end, Dc_p), r_c = jax.vmap(cj)(ends[:-1], P[1:], nxt)
     eye = jnp.eye(S, dtype=y.dtype)
     blocks = lambda B, E: jnp.einsum("sra,st->srta", B, E).reshape(B.shape[0] * B.shape[1], -1)
     J_top = jnp.concatenate([J_seg[..., :n_theta].reshape(S * m, n_theta), blocks(J_seg[..., n_theta:], eye)], -1)
-    Je = J_end[:-1]  # chain rule through the end state of segment s
+    if at.size == 0:  # recordings of one segment each: nothing joined
+        return r_seg.reshape(-1), J_top
+    c = functools.partial(_continuity, continuity_weight=data["continuity_weight"])  # traced: no recompile
+    nxt = jax.tree.map(lambda a: a[at + 1], seg)
+    cj = jax.jacfwd(lambda e, pn, dn: (c(e, pn, dn),) * 2, argnums=(0, 1), has_aux=True)
+    (Dc_end, Dc_p), r_c = jax.vmap(cj)(ends[at], P[at + 1], nxt)
+    Je = J_end[at]  # chain rule through the end state of segment s
     Jc_theta = jnp.einsum("sre,sea->sra", Dc_end, Je[..., :n_theta]).reshape(-1, n_theta)
-    Jc_p = blocks(jnp.einsum("sre,sea->sra", Dc_end, Je[..., n_theta:]), eye[:-1]) + blocks(Dc_p, eye[1:])
+    Jc_p = blocks(jnp.einsum("sre,sea->sra", Dc_end, Je[..., n_theta:]), eye[at]) + blocks(Dc_p, eye[at + 1])
     J = jnp.concatenate([J_top, jnp.concatenate([Jc_theta, Jc_p], -1)], 0)
     return jnp.concatenate([r_seg.reshape(-1), r_c.reshape(-1)]), J
+
+
+def drag_coefficients(y, scale_fixed, layout: Layout):
+    """The fitted drag coefficients (``layout``'s ``drag`` block of ``y``) padded to ``(c₁, c₂)``, in reported units.
+
+    Without torques only ``I / tr I`` is identifiable and the damping torque
+    scales with the inertia (``I ω̇ + ω × I ω = -(c₁ + c₂|ω|) ω`` is unchanged by
+    ``(I, c) → (λI, λc)``): the coefficients are reported relative to ``tr I``
+    (``c₁ / tr I`` in 1/s, ``c₂ / tr I`` in 1/rad); with torques absolute
+    (N m s, N m s²).
+    """
+    c = jnp.zeros(2, y.dtype).at[: layout.drag].set(y[layout.span("drag")])
+    if scale_fixed:
+        return c
+    return c / jnp.trace(_inertia(y[:5], scale_fixed))
 
 
 def normalised_moments(y, scale_fixed):

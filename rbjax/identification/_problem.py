@@ -18,6 +18,7 @@ from .. import _methods
 from .._body import Body
 from .._state import State
 from ._checks import check_inputs, gyro_frame_check
+from ._layout import Layout
 from ._linear import (
     body_momentum_system,
     check_identifiability,
@@ -90,12 +91,16 @@ def _check_gyro_units(rates: np.ndarray, implied: np.ndarray) -> None:
             )
 
 
+# fitted drag coefficients per model: "linear" c₁, "quadratic" c₁ and c₂ (τ_b = -(c₁ + c₂|ω|) ω)
+_DRAG_COEFFICIENTS = {None: 0, "linear": 1, "quadratic": 2}
+
+
 class Problem(NamedTuple):
     """Recordings packed for the solver: start ``y0 (N, p)``, segment data (leading ``N``), static options."""
 
     y0: np.ndarray
     data: dict
-    static: dict  # scale_fixed, method, substeps, use_rates: fixed per compiled program
+    static: dict  # scale_fixed, method, substeps, use_rates, use_orientations, layout: fixed per compiled program
     batched: bool
     segments: int
     sample_index: np.ndarray  # (S, K+1) recording sample of each segment row
@@ -124,6 +129,7 @@ def prepare(
     accelerations=None,
     acceleration_std=None,
     pad_intervals=None,
+    drag=None,
 ) -> Problem:
     """Validate recordings and pack them for :func:`rbjax.fit_inertia` (arguments as there).
 
@@ -178,6 +184,18 @@ def prepare(
                 "fit_inertia: accelerations= are modelled for free flight only (ω̇ from the torque-free "
                 "Euler equations); omit torques=/body_torques= or accelerations="
             )
+    if drag not in _DRAG_COEFFICIENTS:
+        raise ValueError(
+            f"fit_inertia: drag must be None, 'linear' or 'quadratic' (the body-frame damping model), got {drag!r}"
+        )
+    n_drag = _DRAG_COEFFICIENTS[drag]
+    if n_drag and method not in ("rk4",):
+        raise ValueError(f"fit_inertia: drag= is modelled with method='rk4' only, got method={method!r}")
+    if n_drag and use_accel:
+        raise ValueError(
+            "fit_inertia: accelerations= are modelled for free flight without torques (ω̇ from the "
+            "torque-free Euler equations); omit drag= or accelerations="
+        )
     if gyro_bias and not use_rates:
         raise ValueError("fit_inertia: gyro_bias=True needs body_rates (there is no gyro to be biased)")
 
@@ -197,8 +215,14 @@ def prepare(
     S = int(segments)
     if S < 1 or (T - 1) // S < 2:
         raise ValueError(f"fit_inertia: segments={segments} needs at least 2 intervals each; T = {T}")
-    n_theta = 5 if torque_free else 6
-    n_params = n_theta + 3 * gyro_bias + 3 * gyro_rotation + 6 * use_accel + 6 * S
+    layout = Layout(
+        inertia=5 if torque_free else 6,
+        gyro_bias=3 * gyro_bias,
+        gyro_rotation=3 * gyro_rotation,
+        accelerometer=6 * use_accel,
+        drag=n_drag,
+    )
+    n_theta, n_params = layout.inertia, layout.size(S)
     n_data = 3 * T * (int(use_q) + int(use_rates) + int(use_accel))
     if n_data <= n_params + 1:
         raise ValueError(
@@ -269,11 +293,9 @@ def prepare(
             Body(1.0, I0)  # validates a user guess
         if torque_free:  # the gauge log L00 = 0: rescale so that Σ_xx = 1, drop θ0
             I0 = I0 / (0.5 * np.trace(I0) - I0[0, 0])
-        theta0 = np_params_from_inertia(I0)[(1 if torque_free else 0) :]
-        if gyro_bias:
-            theta0 = np.concatenate([theta0, np.zeros(3)])  # the bias starts at zero
-        if gyro_rotation:
-            theta0 = np.concatenate([theta0, np.zeros(3)])  # and the gyro frame at the body frame
+        # the gyro bias, the gyro frame's rotation and the drag start at zero
+        theta0 = np.zeros(layout.shared)
+        theta0[layout.span("inertia")] = np_params_from_inertia(I0)[(1 if torque_free else 0) :]
         if use_accel:
             # lever arm and bias from linear least squares: a = ([ω̇]× + [ω]×²) r + b_a with the
             # start inertia's ω̇ = -I⁻¹ (ω × I ω), linear in (r, b_a)
@@ -281,7 +303,7 @@ def prepare(
             wd = -np.linalg.solve(I0, np.cross(wn, wn @ I0.T).T).T
             Wx = skew(wn)
             A = np.concatenate([skew(wd) + Wx @ Wx, np.broadcast_to(np.eye(3), (T, 3, 3))], -1).reshape(-1, 6)
-            theta0 = np.concatenate([theta0, np.linalg.lstsq(A, acc[n].reshape(-1), rcond=None)[0]])
+            theta0[layout.span("accelerometer")] = np.linalg.lstsq(A, acc[n].reshape(-1), rcond=None)[0]
         w_start = rates[n][starts]
         y0s.append(np.concatenate([theta0, np.column_stack([np.zeros((S, 3)), w_start]).reshape(-1)]))
         first = (np.arange(S) == 0).astype(np.float64)
@@ -351,10 +373,8 @@ def prepare(
             method=method,
             substeps=int(substeps),
             use_rates=use_rates,
-            gyro_bias=gyro_bias,
             use_orientations=use_q,
-            gyro_rotation=gyro_rotation,
-            use_accel=use_accel,
+            layout=layout,
         ),
         batched=batched,
         segments=S,
@@ -363,4 +383,68 @@ def prepare(
         sensors=(("orientation",) if use_q else ())
         + (("gyro",) if use_rates else ())
         + (("accelerometer",) if use_accel else ()),
+    )
+
+
+def _median_finite(a: np.ndarray) -> np.ndarray:
+    """Column medians of ``a (n, k)`` over its finite entries; NaN for a column without any."""
+    return np.array([np.median(c[np.isfinite(c)]) if np.isfinite(c).any() else np.nan for c in a.T])
+
+
+def join_problems(problems: list[Problem]) -> Problem:
+    """One problem of several single recordings of one body (``fit_inertia(..., joint=True)``).
+
+    Each recording keeps its segments and their nuisance parameters
+    ``(δ_s, ω_s)``; the shared block (inertia, sensor parameters) is one. The
+    segments are stacked in recording order and only the joins inside a
+    recording are kept (the static ``joins``: the segments ``s`` joined to
+    ``s + 1``), so the throws are independent motions of the same body. All
+    must be packed alike (``segments`` each, one ``pad_intervals`` and
+    ``substeps``). Start: the mean of the recordings' shared blocks. Each
+    sensor's noise level is the median of the recordings' (one sensor, one
+    level; each estimate on a short throw is noisy), ``noise_dof`` their sum. Sample indices
+    count the recordings' samples one after the other.
+    """
+    first = problems[0]
+    n_shared = first.static["layout"].shared
+    shared = np.mean([p.y0[0, :n_shared] for p in problems], 0)
+    y0 = np.concatenate([shared] + [p.y0[0, n_shared:] for p in problems])[None]
+    stack = lambda name: np.stack([p.data[name][0] for p in problems])
+    noise = _median_finite(stack("noise_std"))
+    use_q, use_rates = first.static["use_orientations"], first.static["use_rates"]
+    segs = []
+    for p in problems:
+        # one sensor, one noise level: every recording weighted by the median of their levels
+        f_q, f_w, f_a = np.where(np.isfinite(noise), p.data["noise_std"][0] / noise, 1.0)
+        seg = dict(p.data["seg"])
+        seg["wq"], seg["ww"] = seg["wq"] * (f_q if use_q else 1.0), seg["ww"] * (f_w if use_rates else 1.0)
+        seg["wc"] = seg["wc"] * (f_w if use_rates else f_q)  # the rate join in the gyro's (or attitude's) units
+        seg["wcq"] = seg["wcq"] * (f_q if use_q else f_w)
+        if "wa" in seg:
+            seg["wa"] = seg["wa"] * f_a
+        segs.append(seg)
+    seg = jax.tree.map(lambda *a: np.concatenate(a, 1), *segs)
+    data = dict(
+        first.data,
+        seg=seg,
+        noise_std=noise[None],
+        noise_dof=stack("noise_dof").sum(0)[None],
+        n_data=stack("n_data").sum(0)[None],
+        n_unused=stack("n_unused").sum(0)[None],
+    )
+    joins, offset, index, valid = [], 0, [], []
+    sample_offset = 0
+    for p in problems:
+        joins += [offset + s for s in range(p.segments - 1)]
+        offset += p.segments
+        index.append(p.sample_index + sample_offset)
+        valid.append(p.sample_valid)
+        sample_offset += int(p.sample_index.max()) + 1
+    return first._replace(
+        y0=y0,
+        data=data,
+        static=dict(first.static, joins=tuple(joins)),
+        segments=offset,
+        sample_index=np.concatenate(index),
+        sample_valid=np.concatenate(valid),
     )

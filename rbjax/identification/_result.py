@@ -9,7 +9,8 @@ from jaxtyping import Bool, Float, Int
 
 from .._math import quat_exp, quat_multiply
 from .._pytree import field, pytree_dataclass, static_field
-from ._model import normalised_moments, unpack
+from ._layout import Layout
+from ._model import drag_coefficients, normalised_moments, unpack
 
 
 @pytree_dataclass
@@ -123,6 +124,14 @@ class FitResult:
             noise level is ``noise_std · noise_scale``, and the covariance
             uses it (so a wrong or guessed level does not mis-state σ; the
             consistency test says whether the difference is noise).
+        drag: ``(2,)`` fitted drag coefficients ``(c₁, c₂)`` of the body-frame
+            damping torque ``τ_b = -(c₁ + c₂ |ω|) ω`` with ``fit_inertia(...,
+            drag=...)`` (``c₂ = 0`` for ``"linear"``); NaN without drag.
+            Relative to ``tr I`` when the scale is free (``c₁ / tr I`` in 1/s,
+            ``c₂ / tr I`` in 1/rad: only ``I / tr I`` is identifiable, and the
+            damping scales with it); absolute (N m s, N m s²) with torques.
+        drag_std: ``(2,)`` their one-sigma uncertainty (same units and covariance
+            as ``moment_std``); NaN for a coefficient not fitted.
         failed: ``True`` for a recording of a batch or list that could not be
             fitted (its reason in ``member_errors``); its other fields are NaN
             (``False``, 0). Always ``False`` for a single recording, which raises instead.
@@ -132,7 +141,32 @@ class FitResult:
             fitted one by one: the largest).
         member_errors: for a batch or list with recordings that could not be
             fitted, one ``"recording i: reason"`` per such recording (the
-            ``ValueError`` a single fit of it raises); ``()`` otherwise.
+            ``ValueError`` a single fit of it raises); ``()`` otherwise. With
+            ``joint=True`` these recordings were left out of the joint fit.
+        joint: ``True`` for ``fit_inertia(..., joint=True)``: one inertia (and one
+            set of sensor parameters) fitted to all recordings; the fields above
+            then have no batch axis, ``initial_angular_velocity`` and
+            ``initial_orientation`` are the first fitted recording's,
+            ``robust_weights`` and ``outliers`` run over the fitted recordings'
+            samples one after the other, and ``failed`` is ``False``.
+        member_rms: joint fits: per recording given (``()`` otherwise), the RMS
+            of its whitened data residuals per degree of freedom relative to
+            the joint fit's, ``sqrt(χ²_i / (ν_i s²))`` with ``s = residual_ratio``
+            (dimensionless, ≈ 1 for a recording that agrees with the others);
+            NaN for a recording left out.
+        member_chi2: per recording, its whitened data sum of squares ``χ²_i = Σ r²``.
+        member_dof: per recording, ``ν_i = n_i - (6 - u_i) - p_s n_i / n``:
+            its residual count ``n_i`` less its own free start state (6, or 3
+            without orientations: ``u_i = 3``) and its share of the ``p_s``
+            shared parameters.
+        member_pvalue: per recording, ``P(χ²(ν_i) ≥ χ²_i / s²)``: the chance of
+            residuals this much larger than the joint fit's level if it were
+            like the others. One below ``CONSISTENCY_ALPHA`` disagrees with
+            the rest (a different body, a collision, a gyro glitch) and is the
+            one to inspect. (Against ``s²`` rather than the estimated noise
+            levels: on short, fast throws the second differences include the
+            motion's and over-estimate the noise; ``s²`` is checked by
+            ``model_consistent``.)
     """
 
     inertia: Float[Array, "*N 3 3"] = field(core_ndim=2)
@@ -169,9 +203,16 @@ class FitResult:
     noise_estimated: Bool[Array, "*N 3"] = field(core_ndim=1)
     noise_scale: Float[Array, "*N 3"] = field(core_ndim=1)
     failed: Bool[Array, "*N"] = field(core_ndim=0)
+    drag: Float[Array, "*N 2"] = field(core_ndim=1, default=(float("nan"),) * 2)
+    drag_std: Float[Array, "*N 2"] = field(core_ndim=1, default=(float("nan"),) * 2)
     scale_fixed: bool = static_field(default=False)
     segments: int = static_field(default=1)
     member_errors: tuple = static_field(default=())
+    joint: bool = static_field(default=False)
+    member_rms: tuple = static_field(default=())
+    member_chi2: tuple = static_field(default=())
+    member_dof: tuple = static_field(default=())
+    member_pvalue: tuple = static_field(default=())
 
 
 _BOUNDARY_RTOL = 1e-3  # (I1 + I2 - I3) / tr I below this: on the edge of the consistent set
@@ -236,11 +277,9 @@ def summarise(
     *,
     scale_fixed,
     use_rates,
-    gyro_bias,
+    layout: Layout,
     use_orientations=True,
     outlier_weight=0.0,
-    gyro_rotation=False,
-    use_accel=False,
 ):
     """FitResult fields of one recording from the solver's final ``y``, residuals ``r`` and Jacobian ``J``.
 
@@ -251,6 +290,7 @@ def summarise(
     seg = data["seg"]
     S, K = seg["dt"].shape
     p = y.shape[0]
+    use_accel = bool(layout.accelerometer)
     n_blocks = int(use_orientations) + int(use_rates) + int(use_accel)
     n_rows = S * (3 + 3 * K) * n_blocks  # data rows, incl. zero padding
     n_cont = r.shape[0] - n_rows
@@ -276,13 +316,16 @@ def summarise(
     _, V = jnp.linalg.eigh(I)
     V = jax.lax.stop_gradient(V)
     G = jax.jacfwd(lambda yy: jnp.einsum("ik,ij,jk->k", V, normalised_moments(yy, scale_fixed)[0], V))(y)
-    var = _variances(J, n_rows, n_cont, row_s2, jnp.concatenate([G, jnp.eye(p, dtype=y.dtype)]))
+    c_drag = lambda yy: drag_coefficients(yy, scale_fixed, layout)
+    G_drag = jax.jacfwd(c_drag)(y)
+    var = _variances(J, n_rows, n_cont, row_s2, jnp.concatenate([G, jnp.eye(p, dtype=y.dtype), G_drag]))
+    var, var_drag = var[:-2], var[-2:]
     # on the edge of the consistent set (I1 + I2 ≈ I3) the log-Cholesky map flattens: J's inertia
     # columns and G both vanish along the flat direction, and a rounding-level cut would read
     # "independent of it" (σ ~1e-7 on a degenerate fit). There the moments' σ is taken in the
     # inertia's own coordinates c (the 6 entries, or 5 of the unit-trace ones): J_c = J_θ (∂c/∂θ)⁻¹,
     # where the flat direction is a small singular value of J_c with an O(1) G_c: σ finite or inf
-    n_I = 6 if scale_fixed else 5
+    n_I = layout.inertia
     pick = jnp.array([0, 4, 8, 1, 2, 5]) if scale_fixed else jnp.array([0, 4, 1, 2, 5])
     c_of = lambda th: normalised_moments(jnp.concatenate([th, y[n_I:]]), scale_fixed)[0].reshape(-1)[pick]
     M = jax.jacfwd(c_of)(y[:n_I])  # (n_I, n_I)
@@ -301,30 +344,38 @@ def summarise(
     std, param_std = jnp.sqrt(jnp.where(on_edge, var_c, var[:3])), jnp.sqrt(var[3:])
     _, axes = jnp.linalg.eigh(I)
     axes = axes * jnp.sign(jnp.linalg.det(axes))
-    n_I = 6 if scale_fixed else 5
-    n_R = n_I + (3 if gyro_bias else 0)
-    n_A = n_R + (3 if gyro_rotation else 0)
-    _, P = unpack(y, n_A + (6 if use_accel else 0), S)
+    _, P = unpack(y, layout.shared, S)
+    nan2 = jnp.full(2, jnp.nan, y.dtype)
+    drag = layout.drag
+    drag_value = c_drag(y) if drag else nan2
+    drag_std = jnp.where(jnp.arange(2) < drag, jnp.sqrt(var_drag), jnp.nan) if drag else nan2
     if use_accel:
-        a_std = param_std[n_A : n_A + 6]
-        lever, lever_std, a_bias, a_bias_std = y[n_A : n_A + 3], a_std[:3], y[n_A + 3 : n_A + 6], a_std[3:]
+        at = layout.span("accelerometer")
+        (lever, a_bias), (lever_std, a_bias_std) = jnp.split(y[at], 2), jnp.split(param_std[at], 2)
     else:
         lever = lever_std = a_bias = a_bias_std = jnp.full(3, jnp.nan, y.dtype)
     nan3 = jnp.full(3, jnp.nan, y.dtype)
-    if gyro_bias:
-        bias, bias_std = y[n_I : n_I + 3], param_std[n_I : n_I + 3]
+    if layout.gyro_bias:
+        at = layout.span("gyro_bias")
+        bias, bias_std = y[at], param_std[at]
     else:
         bias, bias_std = jnp.zeros(3, y.dtype), nan3
-    if gyro_rotation:
-        rot, rot_std = quat_exp(y[n_R : n_R + 3]), param_std[n_R : n_R + 3]
+    if layout.gyro_rotation:
+        at = layout.span("gyro_rotation")
+        rot, rot_std = quat_exp(y[at]), param_std[at]
     else:
         rot, rot_std = jnp.zeros(4, y.dtype).at[0].set(1), nan3
     n_kept = 3 * jnp.sum(kept, (0, 2))  # per sensor block
-    rms = jnp.sqrt(jnp.sum(r_kept**2 / seg["rw"][..., None], (0, 2, 3)) / n_kept)  # undo √w: σ units
+    # undo √w and each segment's inverse noise level (recordings fitted jointly have their own): sensor units
+    inv_noise = jnp.stack(
+        [seg[k] for k, on in (("wq", use_orientations), ("ww", use_rates), ("wa", use_accel)) if on], 1
+    )
+    r_units = r_kept / (jnp.sqrt(seg["rw"]) * inv_noise[..., None])[..., None]
+    rms = jnp.sqrt(jnp.sum(r_units**2, (0, 2, 3)) / n_kept)
     nan = jnp.full((), jnp.nan, r.dtype)
-    q_rms = rms[0] / seg["wq"][0] if use_orientations else nan
-    w_rms = rms[int(use_orientations)] / seg["ww"][0] if use_rates else nan
-    a_rms = rms[-1] / seg["wa"][0] if use_accel else nan
+    q_rms = rms[0] if use_orientations else nan
+    w_rms = rms[int(use_orientations)] if use_rates else nan
+    a_rms = rms[-1] if use_accel else nan
     # honest failure: the triangle margin I1 + I2 - I3 = 2 λ_min(Σ) near zero, or residuals
     # far above the noise model
     on_boundary = (moments[0] + moments[1] - moments[2]) < _BOUNDARY_RTOL * jnp.sum(moments)
@@ -375,4 +426,6 @@ def summarise(
         noise_std=noise_std,
         noise_estimated=~jnp.isinf(data["noise_dof"]) & ~jnp.isnan(noise_std),
         noise_scale=noise_scale,
+        drag=drag_value,
+        drag_std=drag_std,
     )

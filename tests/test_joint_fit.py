@@ -1,0 +1,126 @@
+"""Several throws of one body fitted together: ``fit_inertia(..., joint=True)``.
+
+Data: torque-free tumbles of a phone-like body integrated by scipy DOP853
+(rtol = atol = 1e-12, float64), sampled at 100 Hz, gyro noise 0.005 rad/s: the
+short real throws (40-100 samples) the joint fit is for.
+"""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+import rbjax as rb
+from rbjax.identification import _fit
+
+jax.config.update("jax_enable_x64", True)
+
+MOMENTS = np.array([1.0, 3.2, 4.1]) * 1e-4  # kg m²
+TRUTH = MOMENTS / MOMENTS.sum()  # gyro-only: I / tr I
+GYRO_STD = 0.005  # rad/s
+LENGTHS = (40, 55, 70, 85, 100)
+
+
+def _euler(_, w, moments):
+    I1, I2, I3 = moments
+    return [(I2 - I3) / I1 * w[1] * w[2], (I3 - I1) / I2 * w[2] * w[0], (I1 - I2) / I3 * w[0] * w[1]]
+
+
+def throws(seed=1, moments=MOMENTS, lengths=LENGTHS):
+    """``(times, gyro)`` lists: one throw per length, 8-12 rad/s about a random axis."""
+    rng = np.random.default_rng(seed)
+    ts, ws = [], []
+    for n in lengths:
+        t = np.arange(n) * 0.01
+        w0 = rng.normal(0, 1, 3)
+        w0 = w0 / np.linalg.norm(w0) * rng.uniform(8, 12)
+        sol = solve_ivp(_euler, (0, t[-1]), w0, args=(moments,), method="DOP853", rtol=1e-12, atol=1e-12, t_eval=t)
+        ts.append(t)
+        ws.append(sol.y.T + rng.normal(0, GYRO_STD, (n, 3)))
+    return ts, ws
+
+
+@pytest.fixture(scope="module")
+def five():
+    ts, ws = throws()
+    return ts, ws, rb.fit_inertia(ts, body_rates=ws, joint=True)
+
+
+def test_joint_fit_recovers_the_inertia(five):
+    _, _, joint = five
+    assert joint.joint and joint.principal_moments.shape == (3,) and bool(joint.converged)
+    sigma = np.asarray(joint.moment_std)
+    # within 3σ of the truth (measured z = 0.8, -0.9, 0.1); σ itself is checked against the
+    # separate fits below (slow) and its size here: ~1e-5 of tr I = 1, not a blanket
+    np.testing.assert_array_less(np.abs(np.asarray(joint.principal_moments) - TRUTH), 3 * sigma)
+    np.testing.assert_array_less(sigma, 1e-4)
+    # per throw: residuals at the joint level (measured 0.88-1.08), none flagged (measured p ≥ 0.03)
+    assert len(joint.member_rms) == 5 and all(0.7 < r < 1.3 for r in joint.member_rms)
+    assert min(joint.member_pvalue) > 1e-3
+    assert abs(float(joint.rate_rms) - GYRO_STD) < 0.2 * GYRO_STD  # ~1000 residuals: rms within ~5%
+
+
+@pytest.mark.slow  # the separate fits compile their own batched program (~17 s)
+def test_joint_sigma_is_smaller_than_one_throws_and_agrees_with_the_separate_fits(five):
+    ts, ws, joint = five
+    sep = rb.fit_inertia(ts, body_rates=ws)
+    sigma = np.asarray(joint.moment_std)
+    # five throws hold ~5x the information of one, so σ shrinks ~sqrt(5) = 2.2x against a typical
+    # throw; the throws differ in length (40-100) and a short throw's information grows faster than
+    # its length (the shape shows through the nutation), so the median throw's σ is not the mean's:
+    # bound 1.5x, a floor that could fail (measured 4.1, 4.1, 7.7x)
+    med = np.median(np.asarray(sep.moment_std), 0)
+    np.testing.assert_array_less(sigma * 1.5, med)
+    # each throw's own fit agrees with the joint one within its σ and the joint σ combined: 4σ for
+    # 15 comparisons of linearised σ on 40-100 samples (measured |z| ≤ 3.2, on the 40-sample throw)
+    diff = np.abs(np.asarray(sep.principal_moments) - np.asarray(joint.principal_moments))
+    np.testing.assert_array_less(diff, 4 * np.hypot(np.asarray(sep.moment_std), sigma))
+
+
+def test_joint_fit_leaves_out_a_bad_throw_and_names_a_disagreeing_one(five):
+    ts, ws, _ = five
+    # throw 2 of another body (I2 and I3 swapped roles: a different shape), throw 5 too short
+    other_t, other_w = throws(seed=7, moments=np.array([1.0, 2.0, 2.6]) * 1e-4, lengths=(70,))
+    ts2 = [ts[0], ts[1], other_t[0], ts[3], ts[4], np.arange(6) * 0.01]
+    ws2 = [ws[0], ws[1], other_w[0], ws[3], ws[4], ws[0][:6]]
+    res = rb.fit_inertia(ts2, body_rates=ws2, joint=True)
+    assert len(res.member_errors) == 1 and res.member_errors[0].startswith("recording 5:")
+    assert np.isnan(res.member_rms[5]) and not bool(res.failed)
+    p = np.asarray(res.member_pvalue[:5])
+    assert p[2] < 1e-3 and np.all(np.delete(p, 2) > 1e-3), p
+    assert int(np.argmax(res.member_rms[:5])) == 2
+    assert not bool(res.model_consistent)  # the joint χ² sees the other body too
+
+
+def test_joint_fit_of_new_lengths_in_the_same_buckets_does_not_recompile(five):
+    # throws a few samples shorter: the same segments (1 each), the longest's intervals in the same
+    # bucket (98 and 99 → 104 padded), the same substeps: the compiled joint program is reused
+    ts, ws, _ = five
+    cut = (38, 53, 66, 84, 99)
+    n_compiled = _fit._fit_batch_jit(jax.default_backend())._cache_size()
+    res = rb.fit_inertia([t[:n] for t, n in zip(ts, cut)], body_rates=[w[:n] for w, n in zip(ws, cut)], joint=True)
+    assert _fit._fit_batch_jit(jax.default_backend())._cache_size() == n_compiled
+    np.testing.assert_array_less(np.abs(np.asarray(res.principal_moments) - TRUTH), 3 * np.asarray(res.moment_std))
+
+
+def test_a_gyro_bias_is_shared_by_the_throws(five):
+    # one phone, one gyro: the same bias on every throw is one shared parameter of the joint fit
+    ts, ws, _ = five
+    bias = np.array([0.02, -0.01, 0.015])  # rad/s
+    res = rb.fit_inertia(ts, body_rates=[w + bias for w in ws], joint=True, gyro_bias=True)
+    assert bool(res.converged)
+    # within 3σ, and σ well below the bias (measured 0.0197, -0.0100, 0.0146 ± 0.0005 rad/s)
+    b, bs = np.asarray(res.gyro_bias), np.asarray(res.gyro_bias_std)
+    np.testing.assert_array_less(np.abs(b - bias), 3 * bs)
+    np.testing.assert_array_less(bs, 0.005)
+    np.testing.assert_array_less(np.abs(np.asarray(res.principal_moments) - TRUTH), 3 * np.asarray(res.moment_std))
+
+
+def test_joint_needs_several_recordings():
+    t = np.arange(50) * 0.01
+    with pytest.raises(ValueError, match="joint=True fits several recordings"):
+        rb.fit_inertia(t, body_rates=np.zeros((50, 3)), joint=True)
+    with pytest.raises(TypeError, match="joint must be True or False"):
+        rb.fit_inertia([t, t], body_rates=[np.zeros((50, 3))] * 2, joint="yes")
