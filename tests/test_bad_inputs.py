@@ -128,6 +128,14 @@ def _as_forces(v):
     return rb.Forces(torque=v) if isinstance(v, np.ndarray) else v
 
 
+def _toss() -> rb.Recording:
+    """A held phone (|a| = g), 0.5 s of free flight (|a| = 0), held again; 100 Hz."""
+    t = np.arange(150) / 100
+    a = np.zeros((150, 3))
+    a[:, 2] = np.where((t > 0.5) & (t < 1.0), 0.0, 9.81)
+    return rb.Recording(times=t, gyro=np.zeros((150, 3)), accelerations=a)
+
+
 def _sim(**kw):
     base = dict(state=_state(), forces=None, dt=0.01, steps=3)
     base.update(kw)
@@ -237,10 +245,28 @@ SLOTS: list[Slot] = [
     Slot("concatenate", "items[1]", lambda v: rb.concatenate([_state(), v]), ("wrong_type",)),
     Slot("batch_sharding", "obj", lambda v: rb.batch_sharding(v, jax.make_mesh((1,), ("bodies",))), ("wrong_type",)),
     Slot("symmetric_part", "A", lambda v: rb.symmetric_part(v), ("wrong_shape",), (3, 3)),
+    # ---- recordings
+    Slot("Recording", "times", lambda v: rb.Recording(times=v), ("wrong_type", "non_finite", "complex"), (4,)),
+    Slot(
+        "Recording",
+        "gyro",
+        lambda v: rb.Recording(times=np.arange(4) / 100, gyro=v),
+        ("wrong_type", "non_finite", "complex", "wrong_shape"),
+        (4, 3),
+    ),
+    Slot("find_throws", "recording", lambda v: rb.find_throws(v), ("wrong_type",)),
+    Slot(
+        "find_throws",
+        "threshold",
+        lambda v: rb.find_throws(_toss(), threshold=v),
+        ("wrong_type", "non_finite", "non_positive"),
+    ),
+    Slot("plot_throws", "recording", lambda v: rb.plot_throws(v, []), ("wrong_type",)),
 ]
 
 # Names not called above, with the reason.
 EXCUSED: dict[str, str] = {
+    "RecordingError": "an exception class: raised by the readers, not called with data",
     # jax.numpy-level building blocks used inside traced kernels: they follow jax.numpy's shape and
     # type conventions (its errors are JAX's) and cannot test values, which are traced there
     **{

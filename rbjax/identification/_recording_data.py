@@ -32,6 +32,20 @@ _UNITS = {"gyroscope": ("rad/s",), "acceleration": ("m/s^2", "m/s²", "m/s2")}
 _GROUP = {"gyroscope": "gyro", "acceleration": "accelerations"}
 
 
+def _real_array(name: str, value: object) -> np.ndarray:
+    """``value`` as a float64 array; ``TypeError`` for what is not real numbers (complex, text, objects)."""
+    try:
+        a = np.asarray(value)
+    except (TypeError, ValueError) as e:  # ragged nested lists
+        raise TypeError(f"Recording: {name} must be an array of real numbers, got {type(value).__name__}: {e}") from e
+    if a.dtype.kind not in "iuf" or a.dtype == np.float16:
+        raise TypeError(
+            f"Recording: {name} must be an array of real numbers (float32 or float64), got dtype {a.dtype}: "
+            "pass the sensor's readings as floats (a phyphox export: Recording.from_phyphox)"
+        )
+    return a.astype(np.float64)
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class Recording:
     """One recorded motion: sample times and the sensor readings at them (NumPy float64).
@@ -62,7 +76,7 @@ class Recording:
     source: str = ""
 
     def __post_init__(self) -> None:
-        t = np.asarray(self.times, dtype=np.float64)
+        t = _real_array("times", self.times)
         if t.ndim != 1 or t.shape[0] < 2:
             raise ValueError(
                 f"Recording: times must be a 1-D array of at least 2 sample times (s), got shape {t.shape}"
@@ -81,7 +95,7 @@ class Recording:
             v = getattr(self, name)
             if v is None:
                 continue
-            a = np.asarray(v, dtype=np.float64)
+            a = _real_array(name, v)
             if a.shape != (t.shape[0], width):
                 raise ValueError(
                     f"Recording: {name} must have shape (T, {width}) = ({t.shape[0]}, {width}) to match times, "

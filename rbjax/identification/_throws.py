@@ -18,6 +18,14 @@ __all__ = ["find_throws", "plot_throws"]
 STANDARD_GRAVITY = 9.80665  # m/s²
 
 
+def _check_recording(fn: str, recording: object) -> None:
+    if not isinstance(recording, Recording):
+        raise TypeError(
+            f"{fn}: recording must be an rbjax.Recording, got {type(recording).__name__}: build one with "
+            "rbjax.Recording(times=..., accelerations=...) or read a file with Recording.from_phyphox(path)"
+        )
+
+
 def find_throws(
     recording: Recording,
     *,
@@ -54,8 +62,7 @@ def find_throws(
             ``margin`` or ``min_duration`` that is not finite and positive
             (``margin`` may be 0).
     """
-    if not isinstance(recording, Recording):
-        raise TypeError(f"find_throws: expected an rbjax.Recording, got {type(recording).__name__}")
+    _check_recording("find_throws", recording)
     if recording.accelerations is None:
         raise ValueError(
             "find_throws: the recording has no accelerations; free flight is found from the accelerometer "
@@ -88,6 +95,7 @@ def plot_throws(recording: Recording, windows, ax=None):
     ``demo`` extra). ``ax``: a matplotlib ``Axes`` to draw on (default: a new
     figure); ``|ω|`` goes on a twin axis. Returns the ``Axes``.
     """
+    _check_recording("plot_throws", recording)
     try:
         import matplotlib.pyplot as plt
     except ImportError as e:
