@@ -393,7 +393,7 @@ def _plot_throw_fits(path: str, throws, res) -> None:
         if not bool(np.asarray(res.failed)[k]):
             I = np.asarray(res.inertia)[k]
             w0 = np.asarray(res.initial_angular_velocity)[k]
-            w = _euler_rates(I, w0, t) + np.asarray(res.gyro_bias)[k]
+            w = _fitted_rates(I, w0, t, np.asarray(res.drag)[k]) + np.asarray(res.gyro_bias)[k]
             for j, c in enumerate("xyz"):
                 ax.plot(t, w[:, j], "-", lw=1, color=f"C{j}", label=f"ω{c} fitted")
         ax.set_ylabel("ω (rad/s, body)")
@@ -406,27 +406,31 @@ def _plot_throw_fits(path: str, throws, res) -> None:
     plt.close(fig)
 
 
-def _euler_rates(I, w0, t, steps: int = 20):
-    """Body rates ``(T, 3)`` at ``t`` of the torque-free body ``I ω̇ = (I ω) × ω`` from ``ω(t[0]) = w0`` (RK4)."""
+def _fitted_rates(I, w0, t, drag, per_sample: int = 20):
+    """Body rates ``(T, 3)`` at the sample times ``t`` of the fitted model, from ``ω(t[0]) = w0`` (body).
+
+    Torque-free, the exact solution (:func:`rbjax.torque_free`). With a fitted
+    drag torque ``-(c1 + c2|ω|) ω``, which has the same form in the body and the
+    world frame, :func:`rbjax.simulate` with ``"rk4"`` at ``per_sample`` steps per
+    mean sample interval, interpolated linearly onto ``t``. ``I`` and ``drag``
+    are given relative to ``tr I`` (a gyro-only fit fixes no scale), so the body is ``I / tr I``.
+    """
     import numpy as np
 
-    Iinv = np.linalg.inv(I)
+    import rbjax as rb
 
-    def f(w):
-        return Iinv @ np.cross(I @ w, w)
-
-    out = [w0]
-    w = np.asarray(w0, float)
-    for a, b in zip(t[:-1], t[1:]):
-        h = (b - a) / steps
-        for _ in range(steps):
-            k1 = f(w)
-            k2 = f(w + h / 2 * k1)
-            k3 = f(w + h / 2 * k2)
-            k4 = f(w + h * k3)
-            w = w + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        out.append(w)
-    return np.array(out)
+    state = rb.State.create(rb.Body(1.0, I / np.trace(I)), angular_velocity=w0)  # identity: body = world at t[0]
+    c1, c2 = np.nan_to_num(np.asarray(drag, float))  # NaN: no drag was fitted
+    if c1 == 0 and c2 == 0:
+        traj = rb.torque_free(state, t - t[0])
+        return np.asarray(rb.body_angular_velocity(traj))
+    steps = per_sample * (len(t) - 1)
+    dt = (t[-1] - t[0]) / steps
+    forces = rb.LinearDrag(0.0, angular=c1) + rb.QuadraticDrag(0.0, angular=c2)
+    traj = rb.simulate(state, forces, dt, steps, "rk4")
+    grid = t[0] + dt * np.arange(steps + 1)
+    w = np.asarray(rb.body_angular_velocity(traj))
+    return np.stack([np.interp(t, grid, w[:, j]) for j in range(3)], axis=-1)
 
 
 def _fit_report(res) -> dict:
