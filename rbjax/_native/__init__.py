@@ -38,7 +38,7 @@ from .._state import Forces, State
 
 __all__ = ["NativeStatus", "native_status", "native_plan", "advance"]
 
-METHODS = {"euler": 0, "rk4": 1, "splitting": 2}  # the kernel's method codes (kernels.cc: Method)
+METHODS = {"euler": 0, "rk4": 1, "splitting": 2, "semi_implicit_euler": 3, "rk4_body": 4}  # the kernel's method codes (kernels.cc: Method)
 _TARGET = "rbjax_advance"
 _ISA = ("x86-64 baseline", "AVX2", "AVX-512")
 

@@ -20,6 +20,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <thread>
 
@@ -30,7 +31,7 @@ namespace ffi = xla::ffi;
 namespace rbjax_native {
 
 // Method codes (the `method` attribute), as in rbjax/_native/__init__.py.
-enum Method : int64_t { kEuler = 0, kRk4 = 1, kSplitting = 2 };
+enum Method : int64_t { kEuler = 0, kRk4 = 1, kSplitting = 2, kSemiImplicitEuler = 3, kRk4Body = 4 };
 
 constexpr int kBlock = 64;  // bodies per block: its state and constants stay in L1 across the steps
 
@@ -188,7 +189,7 @@ ffi::Error advance_typed(ffi::ThreadPool& pool, ffi::AnyBuffer x, ffi::AnyBuffer
                          int64_t method, int64_t terms) {
   auto dims = x.dimensions();
   if (dims.size() < 2 || dims[dims.size() - 1] != 3) return ffi::Error::InvalidArgument("x must be (..., N, 3)");
-  if (method != kEuler && method != kRk4 && method != kSplitting) {
+  if (method < kEuler || method > kRk4Body) {
     return ffi::Error::InvalidArgument("unknown method code");
   }
   Problem<T> P;
