@@ -2,8 +2,9 @@
 //
 // One call advances a batch of State bodies (x, v, q, L) by `steps` steps of dt,
 // the steps between two saved frames of rbjax.simulate. The arithmetic mirrors the
-// JAX reference in rbjax/_methods/euler.py and rbjax/_methods/explicit_rk.py
-// (with rbjax/_dynamics.py and the force models of rbjax/_forces.py) operation by
+// JAX reference in rbjax/_methods/ (euler.py, explicit_rk.py, splitting.py,
+// semi_implicit_euler.py, rk4_body.py; with rbjax/_dynamics.py and the force models
+// of rbjax/_forces.py) operation by
 // operation, so the two agree to round-off; tests/test_native.py holds them to it.
 // How the pieces map, and how to add a method: README.md beside this file.
 //
