@@ -90,6 +90,20 @@ RBJAX_INLINE void forces(const Consts<T>& k, int j, const T v[3], const T w[3], 
   }
 }
 
+// Body j's row-major I_L⁻¹, out of the block's constants.
+template <typename T>
+RBJAX_INLINE void load_inv(const Consts<T>& k, int j, T inv[9]) {
+#pragma GCC unroll 16
+  for (int c = 0; c < 9; ++c) inv[c] = k.inv[c][j];
+}
+
+// Body j's quaternion, into the block's rows.
+template <typename T>
+RBJAX_INLINE void store_q(Block<T>& B, int j, const T q[4]) {
+#pragma GCC unroll 16
+  for (int c = 0; c < 4; ++c) B.q[c][j] = q[c];
+}
+
 // Body j's quaternion, momentum, velocity and inverse inertia, out of the block's rows.
 template <typename T>
 RBJAX_INLINE void load_body(const Block<T>& B, const Consts<T>& k, int j, T q[4], T L[3], T v[3], T inv[9]) {
@@ -100,15 +114,13 @@ RBJAX_INLINE void load_body(const Block<T>& B, const Consts<T>& k, int j, T q[4]
     L[c] = B.L[c][j];
     v[c] = B.v[c][j];
   }
-#pragma GCC unroll 16
-  for (int c = 0; c < 9; ++c) inv[c] = k.inv[c][j];
+  load_inv(k, j, inv);
 }
 
 // Body j's quaternion, momentum and velocity, back into the block's rows.
 template <typename T>
 RBJAX_INLINE void store_body(Block<T>& B, int j, const T q[4], const T L[3], const T v[3]) {
-#pragma GCC unroll 16
-  for (int c = 0; c < 4; ++c) B.q[c][j] = q[c];
+  store_q(B, j, q);
 #pragma GCC unroll 16
   for (int c = 0; c < 3; ++c) {
     B.v[c][j] = v[c];
@@ -142,8 +154,7 @@ void euler_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
       #pragma GCC unroll 16
       for (int c = 0; c < 4; ++c) q[c] = q[c] + h * p[c];
       normalize(q);
-      #pragma GCC unroll 16
-      for (int c = 0; c < 4; ++c) B.q[c][j] = q[c];
+      store_q(B, j, q);
     }
   }
 }
@@ -153,8 +164,7 @@ void euler_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
 template <typename T, bool kForces, bool kQuad>
 RBJAX_INLINE void derivative(const Consts<T>& k, int j, const T y[13], T d[13]) {
   T inv[9], w[3], p[4];
-  #pragma GCC unroll 16
-  for (int c = 0; c < 9; ++c) inv[c] = k.inv[c][j];
+  load_inv(k, j, inv);
   omega(y + 6, y + 10, inv, w);
   #pragma GCC unroll 16
   for (int c = 0; c < 3; ++c) d[c] = y[3 + c];
@@ -332,80 +342,13 @@ void splitting_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], 
   }
 }
 
-// exp(r) as rbjax._math.quat_exp: [cos(θ/2), sin(θ/2)/θ r], with its Taylor series below
-// θ² < √eps; both branches computed and one selected, so the loops stay straight-line. In two
-// parts around the sine and cosine of θ/2 (exp_angle gives θ² and θ, the square root of 1 where
-// the series applies), which run in a scalar loop of their own: without -ffast-math the compiler
-// has no vector sin or cos, and a call in the loop would keep all of it scalar.
-template <typename T>
-RBJAX_INLINE bool exp_angle(const T r[3], T& th2, T& th) {
-  th2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
-  const bool small = th2 < std::sqrt(std::numeric_limits<T>::epsilon());
-  th = std::sqrt(small ? T(1) : th2);
-  return small;
-}
-
-template <typename T>
-RBJAX_INLINE void quat_exp(const T r[3], T sin_half, T cos_half, T e[4]) {
-  T th2, th;
-  const bool small = exp_angle(r, th2, th);
-  const T half_sinc_series = (T(0.5) - th2 / T(48)) + th2 * th2 / T(3840);
-  const T cos_half_series = (T(1) - th2 / T(8)) + th2 * th2 / T(384);
-  const T hs = small ? half_sinc_series : sin_half / th;
-  e[0] = small ? cos_half_series : cos_half;
-#pragma GCC unroll 16
-  for (int c = 0; c < 3; ++c) e[1 + c] = hs * r[c];
-}
-
-// `steps` semi-implicit Euler steps of a block (rbjax/_methods/semi_implicit_euler.py:
-// semi_implicit_state): kick(dt) with the forces at the step's start, then q ← exp(ω dt) ⊗ q
-// with ω from the new L and the old q, normalised, and x += v dt with the new v. Three loops
-// per step: the kick and r = ω dt (vectorised), sin and cos of θ/2 (scalar), the turn.
-template <typename T, bool kForces, bool kQuad>
-void semi_implicit_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
-  T r[3][kBlock], sin_half[kBlock], cos_half[kBlock];
-  for (int64_t s = 0; s < steps; ++s) {
-#pragma GCC ivdep
-    for (int j = 0; j < n; ++j) {
-      T q[4], L[3], v[3], inv[9], w[3];
-      load_body(B, k, j, q, L, v, inv);
-      if (kForces) kick<T, kQuad>(k, j, q, inv, dt, v, L);
-      omega(q, L, inv, w);
-#pragma GCC unroll 16
-      for (int c = 0; c < 3; ++c) {
-        r[c][j] = w[c] * dt;
-        B.x[c][j] = B.x[c][j] + v[c] * dt;
-      }
-      store_body(B, j, q, L, v);
-    }
-    for (int j = 0; j < n; ++j) {
-      T rj[3] = {r[0][j], r[1][j], r[2][j]}, th2, th;
-      exp_angle(rj, th2, th);
-      sin_half[j] = std::sin(th / T(2));
-      cos_half[j] = std::cos(th / T(2));
-    }
-#pragma GCC ivdep
-    for (int j = 0; j < n; ++j) {
-      T q[4], rj[3] = {r[0][j], r[1][j], r[2][j]}, e[4], q1[4];
-#pragma GCC unroll 16
-      for (int c = 0; c < 4; ++c) q[c] = B.q[c][j];
-      quat_exp(rj, sin_half[j], cos_half[j], e);
-      quat_multiply(e, q, q1);
-      normalize(q1);
-#pragma GCC unroll 16
-      for (int c = 0; c < 4; ++c) B.q[c][j] = q1[c];
-    }
-  }
-}
-
 // The body-frame right-hand side of rbjax/_methods/rk4_body.py (_body_derivative) for
 // y = (x, v, q, π): ẋ = v, v̇ = F/m, q̇ = ½ q ⊗ (0, ω), π̇ = π × ω + Rᵀ τ with ω = I_L⁻¹ π;
 // the forces see the world state (q, L = R π), as rk4_body's force_fn(world(y)) does.
 template <typename T, bool kForces, bool kQuad>
 RBJAX_INLINE void body_derivative(const Consts<T>& k, int j, const T y[13], T d[13]) {
   T inv[9], w[3], p[4];
-#pragma GCC unroll 16
-  for (int c = 0; c < 9; ++c) inv[c] = k.inv[c][j];
+  load_inv(k, j, inv);
   const T* q = y + 6;
   const T* pi = y + 10;
   matvec3(inv, pi, w);
@@ -468,6 +411,71 @@ void rk4_body_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps)
 #pragma GCC unroll 16
       for (int c = 0; c < 3; ++c) B.x[c][j] = y[c];
       store_body(B, j, y + 6, L, y + 3);
+    }
+  }
+}
+
+// exp(r) as rbjax._math.quat_exp: [cos(θ/2), sin(θ/2)/θ r], with its Taylor series below
+// θ² < √eps; both branches computed and one selected, so the loops stay straight-line. In two
+// parts around the sine and cosine of θ/2 (exp_angle gives θ² and θ, the square root of 1 where
+// the series applies), which run in a scalar loop of their own: without -ffast-math the compiler
+// has no vector sin or cos, and a call in the loop would keep all of it scalar.
+template <typename T>
+RBJAX_INLINE bool exp_angle(const T r[3], T& th2, T& th) {
+  th2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
+  const bool small = th2 < std::sqrt(std::numeric_limits<T>::epsilon());
+  th = std::sqrt(small ? T(1) : th2);
+  return small;
+}
+
+template <typename T>
+RBJAX_INLINE void quat_exp(const T r[3], T sin_half, T cos_half, T e[4]) {
+  T th2, th;
+  const bool small = exp_angle(r, th2, th);
+  const T half_sinc_series = (T(0.5) - th2 / T(48)) + th2 * th2 / T(3840);
+  const T cos_half_series = (T(1) - th2 / T(8)) + th2 * th2 / T(384);
+  const T hs = small ? half_sinc_series : sin_half / th;
+  e[0] = small ? cos_half_series : cos_half;
+#pragma GCC unroll 16
+  for (int c = 0; c < 3; ++c) e[1 + c] = hs * r[c];
+}
+
+// `steps` semi-implicit Euler steps of a block (rbjax/_methods/semi_implicit_euler.py:
+// semi_implicit_state): kick(dt) with the forces at the step's start, then q ← exp(ω dt) ⊗ q
+// with ω from the new L and the old q, normalised, and x += v dt with the new v. Three loops
+// per step: the kick and r = ω dt (vectorised), sin and cos of θ/2 (scalar), the turn.
+template <typename T, bool kForces, bool kQuad>
+void semi_implicit_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
+  T r[3][kBlock], sin_half[kBlock], cos_half[kBlock];
+  for (int64_t s = 0; s < steps; ++s) {
+#pragma GCC ivdep
+    for (int j = 0; j < n; ++j) {
+      T q[4], L[3], v[3], inv[9], w[3];
+      load_body(B, k, j, q, L, v, inv);
+      if (kForces) kick<T, kQuad>(k, j, q, inv, dt, v, L);
+      omega(q, L, inv, w);
+#pragma GCC unroll 16
+      for (int c = 0; c < 3; ++c) {
+        r[c][j] = w[c] * dt;
+        B.x[c][j] = B.x[c][j] + v[c] * dt;
+      }
+      store_body(B, j, q, L, v);
+    }
+    for (int j = 0; j < n; ++j) {
+      T rj[3] = {r[0][j], r[1][j], r[2][j]}, th2, th;
+      exp_angle(rj, th2, th);
+      sin_half[j] = std::sin(th / T(2));
+      cos_half[j] = std::cos(th / T(2));
+    }
+#pragma GCC ivdep
+    for (int j = 0; j < n; ++j) {
+      T q[4], rj[3] = {r[0][j], r[1][j], r[2][j]}, e[4], q1[4];
+#pragma GCC unroll 16
+      for (int c = 0; c < 4; ++c) q[c] = B.q[c][j];
+      quat_exp(rj, sin_half[j], cos_half[j], e);
+      quat_multiply(e, q, q1);
+      normalize(q1);
+      store_q(B, j, q1);
     }
   }
 }
