@@ -118,6 +118,19 @@ def test_native_matches_jax_over_batch_shapes_and_shared_bodies(method, batch, s
 
 
 @needs_kernels
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_native_quat_exp_takes_both_branches(dtype):
+    # quat_exp switches to its series below θ² = √eps: rates from 0 to 10 rad/s put bodies of
+    # one block on both sides of the switch in either dtype
+    state = _state((8,), dtype)
+    rates = jnp.asarray([0.0, 1e-7, 1e-5, 1e-3, 0.1, 1.0, 3.0, 10.0], dtype)
+    direction = rb.quat_normalize(jnp.asarray(np.random.default_rng(2).normal(size=(8, 4)), dtype))[:, 1:]
+    state = rb.State.create(state.body, orientation=state.orientation, angular_velocity=rates[:, None] * direction)
+    nat, ref = _both(state, _forces("every term", (8,), dtype), "semi_implicit_euler")
+    _assert_close(nat, ref, STEPS, dtype)
+
+
+@needs_kernels
 def test_native_under_jit_vmap_and_chunked_runs(tmp_path):
     state = _state((4,), jnp.float64)
     forces = _forces("gravity+quadratic", (4,), jnp.float64)
