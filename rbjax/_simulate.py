@@ -230,8 +230,8 @@ def simulate(
             either divide ``save_every`` or be a multiple of it. Values and
             gradients are unchanged (to round-off). See :func:`rbjax._scan.checkpointed_scan`.
         native: which implementation steps the bodies. ``None`` (default): the
-            native CPU kernel where one applies (``"euler"``, ``"rk4"``, ``"splitting"`` on
-            :class:`State` batches, float32/float64, no force or constant,
+            native CPU kernel where one applies (``"euler"``, ``"rk4"``, ``"splitting"``,
+            ``"semi_implicit_euler"``, ``"rk4_body"`` on :class:`State` batches, float32/float64, no force or constant,
             gravity, drag forces; see :func:`rbjax.native_status`), else JAX.
             ``False``: always JAX. ``True``: the kernel, or ``ValueError`` saying
             why it does not apply. Both give the same values to round-off;

@@ -12,6 +12,7 @@ term, a transposed inertia) exceeds by orders of magnitude.
 
 import shutil
 import warnings
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -117,6 +118,19 @@ def test_native_matches_jax_over_batch_shapes_and_shared_bodies(method, batch, s
 
 
 @needs_kernels
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_native_quat_exp_takes_both_branches(dtype):
+    # quat_exp switches to its series below θ² = √eps: rates from 0 to 10 rad/s put bodies of
+    # one block on both sides of the switch in either dtype
+    state = _state((8,), dtype)
+    rates = jnp.asarray([0.0, 1e-7, 1e-5, 1e-3, 0.1, 1.0, 3.0, 10.0], dtype)
+    direction = rb.quat_normalize(jnp.asarray(np.random.default_rng(2).normal(size=(8, 4)), dtype))[:, 1:]
+    state = rb.State.create(state.body, orientation=state.orientation, angular_velocity=rates[:, None] * direction)
+    nat, ref = _both(state, _forces("every term", (8,), dtype), "semi_implicit_euler")
+    _assert_close(nat, ref, STEPS, dtype)
+
+
+@needs_kernels
 def test_native_under_jit_vmap_and_chunked_runs(tmp_path):
     state = _state((4,), jnp.float64)
     forces = _forces("gravity+quadratic", (4,), jnp.float64)
@@ -136,7 +150,11 @@ def test_native_under_jit_vmap_and_chunked_runs(tmp_path):
 @pytest.mark.parametrize(
     ("method", "mode"),
     [("euler", jax.grad), pytest.param("euler", jax.jacfwd, marks=pytest.mark.slow)]
-    + [pytest.param("rk4", m, marks=pytest.mark.slow) for m in (jax.grad, jax.jacfwd)],
+    + [
+        pytest.param(m, mode, marks=pytest.mark.slow)
+        for m in ("rk4", "splitting", "semi_implicit_euler", "rk4_body")
+        for mode in (jax.grad, jax.jacfwd)
+    ],
 )
 def test_gradients_through_the_native_path_are_the_jax_steps(method, mode):
     # derivatives come from the JAX steps (custom_jvp): the same to round-off in both modes
@@ -188,3 +206,12 @@ def test_without_the_library_simulate_runs_on_jax_and_says_so_once(monkeypatch):
     _assert_close(out, again, 6, jnp.float64)
     with pytest.raises(ValueError, match="not built at install"):
         rb.simulate(state, None, 1e-2, 6, "euler", native=True)
+
+
+def test_the_docs_name_every_method_with_a_kernel():
+    # the prose lists are written by hand: each must name every method of METHODS
+    readme = (Path(_native.__file__).parent / "README.md").read_text()
+    for text in (_native.__doc__, _native.native_status.__doc__, rb.simulate.__doc__):
+        assert text is not None
+        assert all(f'``"{m}"``' in text for m in _native.METHODS), text
+    assert all(f"`{m}_steps`" in readme or f"{m}.py" in readme for m in _native.METHODS)

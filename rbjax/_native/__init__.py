@@ -2,7 +2,8 @@
 
 ``kernels.cc`` (built at install, see README.md beside this file) advances a
 batch of :class:`rbjax.State` bodies by all the steps between two saved frames
-in one call: ``"euler"``, ``"rk4"`` and ``"splitting"``, float32 and float64, with the force
+in one call: the methods of ``METHODS`` (``"euler"``, ``"rk4"``, ``"splitting"``,
+``"semi_implicit_euler"``, ``"rk4_body"``), float32 and float64, with the force
 laws that are per body evaluated inside the kernel (none, constant
 :class:`rbjax.Forces`, and sums of :class:`rbjax.Gravity`,
 :class:`rbjax.LinearDrag`, :class:`rbjax.QuadraticDrag` and
@@ -38,7 +39,13 @@ from .._state import Forces, State
 
 __all__ = ["NativeStatus", "native_status", "native_plan", "advance"]
 
-METHODS = {"euler": 0, "rk4": 1, "splitting": 2}  # the kernel's method codes (kernels.cc: Method)
+METHODS = {
+    "euler": 0,
+    "rk4": 1,
+    "splitting": 2,
+    "semi_implicit_euler": 3,
+    "rk4_body": 4,
+}  # the kernel's method codes (kernels.cc: Method)
 _TARGET = "rbjax_advance"
 _ISA = ("x86-64 baseline", "AVX2", "AVX-512")
 
@@ -86,7 +93,9 @@ def native_status() -> NativeStatus:
     from ``kernels.cc`` (a C++ compiler is needed; without one the install still
     succeeds and every run takes the JAX path). Loaded on the first call and
     registered with XLA as the CPU custom call ``"rbjax_advance"``. Returns a
-    :class:`NativeStatus`; ``str()`` of it is one line for a log.
+    :class:`NativeStatus`; ``str()`` of it is one line for a log, and its ``methods``
+    the methods with a kernel (``"euler"``, ``"rk4"``, ``"splitting"``,
+    ``"semi_implicit_euler"``, ``"rk4_body"``).
     """
     path = _library_path()
     if path is None:

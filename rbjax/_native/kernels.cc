@@ -2,8 +2,9 @@
 //
 // One call advances a batch of State bodies (x, v, q, L) by `steps` steps of dt,
 // the steps between two saved frames of rbjax.simulate. The arithmetic mirrors the
-// JAX reference in rbjax/_methods/euler.py and rbjax/_methods/explicit_rk.py
-// (with rbjax/_dynamics.py and the force models of rbjax/_forces.py) operation by
+// JAX reference in rbjax/_methods/ (euler.py, explicit_rk.py, splitting.py,
+// semi_implicit_euler.py, rk4_body.py; with rbjax/_dynamics.py and the force models
+// of rbjax/_forces.py) operation by
 // operation, so the two agree to round-off; tests/test_native.py holds them to it.
 // How the pieces map, and how to add a method: README.md beside this file.
 //
@@ -20,6 +21,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <thread>
 
@@ -30,7 +32,7 @@ namespace ffi = xla::ffi;
 namespace rbjax_native {
 
 // Method codes (the `method` attribute), as in rbjax/_native/__init__.py.
-enum Method : int64_t { kEuler = 0, kRk4 = 1, kSplitting = 2 };
+enum Method : int64_t { kEuler = 0, kRk4 = 1, kSplitting = 2, kSemiImplicitEuler = 3, kRk4Body = 4 };
 
 constexpr int kBlock = 64;  // bodies per block: its state and constants stay in L1 across the steps
 
@@ -188,7 +190,7 @@ ffi::Error advance_typed(ffi::ThreadPool& pool, ffi::AnyBuffer x, ffi::AnyBuffer
                          int64_t method, int64_t terms) {
   auto dims = x.dimensions();
   if (dims.size() < 2 || dims[dims.size() - 1] != 3) return ffi::Error::InvalidArgument("x must be (..., N, 3)");
-  if (method != kEuler && method != kRk4 && method != kSplitting) {
+  if (method < kEuler || method > kRk4Body) {
     return ffi::Error::InvalidArgument("unknown method code");
   }
   Problem<T> P;

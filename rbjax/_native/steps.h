@@ -10,27 +10,40 @@
 // same order of sums; kernels.cc is built with -ffp-contract=off, so no fused
 // multiply-adds), which keeps the two within round-off of each other.
 
-// ω = R I_L⁻¹ Rᵀ L by quaternion rotations, as rbjax._dynamics.omega_world with
-// rbjax._math.quat_rotate (v + w t + u × t, t = 2 u × v) and rbjax._math.matvec3.
+// q ⊗ (0, a) ⊗ q* as rbjax._math.quat_rotate: a + w t + u × t with t = 2 u × a.
+template <typename T>
+RBJAX_INLINE void quat_rotate(const T q[4], const T a[3], T out[3]) {
+  const T ux = q[1], uy = q[2], uz = q[3];
+  const T t0 = T(2) * (uy * a[2] - uz * a[1]);
+  const T t1 = T(2) * (uz * a[0] - ux * a[2]);
+  const T t2 = T(2) * (ux * a[1] - uy * a[0]);
+  out[0] = a[0] + q[0] * t0 + (uy * t2 - uz * t1);
+  out[1] = a[1] + q[0] * t1 + (uz * t0 - ux * t2);
+  out[2] = a[2] + q[0] * t2 + (ux * t1 - uy * t0);
+}
+
+// Rᵀ a: the rotation by the conjugate (w, -u), as quat_rotate(quat_conjugate(q), a).
+template <typename T>
+RBJAX_INLINE void quat_rotate_back(const T q[4], const T a[3], T out[3]) {
+  const T conj[4] = {q[0], -q[1], -q[2], -q[3]};
+  quat_rotate(conj, a, out);
+}
+
+// A v for a row-major 3x3 A, as rbjax._math.matvec3.
+template <typename T>
+RBJAX_INLINE void matvec3(const T A[9], const T a[3], T out[3]) {
+  out[0] = A[0] * a[0] + A[1] * a[1] + A[2] * a[2];
+  out[1] = A[3] * a[0] + A[4] * a[1] + A[5] * a[2];
+  out[2] = A[6] * a[0] + A[7] * a[1] + A[8] * a[2];
+}
+
+// ω = R I_L⁻¹ Rᵀ L by quaternion rotations, as rbjax._dynamics.omega_world.
 template <typename T>
 RBJAX_INLINE void omega(const T q[4], const T L[3], const T inv[9], T w[3]) {
-  const T cx = -q[1], cy = -q[2], cz = -q[3];  // Rᵀ: the conjugate (w, -u)
-  T t0 = T(2) * (cy * L[2] - cz * L[1]);
-  T t1 = T(2) * (cz * L[0] - cx * L[2]);
-  T t2 = T(2) * (cx * L[1] - cy * L[0]);
-  const T b0 = L[0] + q[0] * t0 + (cy * t2 - cz * t1);
-  const T b1 = L[1] + q[0] * t1 + (cz * t0 - cx * t2);
-  const T b2 = L[2] + q[0] * t2 + (cx * t1 - cy * t0);
-  const T a0 = inv[0] * b0 + inv[1] * b1 + inv[2] * b2;  // I_L⁻¹ (Rᵀ L), row by row
-  const T a1 = inv[3] * b0 + inv[4] * b1 + inv[5] * b2;
-  const T a2 = inv[6] * b0 + inv[7] * b1 + inv[8] * b2;
-  const T ux = q[1], uy = q[2], uz = q[3];
-  t0 = T(2) * (uy * a2 - uz * a1);
-  t1 = T(2) * (uz * a0 - ux * a2);
-  t2 = T(2) * (ux * a1 - uy * a0);
-  w[0] = a0 + q[0] * t0 + (uy * t2 - uz * t1);
-  w[1] = a1 + q[0] * t1 + (uz * t0 - ux * t2);
-  w[2] = a2 + q[0] * t2 + (ux * t1 - uy * t0);
+  T b[3], a[3];
+  quat_rotate_back(q, L, b);
+  matvec3(inv, b, a);
+  quat_rotate(q, a, w);
 }
 
 // (0, ω) ⊗ q without the zero, as rbjax._math.pure_quat_multiply.
@@ -77,6 +90,20 @@ RBJAX_INLINE void forces(const Consts<T>& k, int j, const T v[3], const T w[3], 
   }
 }
 
+// Body j's row-major I_L⁻¹, out of the block's constants.
+template <typename T>
+RBJAX_INLINE void load_inv(const Consts<T>& k, int j, T inv[9]) {
+#pragma GCC unroll 16
+  for (int c = 0; c < 9; ++c) inv[c] = k.inv[c][j];
+}
+
+// Body j's quaternion, into the block's rows.
+template <typename T>
+RBJAX_INLINE void store_q(Block<T>& B, int j, const T q[4]) {
+#pragma GCC unroll 16
+  for (int c = 0; c < 4; ++c) B.q[c][j] = q[c];
+}
+
 // Body j's quaternion, momentum, velocity and inverse inertia, out of the block's rows.
 template <typename T>
 RBJAX_INLINE void load_body(const Block<T>& B, const Consts<T>& k, int j, T q[4], T L[3], T v[3], T inv[9]) {
@@ -87,8 +114,18 @@ RBJAX_INLINE void load_body(const Block<T>& B, const Consts<T>& k, int j, T q[4]
     L[c] = B.L[c][j];
     v[c] = B.v[c][j];
   }
+  load_inv(k, j, inv);
+}
+
+// Body j's quaternion, momentum and velocity, back into the block's rows.
+template <typename T>
+RBJAX_INLINE void store_body(Block<T>& B, int j, const T q[4], const T L[3], const T v[3]) {
+  store_q(B, j, q);
 #pragma GCC unroll 16
-  for (int c = 0; c < 9; ++c) inv[c] = k.inv[c][j];
+  for (int c = 0; c < 3; ++c) {
+    B.v[c][j] = v[c];
+    B.L[c][j] = L[c];
+  }
 }
 
 // `steps` explicit-Euler steps of a block (rbjax/_methods/euler.py: euler_state).
@@ -117,8 +154,7 @@ void euler_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
       #pragma GCC unroll 16
       for (int c = 0; c < 4; ++c) q[c] = q[c] + h * p[c];
       normalize(q);
-      #pragma GCC unroll 16
-      for (int c = 0; c < 4; ++c) B.q[c][j] = q[c];
+      store_q(B, j, q);
     }
   }
 }
@@ -128,8 +164,7 @@ void euler_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
 template <typename T, bool kForces, bool kQuad>
 RBJAX_INLINE void derivative(const Consts<T>& k, int j, const T y[13], T d[13]) {
   T inv[9], w[3], p[4];
-  #pragma GCC unroll 16
-  for (int c = 0; c < 9; ++c) inv[c] = k.inv[c][j];
+  load_inv(k, j, inv);
   omega(y + 6, y + 10, inv, w);
   #pragma GCC unroll 16
   for (int c = 0; c < 3; ++c) d[c] = y[3 + c];
@@ -254,14 +289,7 @@ RBJAX_INLINE void free_rotor(T q[4], const T L[3], const T p[4], const T e[3], T
   const T k0 = e[0] - e[1], k2 = e[2] - e[1];
   T qp[4], m[3], conj[4];
   quat_multiply(q, p, qp);
-  // m = quat_rotate(conj(qp), L)
-  const T cx = -qp[1], cy = -qp[2], cz = -qp[3];
-  const T t0 = T(2) * (cy * L[2] - cz * L[1]);
-  const T t1 = T(2) * (cz * L[0] - cx * L[2]);
-  const T t2 = T(2) * (cx * L[1] - cy * L[0]);
-  m[0] = L[0] + qp[0] * t0 + (cy * t2 - cz * t1);
-  m[1] = L[1] + qp[0] * t1 + (cz * t0 - cx * t2);
-  m[2] = L[2] + qp[0] * t2 + (cx * t1 - cy * t0);
+  quat_rotate_back(qp, L, m);
   rotate_about<T, 2>(qp, m, k2, T(0.5) * h);
   rotate_about<T, 0>(qp, m, k0, T(1.0) * h);
   rotate_about<T, 2>(qp, m, k2, T(0.5) * h);
@@ -278,16 +306,16 @@ RBJAX_INLINE void free_rotor(T q[4], const T L[3], const T p[4], const T e[3], T
   normalize(q);
 }
 
-// splitting's kick(h/2) of body j: v += F/m h/2, L += τ h/2, with the forces at (q, L, v).
+// kick(h) of body j (rbjax._methods._common.kick): v += F/m h, L += τ h, with the forces at (q, L, v).
 template <typename T, bool kQuad>
-RBJAX_INLINE void half_kick(const Consts<T>& k, int j, const T q[4], const T inv[9], T half, T v[3], T L[3]) {
+RBJAX_INLINE void kick(const Consts<T>& k, int j, const T q[4], const T inv[9], T h, T v[3], T L[3]) {
   T w[3], F[3], tau[3];
   omega(q, L, inv, w);
   forces<T, kQuad>(k, j, v, w, F, tau);
 #pragma GCC unroll 16
   for (int c = 0; c < 3; ++c) {
-    v[c] = v[c] + F[c] / k.m[j] * half;
-    L[c] = L[c] + tau[c] * half;
+    v[c] = v[c] + F[c] / k.m[j] * h;
+    L[c] = L[c] + tau[c] * h;
   }
 }
 
@@ -302,20 +330,152 @@ void splitting_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], 
     for (int j = 0; j < n; ++j) {
       T q[4], L[3], v[3], inv[9];
       load_body(B, k, j, q, L, v, inv);
-      if (kForces) half_kick<T, kQuad>(k, j, q, inv, half, v, L);  // with the forces at the start
+      if (kForces) kick<T, kQuad>(k, j, q, inv, half, v, L);  // with the forces at the start
       const T p[4] = {frame[0][j], frame[1][j], frame[2][j], frame[3][j]};
       const T e[3] = {frame[4][j], frame[5][j], frame[6][j]};
 #pragma GCC unroll 16
       for (int c = 0; c < 3; ++c) B.x[c][j] = B.x[c][j] + v[c] * dt;
       free_rotor(q, L, p, e, dt);
-      if (kForces) half_kick<T, kQuad>(k, j, q, inv, half, v, L);  // with the forces after the drift
+      if (kForces) kick<T, kQuad>(k, j, q, inv, half, v, L);  // with the forces after the drift
+      store_body(B, j, q, L, v);
+    }
+  }
+}
+
+// The body-frame right-hand side of rbjax/_methods/rk4_body.py (_body_derivative) for
+// y = (x, v, q, π): ẋ = v, v̇ = F/m, q̇ = ½ q ⊗ (0, ω), π̇ = π × ω + Rᵀ τ with ω = I_L⁻¹ π;
+// the forces see the world state (q, L = R π), as rk4_body's force_fn(world(y)) does.
+template <typename T, bool kForces, bool kQuad>
+RBJAX_INLINE void body_derivative(const Consts<T>& k, int j, const T y[13], T d[13]) {
+  T inv[9], w[3], p[4];
+  load_inv(k, j, inv);
+  const T* q = y + 6;
+  const T* pi = y + 10;
+  matvec3(inv, pi, w);
+  d[10] = pi[1] * w[2] - pi[2] * w[1];
+  d[11] = pi[2] * w[0] - pi[0] * w[2];
+  d[12] = pi[0] * w[1] - pi[1] * w[0];
 #pragma GCC unroll 16
-      for (int c = 0; c < 4; ++c) B.q[c][j] = q[c];
+  for (int c = 0; c < 3; ++c) {
+    d[c] = y[3 + c];
+    d[3 + c] = T(0);
+  }
+  if (kForces) {
+    T Lw[3], ww[3], F[3], tau[3], tb[3];
+    quat_rotate(q, pi, Lw);
+    omega(q, Lw, inv, ww);
+    forces<T, kQuad>(k, j, y + 3, ww, F, tau);
+    quat_rotate_back(q, tau, tb);
+#pragma GCC unroll 16
+    for (int c = 0; c < 3; ++c) {
+      d[3 + c] = F[c] / k.m[j];
+      d[10 + c] = d[10 + c] + tb[c];
+    }
+  }
+  const T pw[4] = {T(0), w[0], w[1], w[2]};
+  quat_multiply(q, pw, p);
+#pragma GCC unroll 16
+  for (int c = 0; c < 4; ++c) d[6 + c] = T(0.5) * p[c];
+}
+
+// `steps` RK4 steps of the body-frame equations (rbjax/_methods/rk4_body.py): π = Rᵀ L, the
+// classical tableau as rk4_steps sums it, q normalised, then L = R(q) π.
+template <typename T, bool kForces, bool kQuad>
+void rk4_body_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
+  const T half = T(0.5), sixth = T(1.0 / 6.0), third = T(1.0 / 3.0);
+  for (int64_t s = 0; s < steps; ++s) {
+#pragma GCC ivdep
+    for (int j = 0; j < n; ++j) {
+      T y[13], k1[13], k2[13], k3[13], k4[13], st[13], inv[9];
+      load_body(B, k, j, y + 6, st, y + 3, inv);
+      quat_rotate_back(y + 6, st, y + 10);
+#pragma GCC unroll 16
+      for (int c = 0; c < 3; ++c) y[c] = B.x[c][j];
+      body_derivative<T, kForces, kQuad>(k, j, y, k1);
+#pragma GCC unroll 16
+      for (int c = 0; c < 13; ++c) st[c] = y[c] + dt * (half * k1[c]);
+      body_derivative<T, kForces, kQuad>(k, j, st, k2);
+#pragma GCC unroll 16
+      for (int c = 0; c < 13; ++c) st[c] = y[c] + dt * (half * k2[c]);
+      body_derivative<T, kForces, kQuad>(k, j, st, k3);
+#pragma GCC unroll 16
+      for (int c = 0; c < 13; ++c) st[c] = y[c] + dt * k3[c];
+      body_derivative<T, kForces, kQuad>(k, j, st, k4);
+#pragma GCC unroll 16
+      for (int c = 0; c < 13; ++c) {
+        y[c] = y[c] + dt * (((sixth * k1[c] + third * k2[c]) + third * k3[c]) + sixth * k4[c]);
+      }
+      normalize(y + 6);
+      T L[3];
+      quat_rotate(y + 6, y + 10, L);
+#pragma GCC unroll 16
+      for (int c = 0; c < 3; ++c) B.x[c][j] = y[c];
+      store_body(B, j, y + 6, L, y + 3);
+    }
+  }
+}
+
+// exp(r) as rbjax._math.quat_exp: [cos(θ/2), sin(θ/2)/θ r], with its Taylor series below
+// θ² < √eps; both branches computed and one selected, so the loops stay straight-line. In two
+// parts around the sine and cosine of θ/2 (exp_angle gives θ² and θ, the square root of 1 where
+// the series applies), which run in a scalar loop of their own: without -ffast-math the compiler
+// has no vector sin or cos, and a call in the loop would keep all of it scalar.
+template <typename T>
+RBJAX_INLINE bool exp_angle(const T r[3], T& th2, T& th) {
+  th2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
+  const bool small = th2 < std::sqrt(std::numeric_limits<T>::epsilon());
+  th = std::sqrt(small ? T(1) : th2);
+  return small;
+}
+
+template <typename T>
+RBJAX_INLINE void quat_exp(const T r[3], T sin_half, T cos_half, T e[4]) {
+  T th2, th;
+  const bool small = exp_angle(r, th2, th);
+  const T half_sinc_series = (T(0.5) - th2 / T(48)) + th2 * th2 / T(3840);
+  const T cos_half_series = (T(1) - th2 / T(8)) + th2 * th2 / T(384);
+  const T hs = small ? half_sinc_series : sin_half / th;
+  e[0] = small ? cos_half_series : cos_half;
+#pragma GCC unroll 16
+  for (int c = 0; c < 3; ++c) e[1 + c] = hs * r[c];
+}
+
+// `steps` semi-implicit Euler steps of a block (rbjax/_methods/semi_implicit_euler.py:
+// semi_implicit_state): kick(dt) with the forces at the step's start, then q ← exp(ω dt) ⊗ q
+// with ω from the new L and the old q, normalised, and x += v dt with the new v. Three loops
+// per step: the kick and r = ω dt (vectorised), sin and cos of θ/2 (scalar), the turn.
+template <typename T, bool kForces, bool kQuad>
+void semi_implicit_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
+  T r[3][kBlock], sin_half[kBlock], cos_half[kBlock];
+  for (int64_t s = 0; s < steps; ++s) {
+#pragma GCC ivdep
+    for (int j = 0; j < n; ++j) {
+      T q[4], L[3], v[3], inv[9], w[3];
+      load_body(B, k, j, q, L, v, inv);
+      if (kForces) kick<T, kQuad>(k, j, q, inv, dt, v, L);
+      omega(q, L, inv, w);
 #pragma GCC unroll 16
       for (int c = 0; c < 3; ++c) {
-        B.v[c][j] = v[c];
-        B.L[c][j] = L[c];
+        r[c][j] = w[c] * dt;
+        B.x[c][j] = B.x[c][j] + v[c] * dt;
       }
+      store_body(B, j, q, L, v);
+    }
+    for (int j = 0; j < n; ++j) {
+      T rj[3] = {r[0][j], r[1][j], r[2][j]}, th2, th;
+      exp_angle(rj, th2, th);
+      sin_half[j] = std::sin(th / T(2));
+      cos_half[j] = std::cos(th / T(2));
+    }
+#pragma GCC ivdep
+    for (int j = 0; j < n; ++j) {
+      T q[4], rj[3] = {r[0][j], r[1][j], r[2][j]}, e[4], q1[4];
+#pragma GCC unroll 16
+      for (int c = 0; c < 4; ++c) q[c] = B.q[c][j];
+      quat_exp(rj, sin_half[j], cos_half[j], e);
+      quat_multiply(e, q, q1);
+      normalize(q1);
+      store_q(B, j, q1);
     }
   }
 }
@@ -328,6 +488,16 @@ void block_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], int 
     if (!forces) return splitting_steps<T, false, false>(B, k, frame, n, dt, steps);
     if (!quad) return splitting_steps<T, true, false>(B, k, frame, n, dt, steps);
     return splitting_steps<T, true, true>(B, k, frame, n, dt, steps);
+  }
+  if (method == kSemiImplicitEuler) {
+    if (!forces) return semi_implicit_steps<T, false, false>(B, k, n, dt, steps);
+    if (!quad) return semi_implicit_steps<T, true, false>(B, k, n, dt, steps);
+    return semi_implicit_steps<T, true, true>(B, k, n, dt, steps);
+  }
+  if (method == kRk4Body) {
+    if (!forces) return rk4_body_steps<T, false, false>(B, k, n, dt, steps);
+    if (!quad) return rk4_body_steps<T, true, false>(B, k, n, dt, steps);
+    return rk4_body_steps<T, true, true>(B, k, n, dt, steps);
   }
   if (method == kEuler) {
     if (!forces) return euler_steps<T, false, false>(B, k, n, dt, steps);
