@@ -169,39 +169,17 @@ from ._torque_free import torque_free as torque_free
 
 # --- scenes and force models ---
 # isort: split
-from ._forces import (
-    ConstantForce as ConstantForce,
-)
-from ._forces import (
-    CustomForce as CustomForce,
-)
-from ._forces import (
-    ExternalForce as ExternalForce,
-)
-from ._forces import (
-    ForceModel as ForceModel,
-)
-from ._forces import (
-    ForceSum as ForceSum,
-)
-from ._forces import (
-    Gravity as Gravity,
-)
-from ._forces import (
-    LinearDrag as LinearDrag,
-)
-from ._forces import (
-    QuadraticDrag as QuadraticDrag,
-)
-from ._forces import (
-    Spring as Spring,
-)
-from ._forces import (
-    Thruster as Thruster,
-)
-from ._forces import (
-    TimeSeriesForce as TimeSeriesForce,
-)
+from ._attached import Spring as Spring
+from ._attached import Thruster as Thruster
+from ._force_model import ForceModel as ForceModel
+from ._force_model import ForceSum as ForceSum
+from ._forces import ConstantForce as ConstantForce
+from ._forces import CustomForce as CustomForce
+from ._forces import ExternalForce as ExternalForce
+from ._forces import Gravity as Gravity
+from ._forces import LinearDrag as LinearDrag
+from ._forces import QuadraticDrag as QuadraticDrag
+from ._forces import TimeSeriesForce as TimeSeriesForce
 from ._scene import Scene as Scene
 from ._scene import body_kind as body_kind
 from ._scene import register_kernel as register_kernel

@@ -36,7 +36,7 @@ from jaxtyping import Float
 
 from . import _methods, _specialise
 from ._body import Body, is_concrete
-from ._forces import ForceModel, ForceSum
+from ._force_model import ForceModel, ForceSum
 from ._methods import DEFAULT_METHOD
 from ._pytree import pytree_dataclass, static_field
 from ._simulate import simulate as _simulate_fn

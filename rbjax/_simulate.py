@@ -16,7 +16,7 @@ from jaxtyping import Float
 from . import _checked, _methods, _native
 from ._batching import batch_last, batch_shape, lift, map_leaves, to_batch_first, to_batch_last
 from ._body import prepare
-from ._forces import ForceModel
+from ._force_model import ForceModel
 from ._methods import DEFAULT_METHOD
 from ._pytree import replace
 from ._scan import check_checkpoint, checkpointed_scan, frames_as_outputs, frames_in_buffer

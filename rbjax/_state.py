@@ -233,8 +233,20 @@ class _StateBase(BatchIndexing):
         return self.position.dtype
 
 
+class _RigidStateBase(_StateBase):
+    """What :class:`State` and :class:`MatrixState` share beyond :class:`_StateBase`: the body's mass."""
+
+    if TYPE_CHECKING:
+        body: Body
+
+    @property
+    def mass(self) -> Array:
+        """Mass ``m`` (kg) of each body: ``(*B,)``, or the shared body's shape (broadcasts to ``(*B,)``)."""
+        return self.body.mass
+
+
 @pytree_dataclass
-class State(_StateBase):
+class State(_RigidStateBase):
     """Rigid-body state in the notes' ``(x, v, q, L)`` form.
 
     Attributes:
@@ -311,7 +323,7 @@ class State(_StateBase):
 
 
 @pytree_dataclass
-class MatrixState(_StateBase):
+class MatrixState(_RigidStateBase):
     """Rigid-body state in the notes' ``(x, v, R, ω)`` form.
 
     Attributes:
@@ -497,7 +509,7 @@ class Forces:
         ``g``: ``(3,)`` or ``(*B, 3)`` acceleration vector (a scalar is refused, as by
         :class:`rbjax.Gravity`); returns ``force`` ``(*B, 3)`` in N.
         """
-        m = state.mass if isinstance(state, ParticleState) else state.body.mass
+        m = state.mass
         try:
             g = as_float(g).astype(state.dtype)
         except TypeError as e:

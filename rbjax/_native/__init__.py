@@ -32,7 +32,8 @@ import jax.core
 import jax.numpy as jnp
 import numpy as np
 
-from .._forces import ConstantForce, ForceSum, Gravity, LinearDrag, QuadraticDrag
+from .._force_model import ForceSum
+from .._forces import ConstantForce, Gravity, LinearDrag, QuadraticDrag
 from .._methods._common import principal_frame
 from .._pytree import replace
 from .._state import Forces, State

@@ -1,0 +1,336 @@
+"""Force models attached to bodies named by index: :class:`Spring` and :class:`Thruster`.
+
+They act at points fixed in the bodies (body frame), so the world offset ``r = R p`` of each
+point and its velocity ``v + ω × r`` are gathered from the bodies named, and the forces and
+torques are scattered back onto them. They need a one-dimensional batch ``(N,)``; each index
+must be in ``0..N-1`` (checked before tracing by :func:`rbjax.simulate`, :func:`rbjax.step`
+and :class:`rbjax.Scene`, and at run time in checked mode). Conventions as in
+:mod:`rbjax._forces`.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+from jax.sharding import NamedSharding, PartitionSpec
+from jaxtyping import Float, Int
+
+from ._body import floats
+from ._force_model import ForceModel, cast_to, check_core, check_fits, check_non_negative, is_concrete, rigid_only
+from ._math import cross, matvec3, quat_rotate, safe_norm
+from ._pytree import field, pytree_dataclass
+from ._quantities import angular_velocity
+from ._state import AnyState, Forces, MatrixState, ParticleState, State
+from ._typing import ArrayLike
+
+__all__ = ["Spring", "Thruster"]
+
+
+def _check_flat(name: str, state: AnyState) -> int:
+    if len(state.batch_shape) != 1:
+        raise ValueError(
+            f"{name} names bodies by index and needs a 1-D batch (N,); got batch shape {state.batch_shape}"
+        )
+    return state.batch_shape[0]
+
+
+def _offset(state: AnyState, idx: Array, point: Array | None) -> Array | None:
+    """World offset ``r = R p`` of body-frame points ``p`` on bodies ``idx`` (``None`` at the COM)."""
+    return None if point is None else _to_world(state, idx, point)
+
+
+def _to_world(state: AnyState, idx: Array, point: Array) -> Array:
+    """Body-frame vectors ``p`` on bodies ``idx`` in the world frame: ``R p``."""
+    p = cast_to(point, state)
+    if isinstance(state, State):
+        return quat_rotate(_gather(state.orientation, idx), p)
+    if isinstance(state, MatrixState):
+        return matvec3(_gather(state.rotation, idx), p)
+    raise ValueError("a body-frame attachment point needs rigid bodies; ParticleState has no rotation")
+
+
+def _point_motion(state: AnyState, idx: Array, r: Array | None, omega: Array | None) -> tuple[Array, Array]:
+    """World position ``x + r`` and velocity ``v + ω × r`` of attached points."""
+    x, v = _gather(state.position, idx), _gather(state.velocity, idx)
+    if r is None or omega is None:  # omega is given whenever an offset r is
+        return x, v
+    return x + r, v + cross(_gather(omega, idx), r)
+
+
+def _explicit_sharding(x: Array) -> Any:
+    """The sharding of ``x`` if it is sharded over an explicit mesh axis (else ``None``)."""
+    sh = jax.typeof(x).sharding
+    return sh if any(a is not None for a in getattr(sh, "spec", ())) else None
+
+
+def _gather(x: Array, idx: Array) -> Array:
+    # Explicit sharding asks where a gather's result lives: the few attached bodies' values
+    # are replicated (the scatter below returns them to the bodies' shards).
+    sh = _explicit_sharding(x)
+    if sh is None:
+        return x[idx]
+    return x.at[idx].get(out_sharding=NamedSharding(sh.mesh, PartitionSpec()))
+
+
+def _add_at(total: Array, idx: Array, values: Array) -> Array:
+    return total.at[idx].add(values, out_sharding=_explicit_sharding(total))
+
+
+def _scatter(state: AnyState, idx: Array, values: Array) -> Array:
+    return _add_at(jnp.zeros_like(state.position), idx, values)
+
+
+def _as_index(model: str, name: str, x: ArrayLike) -> Array:
+    """Body indices ``(S,)``: integers ``>= 0`` (a negative one would count from the end: refused)."""
+    try:
+        i = jnp.asarray(x)
+    except (TypeError, ValueError):
+        raise TypeError(f"{model}: {name} must be body indices (integers), got {type(x).__name__}") from None
+    if not jnp.issubdtype(i.dtype, jnp.integer):
+        raise ValueError(f"{model}: {name} must be body indices (integers), got dtype {i.dtype}")
+    i = jnp.atleast_1d(i)
+    if i.ndim != 1:
+        raise ValueError(f"{model}: {name} must be a 1-D array of body indices (S,), got shape {tuple(i.shape)}")
+    if is_concrete(i) and np.any(np.asarray(i) < 0):
+        raise ValueError(
+            f"{model}: {name} must be body indices >= 0 (a negative index would count from the end), got "
+            f"{np.asarray(i)[np.asarray(i) < 0][:4]}"
+        )
+    return i
+
+
+def _indices_in(model: Any, name: str, n: int) -> None:
+    """``ValueError`` unless the (concrete) indices of field ``name`` are ``< n``, the batch size."""
+    i = getattr(model, name)
+    if i is None or not is_concrete(i) or i.size == 0:
+        return
+    top = int(np.max(np.asarray(i)))
+    if top >= n:
+        label = model._FIELD_LABELS.get(name, name)
+        raise ValueError(
+            f"{type(model).__name__}: {label} index {top} is outside the batch of {n} bodies "
+            f"(indices 0..{n - 1}); an index past the end would be dropped or clamped silently"
+        )
+
+
+def _per_item(model: Any, s: int, vectors: tuple[str, ...], scalars: tuple[str, ...]) -> None:
+    """Shapes of a model of ``s`` items: ``vectors`` ``(S, 3)`` or ``(3,)``, ``scalars`` ``(S,)`` or ``()``."""
+    items = f"the number of {type(model).__name__.lower()}s S (the length of body)"
+    for name in vectors:
+        check_core(model, name, (3,), " (a 3-vector each)")
+        check_fits(model, name, 1, (s,), items)
+    for name in scalars:
+        check_fits(model, name, 0, (s,), items)
+
+
+@pytree_dataclass
+class Spring(ForceModel):
+    """Springs (with optional linear dampers) from body points to world anchors or other bodies.
+
+    Spring ``s`` joins point ``a`` (``point`` in body ``body[s]``'s frame, or its
+    centre of mass if ``point`` is ``None``) to point ``b``: the world ``anchor``
+    if ``other`` is ``None``, else ``anchor`` in body ``other[s]``'s frame (its
+    centre of mass if ``anchor`` is ``None``). With ``d = x_b - x_a`` (world):
+
+        F_a = k (1 - l₀/‖d‖) d + c (v_b - v_a),      F_b = -F_a,
+        τ_a = r_a × F_a,  τ_b = r_b × F_b,           r = R p (world offset),
+
+    so a zero-length spring is ``F_a = k d``. ``v = v_com + ω × r`` is the point
+    velocity; the damper is a vector dashpot on the relative velocity. Equal and
+    opposite forces conserve total linear momentum; the spring force is central
+    (along ``d``), so without damping total angular momentum is conserved too.
+    The dashpot is not central (``v_b - v_a`` need not be along ``d``): with
+    ``damping`` the springs exert a net torque ``(p_a - p_b) × F_a`` on the
+    pair and total angular momentum changes.
+
+    Shapes (``S`` springs): ``body``, ``other``: ``(S,)`` int, each ``>= 0`` and
+    ``< N`` (checked when simulated); ``point``, ``anchor``: ``(S, 3)`` or
+    ``(3,)`` m; ``stiffness`` ``k`` N/m, ``rest_length`` ``l₀`` m, ``damping``
+    ``c`` N s/m: ``(S,)`` or scalars, each ``>= 0``. Build with :meth:`to_anchor`
+    or :meth:`between`. Points at the centre of mass (``None``) add no torque
+    and no rotation work; with both ends there the model returns ``torque=None``.
+    """
+
+    body: Int[Array, " S"]
+    stiffness: Float[Array, "*S"]
+    point: Float[Array, "S 3"] | None = None
+    anchor: Float[Array, "S 3"] | None = None
+    other: Int[Array, " S"] | None = None
+    rest_length: Float[Array, "*S"] = field(default=0.0)
+    damping: Float[Array, "*S"] | None = None
+    _INDEX_FIELDS = ("body", "other")
+    _NON_NEGATIVE = ("stiffness", "rest_length", "damping")
+    _FIELD_LABELS = {"other": "other (body_b of Spring.between)"}
+
+    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
+
+        def __init__(
+            self,
+            body: Int[ArrayLike, " S"],
+            stiffness: Float[ArrayLike, "*S"],
+            point: Float[ArrayLike, "S 3"] | None = None,
+            anchor: Float[ArrayLike, "S 3"] | None = None,
+            other: Int[ArrayLike, " S"] | None = None,
+            rest_length: Float[ArrayLike, "*S"] = 0.0,
+            damping: Float[ArrayLike, "*S"] | None = None,
+        ) -> None: ...
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "body", _as_index("Spring", "body", self.body))
+        if self.other is not None:
+            object.__setattr__(self, "other", _as_index("Spring", "other", self.other))
+            if self.other.shape != self.body.shape:
+                raise ValueError(
+                    f"Spring: body {tuple(self.body.shape)} and other {tuple(self.other.shape)} must name the same "
+                    "number of springs"
+                )
+        elif self.anchor is None:
+            raise ValueError("Spring: a world anchor is required when other is None")
+        floats(self, "stiffness", "point", "anchor", "rest_length", "damping")
+        _per_item(self, self.body.shape[0], ("point", "anchor"), ("stiffness", "rest_length", "damping"))
+        check_non_negative(self, "stiffness", "rest_length", "damping")
+
+    def check(self, state: AnyState) -> None:
+        n = _check_flat("Spring", state)
+        _indices_in(self, "body", n)
+        _indices_in(self, "other", n)
+
+    @classmethod
+    def to_anchor(
+        cls,
+        body: Int[ArrayLike, " S"],
+        anchor: Float[ArrayLike, "S 3"],
+        stiffness: Float[ArrayLike, "*S"],
+        *,
+        point: Float[ArrayLike, "S 3"] | None = None,
+        rest_length: Float[ArrayLike, "*S"] = 0.0,
+        damping: Float[ArrayLike, "*S"] | None = None,
+    ) -> Spring:
+        """Springs from body points (body frame; ``None`` = COM) to world ``anchor`` points."""
+        return cls(
+            body=body,
+            stiffness=stiffness,
+            point=point,
+            anchor=anchor,
+            rest_length=rest_length,
+            damping=damping,
+        )
+
+    @classmethod
+    def between(
+        cls,
+        body_a: Int[ArrayLike, " S"],
+        body_b: Int[ArrayLike, " S"],
+        stiffness: Float[ArrayLike, "*S"],
+        *,
+        point_a: Float[ArrayLike, "S 3"] | None = None,
+        point_b: Float[ArrayLike, "S 3"] | None = None,
+        rest_length: Float[ArrayLike, "*S"] = 0.0,
+        damping: Float[ArrayLike, "*S"] | None = None,
+    ) -> Spring:
+        """Springs between points on two bodies (each in its own body frame; ``None`` = COM)."""
+        return cls(
+            body=body_a,
+            stiffness=stiffness,
+            point=point_a,
+            anchor=point_b,
+            other=body_b,
+            rest_length=rest_length,
+            damping=damping,
+        )
+
+    def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
+        self.check(state)
+        _check_flat("Spring", state)
+        rotating = self.point is not None or (self.other is not None and self.anchor is not None)
+        omega = angular_velocity(rigid_only("Spring(point=...)", state)) if rotating else None
+        r_a = _offset(state, self.body, self.point)
+        x_a, v_a = _point_motion(state, self.body, r_a, omega)
+        r_b = None
+        if self.other is None:
+            x_b, v_b = cast_to(self.anchor, state), None
+        else:
+            r_b = _offset(state, self.other, self.anchor)
+            x_b, v_b = _point_motion(state, self.other, r_b, omega)
+        d = x_b - x_a
+        k = cast_to(self.stiffness, state)[..., None]
+        l0 = cast_to(self.rest_length, state)[..., None]
+        length = safe_norm(d, keepdims=True)
+        # (1 - l0/|d|) d, with a zero force (not NaN) at |d| = 0
+        scale = jnp.where(length > 0, 1 - l0 / jnp.where(length > 0, length, 1), 0)
+        f_a = k * scale * d
+        if self.damping is not None:
+            rel = -v_a if v_b is None else v_b - v_a
+            f_a = f_a + cast_to(self.damping, state)[..., None] * rel
+        f_a = jnp.broadcast_to(f_a, d.shape)
+        force = _scatter(state, self.body, f_a)
+        torque = None if r_a is None else _scatter(state, self.body, cross(r_a, f_a))
+        if self.other is not None:
+            force = _add_at(force, self.other, -f_a)
+            if r_b is not None:
+                tb = cross(r_b, -f_a)
+                torque = _scatter(state, self.other, tb) if torque is None else _add_at(torque, self.other, tb)
+        return Forces(force=force, torque=torque)
+
+
+@pytree_dataclass
+class Thruster(ForceModel):
+    """Body-fixed thrusters: force ``F = T R d`` at body point ``p``, turning with the body.
+
+    Thruster ``s`` on body ``body[s]`` pushes with magnitude ``thrust`` ``T`` (N)
+    along the body-frame ``direction`` ``d`` (unit, not renormalised) at the
+    body-frame ``point`` ``p`` (m; ``None`` = centre of mass, no torque). World
+    force ``F = T R d``, torque about the centre of mass ``τ = (R p) × F``.
+    Shapes (``S`` thrusters): ``body`` ``(S,)`` int, each ``>= 0`` and ``< N``
+    (checked when simulated); ``direction`` (unit: checked when concrete),
+    ``point``: ``(S, 3)`` or ``(3,)``; ``thrust`` ``(S,)`` or scalar, of either
+    sign (a negative thrust pushes along ``-d``). Rigid states only.
+    """
+
+    body: Int[Array, " S"]
+    direction: Float[Array, "S 3"]
+    thrust: Float[Array, "*S"]
+    point: Float[Array, "S 3"] | None = None
+    _INDEX_FIELDS = ("body",)
+
+    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
+
+        def __init__(
+            self,
+            body: Int[ArrayLike, " S"],
+            direction: Float[ArrayLike, "S 3"],
+            thrust: Float[ArrayLike, "*S"],
+            point: Float[ArrayLike, "S 3"] | None = None,
+        ) -> None: ...
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "body", _as_index("Thruster", "body", self.body))
+        floats(self, "direction", "thrust", "point")
+        _per_item(self, self.body.shape[0], ("direction", "point"), ("thrust",))
+        d = self.direction
+        if is_concrete(d) and d.size:
+            err = np.max(np.abs(np.linalg.norm(np.asarray(d, np.float64), axis=-1) - 1))
+            tol = max(1e-6, 128 * float(np.finfo(d.dtype).eps))
+            if err > tol:
+                raise ValueError(
+                    f"Thruster: direction must be unit vectors (the thrust gives the magnitude); |‖d‖ - 1| = "
+                    f"{err:.3g} exceeds {tol:.3g}: normalise it, d / ‖d‖"
+                )
+
+    def check(self, state: AnyState) -> None:
+        _indices_in(self, "body", _check_flat("Thruster", state))
+
+    def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
+        self.check(state)
+        _check_flat("Thruster", state)
+        if isinstance(state, ParticleState):
+            raise ValueError("Thruster: a body-fixed direction needs rigid bodies, not ParticleState")
+        d = _to_world(state, self.body, self.direction)
+        f = cast_to(self.thrust, state)[..., None] * d
+        r = _offset(state, self.body, self.point)
+        force = _scatter(state, self.body, f)
+        return Forces(force=force, torque=None if r is None else _scatter(state, self.body, cross(r, f)))

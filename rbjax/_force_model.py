@@ -1,0 +1,184 @@
+"""The force-model protocol: ``model(state, t) -> Forces`` (world frame), ``+`` composes.
+
+:class:`ForceModel` is the base of the models in :mod:`rbjax._forces` (laws per body and
+prescribed loads) and :mod:`rbjax._attached` (springs and thrusters, which name bodies by
+index); :class:`ForceSum` is what ``+`` builds. The checks the models share live here too.
+See :mod:`rbjax._forces` for the conventions every model follows.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.core
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+from jaxtyping import Float
+
+from ._math import broadcasts_to
+from ._pytree import pytree_dataclass, replace
+from ._state import AnyState, Forces, ParticleState, RigidState
+from ._typing import ArrayLike
+
+__all__ = [
+    "ForceModel",
+    "ForceSum",
+    "is_concrete",
+    "check_core",
+    "check_non_negative",
+    "check_fits",
+    "cast_to",
+    "full_batch",
+    "rigid_only",
+]
+
+
+class ForceModel:
+    """Base of force models: ``model(state, t) -> Forces`` (world frame), ``+`` composes.
+
+    A model maps a state batch of shape ``B`` and a time ``t`` (s) to world-frame
+    :class:`rbjax.Forces` (force ``(*B, 3)`` in N on the centre of mass, torque
+    ``(*B, 3)`` in N m about it, either ``None`` when the model has none).
+    """
+
+    def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def check(self, state: AnyState) -> None:
+        """``ValueError`` naming the argument unless this model's arrays fit ``state``'s batch.
+
+        Shapes are checked always (they are static), body indices against the
+        batch size ``N`` when their values are concrete. Called by
+        :func:`rbjax.simulate`, :func:`rbjax.step` and :class:`rbjax.Scene`
+        before tracing, and by each model while it is traced.
+        """
+
+    # fields holding body indices, and coefficients that must be >= 0 (see _run_time_checked)
+    _INDEX_FIELDS: tuple[str, ...] = ()
+    _NON_NEGATIVE: tuple[str, ...] = ()
+    # how an error message names a field, where its name alone would mislead
+    _FIELD_LABELS: dict[str, str] = {}
+
+    def _run_time_checked(self, state: AnyState, fn: str) -> ForceModel:
+        """This model with its *traced* indices and coefficients checked at run time (checked mode).
+
+        Concrete values were checked already (construction, :meth:`check`); a value
+        traced by a caller's ``jit`` gets an ``equinox`` run-time error carrying
+        rbjax's ``(checked=...)`` message when it is an index outside ``[0, N)``
+        or a negative coefficient. Without checked mode nothing is compiled.
+        """
+        import equinox as eqx
+
+        changes = {}
+        n = state.batch_shape[0] if len(state.batch_shape) == 1 else None
+        for name in self._INDEX_FIELDS:
+            i = getattr(self, name, None)
+            if isinstance(i, jax.core.Tracer) and n is not None:
+                label = self._FIELD_LABELS.get(name, name)
+                msg = (
+                    f"{fn}(checked=...): {type(self).__name__}: {label} holds an index outside "
+                    f"the batch of {n} bodies (a traced index was; indices must be in 0..{n - 1})"
+                )
+                changes[name] = eqx.error_if(i, (i < 0) | (i >= n), msg)
+        for name in self._NON_NEGATIVE:
+            c = getattr(self, name, None)
+            if isinstance(c, jax.core.Tracer):
+                msg = f"{fn}(checked=...): {type(self).__name__}: {name} must be >= 0 (a traced value was negative)"
+                changes[name] = eqx.error_if(c, c < 0, msg)
+        return replace(self, **changes) if changes else self
+
+    def __add__(self, other: ForceModel) -> ForceSum:
+        if not isinstance(other, ForceModel):
+            return NotImplemented
+        a = self.terms if isinstance(self, ForceSum) else (self,)
+        b = other.terms if isinstance(other, ForceSum) else (other,)
+        return ForceSum(a + b)
+
+
+def is_concrete(a: Any) -> bool:
+    """Whether ``a`` is a value that can be read here (not ``None``, not traced, on this process)."""
+    return a is not None and not isinstance(a, jax.core.Tracer) and getattr(a, "is_fully_addressable", True)
+
+
+def check_core(model: Any, name: str, core: tuple[int, ...], extra: str = "") -> None:
+    """``ValueError`` unless field ``name`` (if given) ends in ``core``, e.g. ``(3,)`` for a vector."""
+    a = getattr(model, name)
+    if a is None:
+        return
+    if tuple(a.shape[a.ndim - len(core) :]) != core or a.ndim < len(core):
+        dims = ", ".join(str(c) for c in core)
+        raise ValueError(
+            f"{type(model).__name__}: {name} must have shape (..., {dims}){extra}, got shape {tuple(a.shape)}"
+        )
+
+
+def check_non_negative(model: Any, *names: str) -> None:
+    """``ValueError`` for a concrete negative coefficient (it would add energy, not take it)."""
+    for name in names:
+        a = getattr(model, name)
+        if is_concrete(a) and np.any(np.asarray(a) < 0):
+            raise ValueError(
+                f"{type(model).__name__}: {name} must be >= 0 (a negative coefficient adds energy instead of "
+                f"removing or restoring it), got {np.asarray(a).ravel()[:4]}; pass its magnitude"
+            )
+
+
+def check_fits(model: Any, name: str, core: int, shape: tuple[int, ...], what: str) -> None:
+    """``ValueError`` unless field ``name``'s leading shape (all but ``core`` axes) broadcasts to ``shape``."""
+    a = getattr(model, name)
+    if a is None:
+        return
+    lead = tuple(a.shape[: a.ndim - core])
+    ok = broadcasts_to(lead, tuple(shape))
+    if not ok:
+        raise ValueError(
+            f"{type(model).__name__}: {name} of shape {tuple(a.shape)} does not fit {what} {tuple(shape)}; give it "
+            f"the shape {tuple(shape) + tuple(a.shape[a.ndim - core :])} or a broadcastable one"
+        )
+
+
+def cast_to(x: Any, state: AnyState) -> Array:
+    """``x`` as an array of the state's dtype."""
+    return jnp.asarray(x).astype(state.dtype)
+
+
+def full_batch(x: Array, state: AnyState) -> Array:
+    """``x`` broadcast to the state's ``(*B, 3)``."""
+    return jnp.broadcast_to(x, state.position.shape)
+
+
+def rigid_only(name: str, state: AnyState) -> RigidState:
+    """``state``, known to be rigid; ``ValueError`` for particles."""
+    if isinstance(state, ParticleState):
+        raise ValueError(f"{name}: a torque needs rigid bodies; ParticleState has no rotation")
+    return state
+
+
+@pytree_dataclass
+class ForceSum(ForceModel):
+    """Sum of force models: ``F = Σ F_i``, ``τ = Σ τ_i`` (``None`` when every ``τ_i`` is).
+
+    ``terms`` is a tuple of models; its length and order are static.
+    """
+
+    terms: tuple = ()
+
+    def __post_init__(self) -> None:
+        for term in self.terms:
+            if not isinstance(term, ForceModel):
+                raise TypeError(f"ForceSum: terms must be force models, got {type(term).__name__}")
+
+    def check(self, state: AnyState) -> None:
+        for term in self.terms:
+            term.check(state)
+
+    def _run_time_checked(self, state: AnyState, fn: str) -> ForceModel:
+        return replace(self, terms=tuple(term._run_time_checked(state, fn) for term in self.terms))
+
+    def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
+        total = Forces()
+        for term in self.terms:
+            total = total + term(state, t)
+        return total
