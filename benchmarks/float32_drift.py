@@ -1,4 +1,4 @@
-"""Energy drift of ``"splitting"`` in float32 against float64 over long runs (issue 17, item 9).
+"""Energy drift of ``"splitting"`` in float32 against float64 over long runs.
 
 100 boxes (sides uniform in 0.3..1.5 m, unit mass), ω normal with σ = 2 rad/s
 (|ω| ≈ 3.5 rad/s), torque-free; the relative kinetic-energy error of every

@@ -12,7 +12,7 @@ compiled program:
 * ``kernels``: XLA ops that run as their own loop over the batch (fusions,
   dots, copies, custom calls) in the innermost loop of the compiled ``simulate``;
 * ``time/flop``: the time ratio to ``"euler"`` over the FLOP ratio to
-  ``"euler"`` (the issue's goal: at most 2).
+  ``"euler"`` (the goal: at most 2).
 
 Run: ``PYTHONPATH=. python benchmarks/integrator_cost.py [--quick] [--n N]``.
 """

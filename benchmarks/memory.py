@@ -11,7 +11,7 @@ peak) with float32 spheres under gravity, and reports
   ``state_peak_MB`` / ``scene_peak_MB``: the peak above the runtime's own
   memory (``base_rss_MB``, after importing JAX) once the state is built and
   once ``Scene.build`` has run;
-* ``peak_over_data``: ``(peak - base) / (state + trajectory)``, the issue's
+* ``peak_over_data``: ``(peak - base) / (state + trajectory)``, the
   measure (target ≤ 2): the trajectory as returned, bodies and time per frame included.
 
     python benchmarks/memory.py [--quick] [--full]     # --full adds N = 1e7
@@ -106,7 +106,7 @@ def one(n: int, steps: int, save_every: int, method: str) -> dict:
         state_peak_MB=after_state[1] - base_MB,
         scene_peak_MB=after_scene[1] - base_MB,
         peak_rss_MB=peak,
-        # the target: at most 2 (state + bodies + saved frames) above the runtime's own memory
+        # the target: at most 2 (state + bodies + saved frames) above the runtime's own memory
         peak_over_data=(peak - base_MB) / (state_MB + traj_MB),
     )
 

@@ -1,7 +1,7 @@
 """Measured stability limits of the explicit methods: the largest dt·|ω| at which 1000 steps stay bounded.
 
 For each method and state form, torque-free, float64: 24 bodies (four shapes:
-the issue's box 0.1x0.2x0.4, a 1:2:3 ellipsoid, a cylinder (axisymmetric) and a
+the box 0.1x0.2x0.4 of the stability tests, a 1:2:3 ellipsoid, a cylinder (axisymmetric) and a
 Dzhanibekov T-handle I = diag(1, 2, 2.8)), six random ω directions each, |ω| = 1,
 and dt on a geometric grid (ratio 10^(1/8) ≈ 1.33) from 0.01 to 1000. A run is
 bounded when every state stays finite, the orientation stays a unit quaternion /
