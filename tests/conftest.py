@@ -7,6 +7,9 @@ error, so the library never hard-codes a dtype.
 """
 
 import gc
+import os
+import shutil
+import tempfile
 
 import jax
 import pytest
@@ -20,6 +23,41 @@ jax.config.update("jax_numpy_dtype_promotion", "strict")
 # .ci/run pass it, so CI runs everything.
 def pytest_addoption(parser):
     parser.addoption("--runslow", action="store_true", help="also run tests marked slow (CI does)")
+
+
+# Most of the suite's time is XLA compiling. The xdist workers of one run compile many of the
+# same programs (the same step at the same shapes, in different test files), and a worker that
+# drops its compiled programs (below) compiles its module's again. JAX's persistent compilation
+# cache, in a directory made for this run and shared by its workers, compiles each once: a
+# program another worker compiled is read back from disk instead. Every program is kept
+# (min compile time 0): most of the suite's programs compile in well under a second, yet they
+# are most of its time. The directory goes at the end of the run; nothing outlives it, so a
+# run never reads what an earlier rbjax (or jaxlib) wrote. Set RBJAX_TEST_COMPILATION_CACHE=0 to
+# run without it.
+_CACHE_ENV = "RBJAX_TEST_COMPILATION_CACHE_DIR"
+
+
+def pytest_configure(config):
+    if os.environ.get("RBJAX_TEST_COMPILATION_CACHE", "1") == "0":
+        return
+    if _CACHE_ENV not in os.environ:  # the controller (or a run without xdist): make the directory
+        os.environ[_CACHE_ENV] = tempfile.mkdtemp(prefix="rbjax-test-xla-cache-")
+        config._rbjax_cache_owner = True
+    # as variables too, so that the workers and the Python processes tests start use it
+    settings = {
+        "jax_compilation_cache_dir": os.environ[_CACHE_ENV],
+        "jax_persistent_cache_min_compile_time_secs": 0.0,
+        "jax_persistent_cache_min_entry_size_bytes": 0,
+    }
+    for name, value in settings.items():
+        os.environ[name.upper()] = str(value)
+        jax.config.update(name, value)
+
+
+def pytest_unconfigure(config):
+    if getattr(config, "_rbjax_cache_owner", False):
+        shutil.rmtree(os.environ.pop(_CACHE_ENV), ignore_errors=True)
+        jax.config.update("jax_compilation_cache_dir", None)
 
 
 def pytest_collection_modifyitems(config, items):
