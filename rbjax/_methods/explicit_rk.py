@@ -17,6 +17,7 @@ than four stages are materialised (see :func:`rbjax._methods._common.materialise
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import jax.numpy as jnp
 
@@ -26,7 +27,23 @@ from .._state import MatrixState, ParticleState, State
 from ._common import materialise, project, torque_varies
 from ._registry import Method, StepFn, register
 
-__all__ = ["explicit_rk", "register_tableau"]
+__all__ = ["CLASSICAL_RK4", "Tableau", "explicit_rk", "register_tableau"]
+
+
+class Tableau(NamedTuple):
+    """A Butcher tableau: rows ``a[i]`` of ``A`` (``i`` entries each), weights ``b``, nodes ``c``."""
+
+    a: tuple[tuple[float, ...], ...]
+    b: tuple[float, ...]
+    c: tuple[float, ...]
+
+
+#: The classical fourth-order tableau: ``"rk4"``, ``"rk4_body"`` and the fitting model's flow use it.
+CLASSICAL_RK4 = Tableau(
+    a=((), (0.5,), (0.0, 0.5), (0.0, 0.0, 1.0)),
+    b=(1 / 6, 1 / 3, 1 / 3, 1 / 6),
+    c=(0.0, 0.5, 0.5, 1.0),
+)
 
 
 def combine(state, dt, weights: Sequence[float], ks: Sequence):

@@ -20,14 +20,12 @@ from __future__ import annotations
 
 import math
 
-from .explicit_rk import register_tableau
+from .explicit_rk import CLASSICAL_RK4, register_tableau
 
 rk4 = register_tableau(
     "rk4",
     4,
-    a=[(), (0.5,), (0.0, 0.5), (0.0, 0.0, 1.0)],
-    b=[1 / 6, 1 / 3, 1 / 3, 1 / 6],
-    c=[0.0, 0.5, 0.5, 1.0],
+    *CLASSICAL_RK4,
     cost=1.2,
     # benchmarks/results/stability_limits.json
     stable_dt_omega={"State": 7.5, "MatrixState": 1.0, "ParticleState": math.inf},

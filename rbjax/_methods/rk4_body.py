@@ -34,13 +34,11 @@ from .._pytree import replace
 from .._state import Forces, State
 from ._common import project, rigid_steps
 from ._registry import Method, register
-from .explicit_rk import combine
+from .explicit_rk import CLASSICAL_RK4, combine
 
 __all__ = ["rk4_body"]
 
-_A = ((), (0.5,), (0.0, 0.5), (0.0, 0.0, 1.0))
-_B = (1 / 6, 1 / 3, 1 / 3, 1 / 6)
-_C = (0.0, 0.5, 0.5, 1.0)
+_A, _B, _C = CLASSICAL_RK4
 
 
 # The stages carry π (body frame) in the ``angular_momentum`` field of a State.

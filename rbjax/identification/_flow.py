@@ -32,12 +32,11 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
+from .._methods.explicit_rk import CLASSICAL_RK4
+
 __all__ = ["flow"]
 
-# Butcher tableau of the classical RK4 (as registered in rbjax._methods.rk4)
-_A = ((), (0.5,), (0.0, 0.5), (0.0, 0.0, 1.0))
-_B = (1 / 6, 1 / 3, 1 / 3, 1 / 6)
-_C = (0.0, 0.5, 0.5, 1.0)
+_A, _B, _C = CLASSICAL_RK4
 
 
 def _cross(a, b):
