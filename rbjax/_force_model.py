@@ -22,17 +22,7 @@ from ._pytree import pytree_dataclass, replace
 from ._state import AnyState, Forces, ParticleState, RigidState
 from ._typing import ArrayLike
 
-__all__ = [
-    "ForceModel",
-    "ForceSum",
-    "is_concrete",
-    "check_core",
-    "check_non_negative",
-    "check_fits",
-    "cast_to",
-    "full_batch",
-    "rigid_only",
-]
+__all__ = ["ForceModel", "ForceSum"]
 
 
 class ForceModel:
