@@ -10,7 +10,7 @@ and :class:`rbjax.Scene`, and at run time in checked mode). Conventions as in
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -25,7 +25,7 @@ from ._math import cross, matvec3, quat_rotate, safe_norm
 from ._pytree import field, pytree_dataclass
 from ._quantities import angular_velocity
 from ._state import AnyState, Forces, MatrixState, ParticleState, State
-from ._typing import ArrayLike
+from ._typing import ArrayLike, array_like, optional_array_like
 
 __all__ = ["Spring", "Thruster"]
 
@@ -155,29 +155,16 @@ class Spring(ForceModel):
     and no rotation work; with both ends there the model returns ``torque=None``.
     """
 
-    body: Int[Array, " S"]
-    stiffness: Float[Array, "*S"]
-    point: Float[Array, "S 3"] | None = None
-    anchor: Float[Array, "S 3"] | None = None
-    other: Int[Array, " S"] | None = None
-    rest_length: Float[Array, "*S"] = field(default=0.0)
-    damping: Float[Array, "*S"] | None = None
+    body: Int[Array, " S"] = field(converter=array_like)
+    stiffness: Float[Array, "*S"] = field(converter=array_like)
+    point: Float[Array, "S 3"] | None = field(default=None, converter=optional_array_like)
+    anchor: Float[Array, "S 3"] | None = field(default=None, converter=optional_array_like)
+    other: Int[Array, " S"] | None = field(default=None, converter=optional_array_like)
+    rest_length: Float[Array, "*S"] = field(default=0.0, converter=array_like)
+    damping: Float[Array, "*S"] | None = field(default=None, converter=optional_array_like)
     _INDEX_FIELDS = ("body", "other")
     _NON_NEGATIVE = ("stiffness", "rest_length", "damping")
     _FIELD_LABELS = {"other": "other (body_b of Spring.between)"}
-
-    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
-
-        def __init__(
-            self,
-            body: Int[ArrayLike, " S"],
-            stiffness: Float[ArrayLike, "*S"],
-            point: Float[ArrayLike, "S 3"] | None = None,
-            anchor: Float[ArrayLike, "S 3"] | None = None,
-            other: Int[ArrayLike, " S"] | None = None,
-            rest_length: Float[ArrayLike, "*S"] = 0.0,
-            damping: Float[ArrayLike, "*S"] | None = None,
-        ) -> None: ...
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "body", _as_index("Spring", "body", self.body))
@@ -291,21 +278,11 @@ class Thruster(ForceModel):
     sign (a negative thrust pushes along ``-d``). Rigid states only.
     """
 
-    body: Int[Array, " S"]
-    direction: Float[Array, "S 3"]
-    thrust: Float[Array, "*S"]
-    point: Float[Array, "S 3"] | None = None
+    body: Int[Array, " S"] = field(converter=array_like)
+    direction: Float[Array, "S 3"] = field(converter=array_like)
+    thrust: Float[Array, "*S"] = field(converter=array_like)
+    point: Float[Array, "S 3"] | None = field(default=None, converter=optional_array_like)
     _INDEX_FIELDS = ("body",)
-
-    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
-
-        def __init__(
-            self,
-            body: Int[ArrayLike, " S"],
-            direction: Float[ArrayLike, "S 3"],
-            thrust: Float[ArrayLike, "*S"],
-            point: Float[ArrayLike, "S 3"] | None = None,
-        ) -> None: ...
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "body", _as_index("Thruster", "body", self.body))

@@ -7,7 +7,7 @@ not be the body axes.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import jax
 import jax.core
@@ -19,7 +19,7 @@ from jaxtyping import Float
 from ._math import array_arg, skew
 from ._pytree import field, new_unchecked, pytree_dataclass
 from ._trajectory import BatchIndexing
-from ._typing import ArrayLike
+from ._typing import ArrayLike, array_like
 
 __all__ = [
     "Body",
@@ -181,19 +181,13 @@ class Body(BatchIndexing):
     ``ValueError`` otherwise. Under tracing it checks shapes only.
     """
 
-    mass: Float[Array, "*B"] = field(core_shape=())
-    inertia: Float[Array, "*B 3 3"] = field(core_shape=(3, 3))
+    mass: Float[Array, "*B"] = field(core_shape=(), converter=array_like)
+    inertia: Float[Array, "*B 3 3"] = field(core_shape=(3, 3), converter=array_like)
     # Set only inside step/simulate (see `prepare`): the inverse computed once from
     # the symmetrised inertia, so the time loop never inverts. Never user-facing.
-    _inverse: Float[Array, "*B 3 3"] | None = field(core_shape=(3, 3), default=None, repr=False)
-
-    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
-
-        def __init__(self, mass: Float[ArrayLike, "*B"], inertia: Float[ArrayLike, "*B 3 3"]) -> None: ...
+    _inverse: Float[Array, "*B 3 3"] | None = field(core_shape=(3, 3), default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
-        if self._inverse is not None:
-            raise TypeError("Body(mass, inertia): the inverse inertia is derived, not an argument")
         mass = as_float(self.mass)
         inertia = as_float(self.inertia)
         dtype = jnp.result_type(mass, inertia)

@@ -29,7 +29,7 @@ unchecked runs compile no test.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
@@ -51,7 +51,7 @@ from ._math import broadcasts_to, safe_norm
 from ._pytree import field, pytree_dataclass, static_field
 from ._quantities import angular_velocity
 from ._state import AnyState, Forces
-from ._typing import ArrayLike
+from ._typing import ArrayLike, array_like, optional_array_like
 
 __all__ = [
     "Gravity",
@@ -73,11 +73,7 @@ class Gravity(ForceModel):
     to ``(g, g, g)``; give the vector, e.g. ``(0, 0, -9.81)``.
     """
 
-    g: Float[Array, "*B 3"] = field(core_shape=(3,), default=(0.0, 0.0, -9.81))
-
-    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
-
-        def __init__(self, g: Float[ArrayLike, "*B 3"] | tuple[float, float, float] = (0.0, 0.0, -9.81)) -> None: ...
+    g: Float[Array, "*B 3"] = field(core_shape=(3,), default=(0.0, 0.0, -9.81), converter=array_like)
 
     def __post_init__(self) -> None:
         if self.g is None:
@@ -124,14 +120,8 @@ class LinearDrag(_Drag):
     centre-of-mass velocity and ``ω`` the angular velocity, both world frame.
     """
 
-    linear: Float[Array, "*B"] = field(default=0.0)
-    angular: Float[Array, "*B"] | None = field(default=None)
-
-    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
-
-        def __init__(
-            self, linear: Float[ArrayLike, "*B"] = 0.0, angular: Float[ArrayLike, "*B"] | None = None
-        ) -> None: ...
+    linear: Float[Array, "*B"] = field(default=0.0, converter=array_like)
+    angular: Float[Array, "*B"] | None = field(default=None, converter=optional_array_like)
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         self.check(state)
@@ -151,14 +141,8 @@ class QuadraticDrag(_Drag):
     gravity: ``√(m g / c)``.
     """
 
-    linear: Float[Array, "*B"] = field(default=0.0)
-    angular: Float[Array, "*B"] | None = field(default=None)
-
-    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
-
-        def __init__(
-            self, linear: Float[ArrayLike, "*B"] = 0.0, angular: Float[ArrayLike, "*B"] | None = None
-        ) -> None: ...
+    linear: Float[Array, "*B"] = field(default=0.0, converter=array_like)
+    angular: Float[Array, "*B"] | None = field(default=None, converter=optional_array_like)
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         self.check(state)
@@ -182,14 +166,8 @@ class ConstantForce(ForceModel):
     ``(*B, 3)`` or ``(3,)`` in N m (about it). Either may be ``None`` (absent).
     """
 
-    force: Float[Array, "*B 3"] | None = None
-    torque: Float[Array, "*B 3"] | None = None
-
-    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
-
-        def __init__(
-            self, force: Float[ArrayLike, "*B 3"] | None = None, torque: Float[ArrayLike, "*B 3"] | None = None
-        ) -> None: ...
+    force: Float[Array, "*B 3"] | None = field(default=None, converter=optional_array_like)
+    torque: Float[Array, "*B 3"] | None = field(default=None, converter=optional_array_like)
 
     def __post_init__(self) -> None:
         floats(self, "force", "torque")
@@ -232,20 +210,10 @@ class TimeSeriesForce(ForceModel):
     the first and after the last sample the end value holds.
     """
 
-    times: Float[Array, " K"]
-    force: Float[Array, "K *B 3"] | None = None
-    torque: Float[Array, "K *B 3"] | None = None
+    times: Float[Array, " K"] = field(converter=array_like)
+    force: Float[Array, "K *B 3"] | None = field(default=None, converter=optional_array_like)
+    torque: Float[Array, "K *B 3"] | None = field(default=None, converter=optional_array_like)
     interpolation: str = static_field(default="linear")
-
-    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
-
-        def __init__(
-            self,
-            times: Float[ArrayLike, " K"],
-            force: Float[ArrayLike, "K *B 3"] | None = None,
-            torque: Float[ArrayLike, "K *B 3"] | None = None,
-            interpolation: str = "linear",
-        ) -> None: ...
 
     def __post_init__(self) -> None:
         if self.interpolation not in ("linear", "hold"):

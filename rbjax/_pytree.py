@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import sys
+from collections.abc import Callable
 from typing import Any, TypeVar
 
 import jax
@@ -34,7 +35,13 @@ __all__ = [
 ]
 
 
-def field(*, core_ndim: int = 0, core_shape: tuple[int, ...] | None = None, **kwargs: Any) -> Any:
+def field(
+    *,
+    core_ndim: int = 0,
+    core_shape: tuple[int, ...] | None = None,
+    converter: Callable[[Any], Any] | None = None,
+    **kwargs: Any,
+) -> Any:
     """A data field (a pytree leaf or subtree) of rank ``core_ndim`` per body.
 
     ``core_ndim`` is the rank of the field for a single body (0 for a mass, 1 for
@@ -42,11 +49,16 @@ def field(*, core_ndim: int = 0, core_shape: tuple[int, ...] | None = None, **kw
     dimensions; see :mod:`rbjax._batching`. ``core_shape`` declares the
     single-body shape itself (``(3,)``, ``(4,)``, ``(3, 3)``; its length is the
     rank): constructors and :func:`rbjax.load` check arrays against it.
+    ``converter`` is applied to the constructor's argument before
+    ``__post_init__``; type checkers take its parameter type as the
+    constructor's (e.g. :func:`rbjax._typing.array_like`).
     """
     metadata = dict(kwargs.pop("metadata", {}))
     metadata["core_ndim"] = core_ndim if core_shape is None else len(core_shape)
     if core_shape is not None:
         metadata["core_shape"] = tuple(core_shape)
+    if converter is not None:
+        metadata["converter"] = converter
     return dataclasses.field(metadata=metadata, **kwargs)
 
 
@@ -74,6 +86,7 @@ def _summary_repr(self: Any) -> str:
 def pytree_dataclass(cls: type[T]) -> type[T]:
     """Make ``cls`` a frozen dataclass registered as a pytree with keyed paths."""
     own_repr = "__repr__" in cls.__dict__
+    _convert_before_post_init(cls)
     cls = dataclasses.dataclass(frozen=True, repr=False)(cls)
     if not own_repr:
         cls.__repr__ = _summary_repr  # type: ignore[method-assign]
@@ -101,6 +114,28 @@ def pytree_dataclass(cls: type[T]) -> type[T]:
     cls._rbjax_core_ndim = {f.name: f.metadata.get("core_ndim", 0) for f in fields}  # type: ignore[attr-defined]
     cls._rbjax_core_shape = {f.name: f.metadata["core_shape"] for f in fields if "core_shape" in f.metadata}  # type: ignore[attr-defined]
     return cls
+
+
+def _convert_before_post_init(cls: type) -> None:
+    """Give ``cls`` a ``__post_init__`` that applies its fields' converters, then its own (if any).
+
+    Reads the fields from the class body (``cls`` is not a dataclass yet) and its pytree-dataclass bases.
+    """
+    own = {n: v for n, v in vars(cls).items() if isinstance(v, dataclasses.Field)}
+    bases = [b for b in cls.__mro__[1:] if dataclasses.is_dataclass(b)]
+    inherited = {f.name: f for base in bases for f in dataclasses.fields(base)}
+    converters = {n: f.metadata["converter"] for n, f in {**inherited, **own}.items() if "converter" in f.metadata}
+    if not converters:
+        return
+    post_init = getattr(cls, "__post_init__", None)
+
+    def __post_init__(self: Any) -> None:
+        for name, convert in converters.items():
+            object.__setattr__(self, name, convert(getattr(self, name)))
+        if post_init is not None:
+            post_init(self)
+
+    cls.__post_init__ = __post_init__  # type: ignore[attr-defined]
 
 
 def replace(obj: T, **changes: Any) -> T:

@@ -20,7 +20,7 @@ from ._body import Body, as_float, finite_float, floats, inertia_of, is_concrete
 from ._math import array_arg, cross, matvec3, quat_conjugate, quat_rotate, quat_to_matrix
 from ._pytree import core_shape_of, field, pytree_dataclass, replace
 from ._trajectory import BatchIndexing
-from ._typing import ArrayLike
+from ._typing import ArrayLike, array_like, optional_array_like
 
 __all__ = [
     "Forces",
@@ -275,23 +275,11 @@ class State(_RigidStateBase):
     """
 
     body: Body
-    position: Float[Array, "*B 3"] = field(core_shape=(3,))
-    velocity: Float[Array, "*B 3"] = field(core_shape=(3,))
-    orientation: Float[Array, "*B 4"] = field(core_shape=(4,))
-    angular_momentum: Float[Array, "*B 3"] = field(core_shape=(3,))
-    time: Float[Array, "*B"] = field(core_shape=(), default=0.0)
-
-    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
-
-        def __init__(
-            self,
-            body: Body,
-            position: Float[ArrayLike, "*B 3"],
-            velocity: Float[ArrayLike, "*B 3"],
-            orientation: Float[ArrayLike, "*B 4"],
-            angular_momentum: Float[ArrayLike, "*B 3"],
-            time: Float[ArrayLike, "*B"] = 0.0,
-        ) -> None: ...
+    position: Float[Array, "*B 3"] = field(core_shape=(3,), converter=array_like)
+    velocity: Float[Array, "*B 3"] = field(core_shape=(3,), converter=array_like)
+    orientation: Float[Array, "*B 4"] = field(core_shape=(4,), converter=array_like)
+    angular_momentum: Float[Array, "*B 3"] = field(core_shape=(3,), converter=array_like)
+    time: Float[Array, "*B"] = field(core_shape=(), default=0.0, converter=array_like)
 
     def __post_init__(self) -> None:
         _convert_and_check(self)
@@ -337,23 +325,11 @@ class MatrixState(_RigidStateBase):
     """
 
     body: Body
-    position: Float[Array, "*B 3"] = field(core_shape=(3,))
-    velocity: Float[Array, "*B 3"] = field(core_shape=(3,))
-    rotation: Float[Array, "*B 3 3"] = field(core_shape=(3, 3))
-    angular_velocity: Float[Array, "*B 3"] = field(core_shape=(3,))
-    time: Float[Array, "*B"] = field(core_shape=(), default=0.0)
-
-    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
-
-        def __init__(
-            self,
-            body: Body,
-            position: Float[ArrayLike, "*B 3"],
-            velocity: Float[ArrayLike, "*B 3"],
-            rotation: Float[ArrayLike, "*B 3 3"],
-            angular_velocity: Float[ArrayLike, "*B 3"],
-            time: Float[ArrayLike, "*B"] = 0.0,
-        ) -> None: ...
+    position: Float[Array, "*B 3"] = field(core_shape=(3,), converter=array_like)
+    velocity: Float[Array, "*B 3"] = field(core_shape=(3,), converter=array_like)
+    rotation: Float[Array, "*B 3 3"] = field(core_shape=(3, 3), converter=array_like)
+    angular_velocity: Float[Array, "*B 3"] = field(core_shape=(3,), converter=array_like)
+    time: Float[Array, "*B"] = field(core_shape=(), default=0.0, converter=array_like)
 
     def __post_init__(self) -> None:
         _convert_and_check(self)
@@ -398,22 +374,12 @@ class ParticleState(_StateBase):
         time: ``(*B,)`` time ``t`` (s), as in :class:`State`.
     """
 
-    position: Float[Array, "*B 3"] = field(core_shape=(3,))
-    velocity: Float[Array, "*B 3"] = field(core_shape=(3,))
-    mass: Float[Array, "*B"] = field(core_shape=())
-    time: Float[Array, "*B"] = field(core_shape=(), default=0.0)
+    position: Float[Array, "*B 3"] = field(core_shape=(3,), converter=array_like)
+    velocity: Float[Array, "*B 3"] = field(core_shape=(3,), converter=array_like)
+    mass: Float[Array, "*B"] = field(core_shape=(), converter=array_like)
+    time: Float[Array, "*B"] = field(core_shape=(), default=0.0, converter=array_like)
 
     constant_fields: ClassVar[tuple[str, ...]] = ("mass", "time")
-
-    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
-
-        def __init__(
-            self,
-            position: Float[ArrayLike, "*B 3"],
-            velocity: Float[ArrayLike, "*B 3"],
-            mass: Float[ArrayLike, "*B"],
-            time: Float[ArrayLike, "*B"] = 0.0,
-        ) -> None: ...
 
     def __post_init__(self) -> None:
         _convert_and_check(self)
@@ -476,14 +442,8 @@ class Forces:
     Forces add with ``+``.
     """
 
-    force: Float[Array, "*B 3"] | None = field(core_shape=(3,), default=None)
-    torque: Float[Array, "*B 3"] | None = field(core_shape=(3,), default=None)
-
-    if TYPE_CHECKING:  # __post_init__ converts: the constructor takes array-likes
-
-        def __init__(
-            self, force: Float[ArrayLike, "*B 3"] | None = None, torque: Float[ArrayLike, "*B 3"] | None = None
-        ) -> None: ...
+    force: Float[Array, "*B 3"] | None = field(core_shape=(3,), default=None, converter=optional_array_like)
+    torque: Float[Array, "*B 3"] | None = field(core_shape=(3,), default=None, converter=optional_array_like)
 
     def __post_init__(self) -> None:
         floats(self, "force", "torque")

@@ -13,7 +13,24 @@ from collections.abc import Sequence
 from typing import Any, Union
 
 import jax.typing
+from jax import Array
 
-__all__ = ["ArrayLike"]
+__all__ = ["ArrayLike", "array_like", "optional_array_like"]
 
 ArrayLike = Union[jax.typing.ArrayLike, Sequence[Any]]
+
+
+# Field converters (``rbjax._pytree.field(converter=...)``) of array fields. Type checkers read
+# a converter's parameter type as the constructor's (PEP 681's dataclass_transform with the
+# typing spec's ``converter``): the constructor takes any array-like, the attribute is an Array.
+# They pass the value through: each class's ``__post_init__`` converts its array fields together,
+# because the dtype of one field depends on the others (a Python list takes the dtype of the
+# arrays beside it) and an error should name the class and the field.
+def array_like(x: ArrayLike) -> Array:
+    """Converter of an array field: declares the constructor argument array-like (see above)."""
+    return x  # type: ignore[return-value]
+
+
+def optional_array_like(x: ArrayLike | None) -> Array | None:
+    """Converter of an optional array field (``None`` = absent): as :func:`array_like`."""
+    return x  # type: ignore[return-value]
