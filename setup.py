@@ -57,7 +57,7 @@ if include:
                 "-std=c++17",
                 "-O3",
                 "-fno-math-errno",
-                "-ffp-contract=off",
+                "-ffp-contract=fast",
                 "-fvisibility=hidden",
                 "-Wno-return-type",
             ],

@@ -415,38 +415,92 @@ void rk4_body_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps)
   }
 }
 
-// exp(r) as rbjax._math.quat_exp: [cos(θ/2), sin(θ/2)/θ r], with its Taylor series below
-// θ² < √eps; both branches computed and one selected, so the loops stay straight-line. In two
-// parts around the sine and cosine of θ/2 (exp_angle gives θ² and θ, the square root of 1 where
-// the series applies), which run in a scalar loop of their own: without -ffast-math the compiler
-// has no vector sin or cos, and a call in the loop would keep all of it scalar.
+// sin x and cos x for 0 <= x <= SinCos<T>::kLimit, straight-line so that the loop calling it
+// vectorises (without -ffast-math the compiler has no vector sin or cos, and a libm call keeps
+// its whole loop scalar). Cephes' sin.c/sinf.c: x reduced by the multiple k of π/2 nearest to it
+// (π/2 split in three parts, Cody–Waite, exact to the last bit up to kLimit), then their minimax
+// polynomials on [-π/4, π/4], within 1 ulp of libm there (checked over [0, kLimit]); k mod 4
+// picks which polynomial and sign each of sin and cos takes. k comes from adding 1.5·2^(digits-1),
+// which rounds x 2/π to an integer held in the low bits of the sum: no float-to-int conversion,
+// whose undefined range would need a branch. Larger x (and NaN) are left to libm by the caller.
 template <typename T>
-RBJAX_INLINE bool exp_angle(const T r[3], T& th2, T& th) {
-  th2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
-  const bool small = th2 < std::sqrt(std::numeric_limits<T>::epsilon());
-  th = std::sqrt(small ? T(1) : th2);
-  return small;
-}
+struct SinCos;
+template <>
+struct SinCos<double> {
+  using Bits = uint64_t;
+  static constexpr double kLimit = 1.0e6;
+  static constexpr double kTwoOverPi = 6.36619772367581343076e-1, kShifter = 6755399441055744.0;  // 1.5·2⁵²
+  // π/2 in three parts: 2 × Cephes' DP1..DP3 for π/4 (doubling is exact)
+  static constexpr double kDp1 = 2 * 7.85398125648498535156e-1, kDp2 = 2 * 3.77489470793079817668e-8,
+                          kDp3 = 2 * 2.69515142907905952645e-15;
+  static RBJAX_INLINE double sin_poly(double z, double zz) {
+    return z + z * zz * (((((1.58962301576546568060e-10 * zz + -2.50507477628578072866e-8) * zz +
+                           2.75573136213857245213e-6) * zz + -1.98412698295895385996e-4) * zz +
+                         8.33333333332211858878e-3) * zz + -1.66666666666666307295e-1);
+  }
+  static RBJAX_INLINE double cos_poly(double zz) {
+    return (1.0 - 0.5 * zz) + zz * zz * (((((-1.13585365213876817300e-11 * zz + 2.08757008419747316778e-9) * zz +
+                                           -2.75573141792967388112e-7) * zz + 2.48015872888517045348e-5) * zz +
+                                         -1.38888888888730564116e-3) * zz + 4.16666666666665929218e-2);
+  }
+};
+template <>
+struct SinCos<float> {
+  using Bits = uint32_t;
+  static constexpr float kLimit = 8192.0f;
+  static constexpr float kTwoOverPi = 6.36619772367581343076e-1f, kShifter = 12582912.0f;  // 1.5·2²³
+  static constexpr float kDp1 = 2 * 0.78515625f, kDp2 = 2 * 2.4187564849853515625e-4f,
+                         kDp3 = 2 * 3.77489497744594108e-8f;
+  static RBJAX_INLINE float sin_poly(float z, float zz) {
+    return ((-1.9515295891e-4f * zz + 8.3321608736e-3f) * zz + -1.6666654611e-1f) * zz * z + z;
+  }
+  static RBJAX_INLINE float cos_poly(float zz) {
+    return ((2.443315711809948e-5f * zz + -1.388731625493765e-3f) * zz + 4.166664568298827e-2f) * zz * zz -
+           0.5f * zz + 1.0f;
+  }
+};
 
 template <typename T>
-RBJAX_INLINE void quat_exp(const T r[3], T sin_half, T cos_half, T e[4]) {
-  T th2, th;
-  const bool small = exp_angle(r, th2, th);
-  const T half_sinc_series = (T(0.5) - th2 / T(48)) + th2 * th2 / T(3840);
-  const T cos_half_series = (T(1) - th2 / T(8)) + th2 * th2 / T(384);
-  const T hs = small ? half_sinc_series : sin_half / th;
-  e[0] = small ? cos_half_series : cos_half;
-#pragma GCC unroll 16
-  for (int c = 0; c < 3; ++c) e[1 + c] = hs * r[c];
+RBJAX_INLINE void sincos_reduced(T x, T& s, T& c) {
+  using K = SinCos<T>;
+  const T shifted = x * K::kTwoOverPi + K::kShifter;
+  const T k = shifted - K::kShifter;  // the nearest integer to x 2/π
+  typename K::Bits bits;
+  std::memcpy(&bits, &shifted, sizeof bits);
+  const T z = ((x - k * K::kDp1) - k * K::kDp2) - k * K::kDp3;  // x - k π/2, in [-π/4, π/4]
+  const T zz = z * z;
+  const T sp = K::sin_poly(z, zz), cp = K::cos_poly(zz);
+  const bool swap = (bits & 1) != 0, sin_neg = (bits & 2) != 0, cos_neg = ((bits + 1) & 2) != 0;
+  const T sin_abs = swap ? cp : sp, cos_abs = swap ? sp : cp;
+  s = sin_neg ? -sin_abs : sin_abs;
+  c = cos_neg ? -cos_abs : cos_abs;
+}
+
+// exp(r) = [cos(θ/2), sin(θ/2)/θ r] as rbjax._math.quat_exp, in two parts: exp_scalars gives
+// its first component and the factor hs of r, with the Taylor series below θ² < √eps (both
+// branches computed and one selected, so the loop stays straight-line; the series divides by
+// its constants' reciprocals, which moves terms below √eps/48 by an ulp, far under the result's).
+template <typename T>
+RBJAX_INLINE void exp_scalars(const T r[3], T& th, T& e0, T& hs) {
+  const T th2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
+  const bool small = th2 < std::sqrt(std::numeric_limits<T>::epsilon());
+  th = std::sqrt(small ? T(1) : th2);
+  T sin_half, cos_half;
+  sincos_reduced(th * T(0.5), sin_half, cos_half);
+  const T half_sinc_series = (T(0.5) - th2 * T(1.0 / 48)) + th2 * th2 * T(1.0 / 3840);
+  const T cos_half_series = (T(1) - th2 * T(0.125)) + th2 * th2 * T(1.0 / 384);
+  hs = small ? half_sinc_series : sin_half / th;
+  e0 = small ? cos_half_series : cos_half;
 }
 
 // `steps` semi-implicit Euler steps of a block (rbjax/_methods/semi_implicit_euler.py:
 // semi_implicit_state): kick(dt) with the forces at the step's start, then q ← exp(ω dt) ⊗ q
 // with ω from the new L and the old q, normalised, and x += v dt with the new v. Three loops
-// per step: the kick and r = ω dt (vectorised), sin and cos of θ/2 (scalar), the turn.
+// per step, vectorised: the kick and r = ω dt, exp's scalars, the turn; between the last two, a
+// scalar pass hands angles beyond sincos_reduced's range (which no accurate step reaches) to libm.
 template <typename T, bool kForces, bool kQuad>
 void semi_implicit_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
-  T r[3][kBlock], sin_half[kBlock], cos_half[kBlock];
+  T r[3][kBlock], th[kBlock], e0[kBlock], hs[kBlock];
   for (int64_t s = 0; s < steps; ++s) {
 #pragma GCC ivdep
     for (int j = 0; j < n; ++j) {
@@ -461,18 +515,23 @@ void semi_implicit_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t s
       }
       store_body(B, j, q, L, v);
     }
+#pragma GCC ivdep
     for (int j = 0; j < n; ++j) {
-      T rj[3] = {r[0][j], r[1][j], r[2][j]}, th2, th;
-      exp_angle(rj, th2, th);
-      sin_half[j] = std::sin(th / T(2));
-      cos_half[j] = std::cos(th / T(2));
+      const T rj[3] = {r[0][j], r[1][j], r[2][j]};
+      exp_scalars(rj, th[j], e0[j], hs[j]);
+    }
+    for (int j = 0; j < n; ++j) {
+      if (!(th[j] * T(0.5) <= SinCos<T>::kLimit)) {  // θ ≥ 1 here: not the series
+        hs[j] = std::sin(th[j] * T(0.5)) / th[j];
+        e0[j] = std::cos(th[j] * T(0.5));
+      }
     }
 #pragma GCC ivdep
     for (int j = 0; j < n; ++j) {
-      T q[4], rj[3] = {r[0][j], r[1][j], r[2][j]}, e[4], q1[4];
+      T q[4], q1[4];
+      const T e[4] = {e0[j], hs[j] * r[0][j], hs[j] * r[1][j], hs[j] * r[2][j]};
 #pragma GCC unroll 16
       for (int c = 0; c < 4; ++c) q[c] = B.q[c][j];
-      quat_exp(rj, sin_half[j], cos_half[j], e);
       quat_multiply(e, q, q1);
       normalize(q1);
       store_q(B, j, q1);
