@@ -1,13 +1,15 @@
 """The native CPU kernels (rbjax/_native) against the JAX reference they mirror.
 
-Both paths evaluate the same formulas in the same order (kernels.cc is built
-without fused multiply-adds). They still round differently in a few places:
-XLA's sum for ``‖v‖`` and ``‖ω‖``, and terms of one kind (two ``Gravity``) summed
-before the others. Each step then adds a few ulps, and the states drift apart at
-most linearly in the number of steps: the tolerance is ``8 · steps · eps`` of
-each field's scale, a bound the measured differences (2-12 eps after 100 steps)
-stay well inside, and which an error in any formula (a wrong sign, a missed
-term, a transposed inertia) exceeds by orders of magnitude.
+Both paths evaluate the same maps; they round differently: the kernel builds
+the rotation matrix of ``q`` once where JAX rotates twice, multiplies by ``1/m``,
+takes ``sin`` and ``cos`` from its own polynomials, fuses other multiply-adds
+than XLA does, sums ``‖v‖`` and ``‖ω‖`` in another order and terms of one kind
+(two ``Gravity``) before the others. Each step then adds a few ulps, and the
+states drift apart at most linearly in the number of steps: the tolerance is
+``8 · steps · eps`` of each field's scale, a bound the measured differences
+(at most 3.9 steps · eps, rk4_body float32, 130 bodies, 24 steps) stay inside,
+and which an error in any formula (a wrong sign, a missed term, a transposed
+inertia) exceeds by orders of magnitude.
 """
 
 import shutil

@@ -6,9 +6,9 @@
 // the compiler vectorises it; the steps are the outer loop, so the block's
 // state stays in L1 between them.
 //
-// Each formula mirrors the JAX reference operation by operation (same products,
-// same order of sums; kernels.cc is built with -ffp-contract=off, so no fused
-// multiply-adds), which keeps the two within round-off of each other.
+// Each formula computes the same map as the JAX function it names, mostly in the
+// same order; where it regroups for speed (README.md lists where), the two still
+// agree to round-off, which tests/test_native.py holds them to.
 
 // q ⊗ (0, a) ⊗ q* as rbjax._math.quat_rotate: a + w t + u × t with t = 2 u × a.
 template <typename T>
@@ -37,13 +37,41 @@ RBJAX_INLINE void matvec3(const T A[9], const T a[3], T out[3]) {
   out[2] = A[6] * a[0] + A[7] * a[1] + A[8] * a[2];
 }
 
-// ω = R I_L⁻¹ Rᵀ L by quaternion rotations, as rbjax._dynamics.omega_world.
+// The matrix of quat_rotate(q, ·) for any q (unit or not, as the stages of RK4 see it):
+// a ↦ a + 2w (u × a) + 2 u × (u × a), i.e. R = 1 + 2w [u]ₓ + 2 [u]ₓ²; quat_rotate_back is Rᵀ.
+template <typename T>
+RBJAX_INLINE void rotation(const T q[4], T R[9]) {
+  const T x2 = T(2) * q[1], y2 = T(2) * q[2], z2 = T(2) * q[3];
+  const T xx = q[1] * x2, yy = q[2] * y2, zz = q[3] * z2, xy = q[1] * y2, xz = q[1] * z2, yz = q[2] * z2;
+  const T wx = q[0] * x2, wy = q[0] * y2, wz = q[0] * z2;
+  R[0] = T(1) - (yy + zz);
+  R[1] = xy - wz;
+  R[2] = xz + wy;
+  R[3] = xy + wz;
+  R[4] = T(1) - (xx + zz);
+  R[5] = yz - wx;
+  R[6] = xz - wy;
+  R[7] = yz + wx;
+  R[8] = T(1) - (xx + yy);
+}
+
+// Rᵀ a for a row-major 3x3 R.
+template <typename T>
+RBJAX_INLINE void matvec3_t(const T A[9], const T a[3], T out[3]) {
+  out[0] = A[0] * a[0] + A[3] * a[1] + A[6] * a[2];
+  out[1] = A[1] * a[0] + A[4] * a[1] + A[7] * a[2];
+  out[2] = A[2] * a[0] + A[5] * a[1] + A[8] * a[2];
+}
+
+// ω = R I_L⁻¹ Rᵀ L, as rbjax._dynamics.omega_world computes it with two quat_rotates and
+// matvec3; here R is built once and applied twice (fewer operations, the same map).
 template <typename T>
 RBJAX_INLINE void omega(const T q[4], const T L[3], const T inv[9], T w[3]) {
-  T b[3], a[3];
-  quat_rotate_back(q, L, b);
+  T R[9], b[3], a[3];
+  rotation(q, R);
+  matvec3_t(R, L, b);
   matvec3(inv, b, a);
-  quat_rotate(q, a, w);
+  matvec3(R, a, w);
 }
 
 // (0, ω) ⊗ q without the zero, as rbjax._math.pure_quat_multiply.
@@ -144,7 +172,7 @@ void euler_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
         forces<T, kQuad>(k, j, v, w, F, tau);
         #pragma GCC unroll 16
         for (int c = 0; c < 3; ++c) {
-          B.v[c][j] = v[c] + F[c] / k.m[j] * dt;
+          B.v[c][j] = v[c] + F[c] * k.inv_m[j] * dt;
           B.L[c][j] = L[c] + tau[c] * dt;
         }
       }
@@ -173,7 +201,7 @@ RBJAX_INLINE void derivative(const Consts<T>& k, int j, const T y[13], T d[13]) 
     forces<T, kQuad>(k, j, y + 3, w, F, tau);
     #pragma GCC unroll 16
     for (int c = 0; c < 3; ++c) {
-      d[3 + c] = F[c] / k.m[j];
+      d[3 + c] = F[c] * k.inv_m[j];
       d[10 + c] = tau[c];
     }
   }
@@ -183,16 +211,18 @@ RBJAX_INLINE void derivative(const Consts<T>& k, int j, const T y[13], T d[13]) 
 }
 
 // `steps` classical RK4 steps of a block (rbjax/_methods/rk4.py through
-// explicit_rk.py): stage i at y + dt (Σ_j a_ij k_j), the result y + dt Σ_i b_i k_i
-// summed left to right, then q normalised. Without forces v and L do not change.
+// explicit_rk.py): stage i at y + dt (a_i k_{i-1}), the result y + dt Σ_i b_i k_i
+// summed left to right (accumulated as each stage's k is known, the same sum), then q
+// normalised. Without forces v and L do not change, and x moves by v in every stage.
 template <typename T, bool kForces, bool kQuad>
 void rk4_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
   const T half = T(0.5), sixth = T(1.0 / 6.0), third = T(1.0 / 3.0);
-  const int moving = kForces ? 13 : 10;  // components 10-12 (L) move only under a torque
+  const int first = kForces ? 0 : 3;  // without forces only x (0-2, from v alone) and q move
+  const int moving = kForces ? 13 : 10;
   for (int64_t s = 0; s < steps; ++s) {
 #pragma GCC ivdep
     for (int j = 0; j < n; ++j) {
-      T y[13], k1[13], k2[13], k3[13], k4[13], st[13];
+      T y[13], kk[13], st[13], acc[13];
       #pragma GCC unroll 16
       for (int c = 0; c < 3; ++c) {
         y[c] = B.x[c][j];
@@ -201,28 +231,43 @@ void rk4_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
       }
       #pragma GCC unroll 16
       for (int c = 0; c < 4; ++c) y[6 + c] = B.q[c][j];
-      derivative<T, kForces, kQuad>(k, j, y, k1);
       #pragma GCC unroll 16
       for (int c = 0; c < 13; ++c) st[c] = y[c];
+      derivative<T, kForces, kQuad>(k, j, y, kk);
       #pragma GCC unroll 16
-      for (int c = 0; c < moving; ++c) {
-        if (kForces || c < 3 || c >= 6) st[c] = y[c] + dt * (half * k1[c]);
+      for (int c = first; c < moving; ++c) {
+        if (kForces || c >= 6) {
+          acc[c] = sixth * kk[c];
+          st[c] = y[c] + dt * (half * kk[c]);
+        }
       }
-      derivative<T, kForces, kQuad>(k, j, st, k2);
+      derivative<T, kForces, kQuad>(k, j, st, kk);
       #pragma GCC unroll 16
-      for (int c = 0; c < moving; ++c) {
-        if (kForces || c < 3 || c >= 6) st[c] = y[c] + dt * (half * k2[c]);
+      for (int c = first; c < moving; ++c) {
+        if (kForces || c >= 6) {
+          acc[c] = acc[c] + third * kk[c];
+          st[c] = y[c] + dt * (half * kk[c]);
+        }
       }
-      derivative<T, kForces, kQuad>(k, j, st, k3);
+      derivative<T, kForces, kQuad>(k, j, st, kk);
       #pragma GCC unroll 16
-      for (int c = 0; c < moving; ++c) {
-        if (kForces || c < 3 || c >= 6) st[c] = y[c] + dt * k3[c];
+      for (int c = first; c < moving; ++c) {
+        if (kForces || c >= 6) {
+          acc[c] = acc[c] + third * kk[c];
+          st[c] = y[c] + dt * kk[c];
+        }
       }
-      derivative<T, kForces, kQuad>(k, j, st, k4);
+      derivative<T, kForces, kQuad>(k, j, st, kk);
       #pragma GCC unroll 16
-      for (int c = 0; c < moving; ++c) {
-        if (kForces || c < 3 || c >= 6) {
-          y[c] = y[c] + dt * (((sixth * k1[c] + third * k2[c]) + third * k3[c]) + sixth * k4[c]);
+      for (int c = first; c < moving; ++c) {
+        if (kForces || c >= 6) y[c] = y[c] + dt * (acc[c] + sixth * kk[c]);
+      }
+      if (!kForces) {
+        // every stage's ẋ is the constant v: the same sum with k_i = v
+        #pragma GCC unroll 16
+        for (int c = 0; c < 3; ++c) {
+          const T v = y[3 + c];
+          y[c] = y[c] + dt * (((sixth * v + third * v) + third * v) + sixth * v);
         }
       }
       normalize(y + 6);
@@ -284,8 +329,19 @@ RBJAX_INLINE void rotate_about(T qp[4], T m[3], T k, T h) {
 
 // ``q`` after the split free rotor over h (splitting.py: free_rotor), from the principal frame's
 // quaternion p and inverse moments e (computed by rbjax._methods._common.principal_frame).
+// H_L of free_rotor: the turn about world L by |L| h e₂, [c2, tl L].
 template <typename T>
-RBJAX_INLINE void free_rotor(T q[4], const T L[3], const T p[4], const T e[3], T h) {
+RBJAX_INLINE void turn_about_L(const T L[3], const T e[3], T h, T turn[4]) {
+  T c2, tl;
+  cayley(h * e[1] / T(4), L[0] * L[0] + L[1] * L[1] + L[2] * L[2], c2, tl);
+  turn[0] = c2;
+#pragma GCC unroll 16
+  for (int c = 0; c < 3; ++c) turn[1 + c] = tl * L[c];
+}
+
+// turn: H_L from turn_about_L (the same every step while no torque changes L).
+template <typename T>
+RBJAX_INLINE void free_rotor(T q[4], const T L[3], const T p[4], const T e[3], T h, const T turn[4]) {
   const T k0 = e[0] - e[1], k2 = e[2] - e[1];
   T qp[4], m[3], conj[4];
   quat_multiply(q, p, qp);
@@ -293,9 +349,6 @@ RBJAX_INLINE void free_rotor(T q[4], const T L[3], const T p[4], const T e[3], T
   rotate_about<T, 2>(qp, m, k2, T(0.5) * h);
   rotate_about<T, 0>(qp, m, k0, T(1.0) * h);
   rotate_about<T, 2>(qp, m, k2, T(0.5) * h);
-  T c2, tl;  // H_L: the turn about world L by |L| h e₂
-  cayley(h * e[1] / T(4), L[0] * L[0] + L[1] * L[1] + L[2] * L[2], c2, tl);
-  const T turn[4] = {c2, tl * L[0], tl * L[1], tl * L[2]};
   T turned[4];
   quat_multiply(turn, qp, turned);
   conj[0] = p[0];
@@ -314,7 +367,7 @@ RBJAX_INLINE void kick(const Consts<T>& k, int j, const T q[4], const T inv[9], 
   forces<T, kQuad>(k, j, v, w, F, tau);
 #pragma GCC unroll 16
   for (int c = 0; c < 3; ++c) {
-    v[c] = v[c] + F[c] / k.m[j] * h;
+    v[c] = v[c] + F[c] * k.inv_m[j] * h;
     L[c] = L[c] + tau[c] * h;
   }
 }
@@ -325,6 +378,17 @@ RBJAX_INLINE void kick(const Consts<T>& k, int j, const T q[4], const T inv[9], 
 template <typename T, bool kForces, bool kQuad>
 void splitting_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], int n, T dt, int64_t steps) {
   const T half = dt / T(2);
+  T turns[4][kBlock];  // without forces L, and so H_L, stays: computed once per call
+  if (!kForces) {
+#pragma GCC ivdep
+    for (int j = 0; j < n; ++j) {
+      const T L[3] = {B.L[0][j], B.L[1][j], B.L[2][j]}, e[3] = {frame[4][j], frame[5][j], frame[6][j]};
+      T turn[4];
+      turn_about_L(L, e, dt, turn);
+#pragma GCC unroll 16
+      for (int c = 0; c < 4; ++c) turns[c][j] = turn[c];
+    }
+  }
   for (int64_t s = 0; s < steps; ++s) {
 #pragma GCC ivdep
     for (int j = 0; j < n; ++j) {
@@ -335,7 +399,14 @@ void splitting_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], 
       const T e[3] = {frame[4][j], frame[5][j], frame[6][j]};
 #pragma GCC unroll 16
       for (int c = 0; c < 3; ++c) B.x[c][j] = B.x[c][j] + v[c] * dt;
-      free_rotor(q, L, p, e, dt);
+      T turn[4];
+      if (kForces) {
+        turn_about_L(L, e, dt, turn);
+      } else {
+#pragma GCC unroll 16
+        for (int c = 0; c < 4; ++c) turn[c] = turns[c][j];
+      }
+      free_rotor(q, L, p, e, dt, turn);
       if (kForces) kick<T, kQuad>(k, j, q, inv, half, v, L);  // with the forces after the drift
       store_body(B, j, q, L, v);
     }
@@ -361,14 +432,18 @@ RBJAX_INLINE void body_derivative(const Consts<T>& k, int j, const T y[13], T d[
     d[3 + c] = T(0);
   }
   if (kForces) {
-    T Lw[3], ww[3], F[3], tau[3], tb[3];
-    quat_rotate(q, pi, Lw);
-    omega(q, Lw, inv, ww);
+    // the world state's ω = R I⁻¹ Rᵀ (R π), and Rᵀ τ, with R(q) built once
+    T R[9], Lw[3], b[3], a[3], ww[3], F[3], tau[3], tb[3];
+    rotation(q, R);
+    matvec3(R, pi, Lw);
+    matvec3_t(R, Lw, b);
+    matvec3(inv, b, a);
+    matvec3(R, a, ww);
     forces<T, kQuad>(k, j, y + 3, ww, F, tau);
-    quat_rotate_back(q, tau, tb);
+    matvec3_t(R, tau, tb);
 #pragma GCC unroll 16
     for (int c = 0; c < 3; ++c) {
-      d[3 + c] = F[c] / k.m[j];
+      d[3 + c] = F[c] * k.inv_m[j];
       d[10 + c] = d[10 + c] + tb[c];
     }
   }
