@@ -17,6 +17,7 @@ import numpy as np
 from jax import Array
 from jaxtyping import Float
 
+from ._batching import lift
 from ._math import broadcasts_to
 from ._pytree import pytree_dataclass, replace
 from ._state import AnyState, Forces, ParticleState, RigidState
@@ -85,6 +86,35 @@ class ForceModel:
         a = self.terms if isinstance(self, ForceSum) else (self,)
         b = other.terms if isinstance(other, ForceSum) else (other,)
         return ForceSum(a + b)
+
+
+class PerBodyForce(ForceModel):
+    """A force law in which each body feels a force of its own state alone (gravity, drag, a constant load).
+
+    Subclasses write :meth:`on_body` for one body; ``model(state, t)`` lifts it over the
+    batch with ``vmap`` (``rbjax._batching.lift``), each array of the model mapped with the
+    bodies where it is per body (its fields declare their per-body rank) and shared where
+    it is not. ``simulate`` lifts :meth:`on_body` itself inside its steps, in the layout its
+    scan carries the state in, so the law fuses with the step instead of needing the batch
+    transposed around it (see :func:`per_body_terms`).
+    """
+
+    def on_body(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:  # pragma: no cover - abstract
+        """World-frame :class:`Forces` (force ``(3,)`` N, torque ``(3,)`` N m or ``None``) on one
+        body of batch shape ``()``, with this model's arrays for that body."""
+        raise NotImplementedError
+
+    def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
+        self.check(state)
+        return lift(lambda model, s: model.on_body(s, t))(self, state)
+
+
+def per_body_terms(forces: Any) -> tuple[PerBodyForce, ...] | None:
+    """The terms of ``forces`` when every one is a :class:`PerBodyForce` (a sum or one model), else ``None``."""
+    terms = forces.terms if isinstance(forces, ForceSum) else (forces,)
+    if terms and all(isinstance(term, PerBodyForce) for term in terms):
+        return tuple(terms)
+    return None
 
 
 def is_concrete(a: Any) -> bool:

@@ -16,7 +16,7 @@ from jaxtyping import Float
 from . import _checked, _methods, _native
 from ._batching import batch_last, batch_shape, lift, map_leaves, to_batch_first, to_batch_last
 from ._body import prepare
-from ._force_model import ForceModel
+from ._force_model import ForceModel, per_body_terms
 from ._methods import DEFAULT_METHOD
 from ._pytree import replace
 from ._scan import check_checkpoint, checkpointed_scan, frames_as_outputs, frames_in_buffer
@@ -418,6 +418,21 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
     def batch_first_forces(state, t):
         return user_fn(replace(state, time=t), t)
 
+    # a sum of per-body laws: each body's law lifted inside the step, in the scan's layout, so
+    # XLA fuses it with the step (through soa_forces the batch is transposed around every call)
+    terms = per_body_terms(forces) if soa and isinstance(forces, ForceModel) else None
+    if terms is not None:
+        terms = tuple(to_soa(term) for term in terms)
+
+        def per_body_forces(state, t):
+            def on_body(s, *models):
+                total = Forces()
+                for model in models:
+                    total = total + model.on_body(s, t)
+                return total
+
+            return lift(on_body)(state, *terms)
+
     # the steps' force function, chosen once; time-series forces give one per step, from its slice
     if series:
 
@@ -429,6 +444,8 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
         if isinstance(forces, Forces):
             const_forces = to_soa(forces)
             fn = lambda state, t: const_forces
+        elif terms is not None:
+            fn = per_body_forces
         else:
             fn = soa_forces if soa else batch_first_forces
         step_forces = lambda f: fn

@@ -240,3 +240,39 @@ def test_bad_inputs_raise_value_error():
         rb.Spring.to_anchor([0], [[0.0, 0, 0]], 1.0)(rb.ParticleState.create(jnp.ones((2, 2))), 0.0)
     with pytest.raises(ValueError, match="broadcast"):
         rb.Scene.build(p, rb.ConstantForce(jnp.ones((5, 3))))
+
+
+# every method with per-body laws on the path simulate lifts them on (inside the step, batch-last)
+# against the same model as an opaque callable, which simulate evaluates on the whole batch-first
+# batch between transposes: the same formulas, so equal to round-off (measured at most 0.6 eps per
+# step of each field's scale; the bound allows 8, as tests/test_native.py does for its two paths)
+_PER_BODY_CASES = [
+    (m, d)
+    for m in ["euler", "rk4", "splitting", "semi_implicit_euler", "rk4_body", "rk8", "implicit_midpoint"]
+    for d in ([jnp.float32, jnp.float64] if m in ("euler", "rk4", "splitting") else [jnp.float64])
+]
+
+
+@pytest.mark.parametrize(("method", "dtype"), _PER_BODY_CASES)
+def test_per_body_laws_inside_the_step_match_the_batch_path(method, dtype):
+    rng = np.random.default_rng(4)
+    n, steps = 5, 12
+    body = rb.box(jnp.asarray(rng.uniform(0.5, 2.0, n), dtype), jnp.asarray(rng.uniform(0.1, 1.0, (n, 3)), dtype))
+    state = rb.State.create(
+        body,
+        velocity=jnp.asarray(rng.normal(size=(n, 3)), dtype),
+        angular_velocity=jnp.asarray(rng.normal(size=(n, 3)) * 3, dtype),
+    )
+    model = (
+        rb.Gravity()
+        + rb.QuadraticDrag(jnp.asarray(rng.uniform(0.0, 0.1, n), dtype), 0.01)
+        + rb.LinearDrag(0.05, jnp.asarray(rng.uniform(0.0, 0.1, n), dtype))
+        + rb.ConstantForce(force=[0.1, 0.0, 0.2], torque=jnp.asarray(rng.normal(size=(n, 3)), dtype))
+    )
+    lifted = rb.simulate(state, model, 1e-2, steps, method, save_every=4, native=False)
+    batch = rb.simulate(state, lambda s, t: model(s, t), 1e-2, steps, method, save_every=4, native=False)
+    eps = float(jnp.finfo(dtype).eps)
+    for f in ("position", "velocity", "orientation", "angular_momentum"):
+        a, b = np.asarray(getattr(lifted, f), np.float64), np.asarray(getattr(batch, f), np.float64)
+        scale = max(1.0, float(np.max(np.abs(b))))
+        np.testing.assert_allclose(a, b, rtol=0, atol=8 * steps * eps * scale, err_msg=f)

@@ -4,8 +4,8 @@
 // the steps between two saved frames of rbjax.simulate. The arithmetic mirrors the
 // JAX reference in rbjax/_methods/ (euler.py, explicit_rk.py, splitting.py,
 // semi_implicit_euler.py, rk4_body.py; with rbjax/_dynamics.py and the force models
-// of rbjax/_forces.py) operation by
-// operation, so the two agree to round-off; tests/test_native.py holds them to it.
+// of rbjax/_forces.py) map by map, so the two agree to round-off; tests/test_native.py
+// holds them to it.
 // How the pieces map, and how to add a method: README.md beside this file.
 //
 // Layout: batch-first, as the state arrives from the user (no transposes): a
@@ -21,6 +21,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 #include <memory>
 #include <thread>
@@ -46,7 +47,7 @@ struct Block {
 // (constant F and τ, gravity g, drag b, b_r, c, c_r; zero where a term is absent).
 template <typename T>
 struct Consts {
-  T m[kBlock], inv[9][kBlock];
+  T m[kBlock], inv_m[kBlock], inv[9][kBlock];  // inv_m: 1/m, so F/m is a product (within an ulp)
   T F[3][kBlock], tau[3][kBlock], g[3][kBlock];
   T b[kBlock], br[kBlock], c[kBlock], cr[kBlock];
 };
@@ -144,6 +145,7 @@ void run_block(const Problem<T>& P, int64_t vb, int64_t i0, int n) {
   if (P.method == kSplitting) P.frame.load(vb, i0, n, 7, frame);
   for (int j = 0; j < n; ++j) {
     k.m[j] = m[0][j];
+    k.inv_m[j] = T(1) / m[0][j];
     k.b[j] = drag[0][j];
     k.br[j] = drag[1][j];
     k.c[j] = drag[2][j];

@@ -6,9 +6,9 @@
 // the compiler vectorises it; the steps are the outer loop, so the block's
 // state stays in L1 between them.
 //
-// Each formula mirrors the JAX reference operation by operation (same products,
-// same order of sums; kernels.cc is built with -ffp-contract=off, so no fused
-// multiply-adds), which keeps the two within round-off of each other.
+// Each formula computes the same map as the JAX function it names, mostly in the
+// same order; where it regroups for speed (README.md lists where), the two still
+// agree to round-off, which tests/test_native.py holds them to.
 
 // q ⊗ (0, a) ⊗ q* as rbjax._math.quat_rotate: a + w t + u × t with t = 2 u × a.
 template <typename T>
@@ -37,13 +37,41 @@ RBJAX_INLINE void matvec3(const T A[9], const T a[3], T out[3]) {
   out[2] = A[6] * a[0] + A[7] * a[1] + A[8] * a[2];
 }
 
-// ω = R I_L⁻¹ Rᵀ L by quaternion rotations, as rbjax._dynamics.omega_world.
+// The matrix of quat_rotate(q, ·) for any q (unit or not, as the stages of RK4 see it):
+// a ↦ a + 2w (u × a) + 2 u × (u × a), i.e. R = 1 + 2w [u]ₓ + 2 [u]ₓ²; quat_rotate_back is Rᵀ.
+template <typename T>
+RBJAX_INLINE void rotation(const T q[4], T R[9]) {
+  const T x2 = T(2) * q[1], y2 = T(2) * q[2], z2 = T(2) * q[3];
+  const T xx = q[1] * x2, yy = q[2] * y2, zz = q[3] * z2, xy = q[1] * y2, xz = q[1] * z2, yz = q[2] * z2;
+  const T wx = q[0] * x2, wy = q[0] * y2, wz = q[0] * z2;
+  R[0] = T(1) - (yy + zz);
+  R[1] = xy - wz;
+  R[2] = xz + wy;
+  R[3] = xy + wz;
+  R[4] = T(1) - (xx + zz);
+  R[5] = yz - wx;
+  R[6] = xz - wy;
+  R[7] = yz + wx;
+  R[8] = T(1) - (xx + yy);
+}
+
+// Rᵀ a for a row-major 3x3 R.
+template <typename T>
+RBJAX_INLINE void matvec3_t(const T A[9], const T a[3], T out[3]) {
+  out[0] = A[0] * a[0] + A[3] * a[1] + A[6] * a[2];
+  out[1] = A[1] * a[0] + A[4] * a[1] + A[7] * a[2];
+  out[2] = A[2] * a[0] + A[5] * a[1] + A[8] * a[2];
+}
+
+// ω = R I_L⁻¹ Rᵀ L, as rbjax._dynamics.omega_world computes it with two quat_rotates and
+// matvec3; here R is built once and applied twice (fewer operations, the same map).
 template <typename T>
 RBJAX_INLINE void omega(const T q[4], const T L[3], const T inv[9], T w[3]) {
-  T b[3], a[3];
-  quat_rotate_back(q, L, b);
+  T R[9], b[3], a[3];
+  rotation(q, R);
+  matvec3_t(R, L, b);
   matvec3(inv, b, a);
-  quat_rotate(q, a, w);
+  matvec3(R, a, w);
 }
 
 // (0, ω) ⊗ q without the zero, as rbjax._math.pure_quat_multiply.
@@ -144,7 +172,7 @@ void euler_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
         forces<T, kQuad>(k, j, v, w, F, tau);
         #pragma GCC unroll 16
         for (int c = 0; c < 3; ++c) {
-          B.v[c][j] = v[c] + F[c] / k.m[j] * dt;
+          B.v[c][j] = v[c] + F[c] * k.inv_m[j] * dt;
           B.L[c][j] = L[c] + tau[c] * dt;
         }
       }
@@ -173,7 +201,7 @@ RBJAX_INLINE void derivative(const Consts<T>& k, int j, const T y[13], T d[13]) 
     forces<T, kQuad>(k, j, y + 3, w, F, tau);
     #pragma GCC unroll 16
     for (int c = 0; c < 3; ++c) {
-      d[3 + c] = F[c] / k.m[j];
+      d[3 + c] = F[c] * k.inv_m[j];
       d[10 + c] = tau[c];
     }
   }
@@ -183,16 +211,18 @@ RBJAX_INLINE void derivative(const Consts<T>& k, int j, const T y[13], T d[13]) 
 }
 
 // `steps` classical RK4 steps of a block (rbjax/_methods/rk4.py through
-// explicit_rk.py): stage i at y + dt (Σ_j a_ij k_j), the result y + dt Σ_i b_i k_i
-// summed left to right, then q normalised. Without forces v and L do not change.
+// explicit_rk.py): stage i at y + dt (a_i k_{i-1}), the result y + dt Σ_i b_i k_i
+// summed left to right (accumulated as each stage's k is known, the same sum), then q
+// normalised. Without forces v and L do not change, and x moves by v in every stage.
 template <typename T, bool kForces, bool kQuad>
 void rk4_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
   const T half = T(0.5), sixth = T(1.0 / 6.0), third = T(1.0 / 3.0);
-  const int moving = kForces ? 13 : 10;  // components 10-12 (L) move only under a torque
+  const int first = kForces ? 0 : 3;  // without forces only x (0-2, from v alone) and q move
+  const int moving = kForces ? 13 : 10;
   for (int64_t s = 0; s < steps; ++s) {
 #pragma GCC ivdep
     for (int j = 0; j < n; ++j) {
-      T y[13], k1[13], k2[13], k3[13], k4[13], st[13];
+      T y[13], kk[13], st[13], acc[13];
       #pragma GCC unroll 16
       for (int c = 0; c < 3; ++c) {
         y[c] = B.x[c][j];
@@ -201,28 +231,43 @@ void rk4_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
       }
       #pragma GCC unroll 16
       for (int c = 0; c < 4; ++c) y[6 + c] = B.q[c][j];
-      derivative<T, kForces, kQuad>(k, j, y, k1);
       #pragma GCC unroll 16
       for (int c = 0; c < 13; ++c) st[c] = y[c];
+      derivative<T, kForces, kQuad>(k, j, y, kk);
       #pragma GCC unroll 16
-      for (int c = 0; c < moving; ++c) {
-        if (kForces || c < 3 || c >= 6) st[c] = y[c] + dt * (half * k1[c]);
+      for (int c = first; c < moving; ++c) {
+        if (kForces || c >= 6) {
+          acc[c] = sixth * kk[c];
+          st[c] = y[c] + dt * (half * kk[c]);
+        }
       }
-      derivative<T, kForces, kQuad>(k, j, st, k2);
+      derivative<T, kForces, kQuad>(k, j, st, kk);
       #pragma GCC unroll 16
-      for (int c = 0; c < moving; ++c) {
-        if (kForces || c < 3 || c >= 6) st[c] = y[c] + dt * (half * k2[c]);
+      for (int c = first; c < moving; ++c) {
+        if (kForces || c >= 6) {
+          acc[c] = acc[c] + third * kk[c];
+          st[c] = y[c] + dt * (half * kk[c]);
+        }
       }
-      derivative<T, kForces, kQuad>(k, j, st, k3);
+      derivative<T, kForces, kQuad>(k, j, st, kk);
       #pragma GCC unroll 16
-      for (int c = 0; c < moving; ++c) {
-        if (kForces || c < 3 || c >= 6) st[c] = y[c] + dt * k3[c];
+      for (int c = first; c < moving; ++c) {
+        if (kForces || c >= 6) {
+          acc[c] = acc[c] + third * kk[c];
+          st[c] = y[c] + dt * kk[c];
+        }
       }
-      derivative<T, kForces, kQuad>(k, j, st, k4);
+      derivative<T, kForces, kQuad>(k, j, st, kk);
       #pragma GCC unroll 16
-      for (int c = 0; c < moving; ++c) {
-        if (kForces || c < 3 || c >= 6) {
-          y[c] = y[c] + dt * (((sixth * k1[c] + third * k2[c]) + third * k3[c]) + sixth * k4[c]);
+      for (int c = first; c < moving; ++c) {
+        if (kForces || c >= 6) y[c] = y[c] + dt * (acc[c] + sixth * kk[c]);
+      }
+      if (!kForces) {
+        // every stage's ẋ is the constant v: the same sum with k_i = v
+        #pragma GCC unroll 16
+        for (int c = 0; c < 3; ++c) {
+          const T v = y[3 + c];
+          y[c] = y[c] + dt * (((sixth * v + third * v) + third * v) + sixth * v);
         }
       }
       normalize(y + 6);
@@ -284,8 +329,19 @@ RBJAX_INLINE void rotate_about(T qp[4], T m[3], T k, T h) {
 
 // ``q`` after the split free rotor over h (splitting.py: free_rotor), from the principal frame's
 // quaternion p and inverse moments e (computed by rbjax._methods._common.principal_frame).
+// H_L of free_rotor: the turn about world L by |L| h e₂, [c2, tl L].
 template <typename T>
-RBJAX_INLINE void free_rotor(T q[4], const T L[3], const T p[4], const T e[3], T h) {
+RBJAX_INLINE void turn_about_L(const T L[3], const T e[3], T h, T turn[4]) {
+  T c2, tl;
+  cayley(h * e[1] / T(4), L[0] * L[0] + L[1] * L[1] + L[2] * L[2], c2, tl);
+  turn[0] = c2;
+#pragma GCC unroll 16
+  for (int c = 0; c < 3; ++c) turn[1 + c] = tl * L[c];
+}
+
+// turn: H_L from turn_about_L (the same every step while no torque changes L).
+template <typename T>
+RBJAX_INLINE void free_rotor(T q[4], const T L[3], const T p[4], const T e[3], T h, const T turn[4]) {
   const T k0 = e[0] - e[1], k2 = e[2] - e[1];
   T qp[4], m[3], conj[4];
   quat_multiply(q, p, qp);
@@ -293,9 +349,6 @@ RBJAX_INLINE void free_rotor(T q[4], const T L[3], const T p[4], const T e[3], T
   rotate_about<T, 2>(qp, m, k2, T(0.5) * h);
   rotate_about<T, 0>(qp, m, k0, T(1.0) * h);
   rotate_about<T, 2>(qp, m, k2, T(0.5) * h);
-  T c2, tl;  // H_L: the turn about world L by |L| h e₂
-  cayley(h * e[1] / T(4), L[0] * L[0] + L[1] * L[1] + L[2] * L[2], c2, tl);
-  const T turn[4] = {c2, tl * L[0], tl * L[1], tl * L[2]};
   T turned[4];
   quat_multiply(turn, qp, turned);
   conj[0] = p[0];
@@ -314,7 +367,7 @@ RBJAX_INLINE void kick(const Consts<T>& k, int j, const T q[4], const T inv[9], 
   forces<T, kQuad>(k, j, v, w, F, tau);
 #pragma GCC unroll 16
   for (int c = 0; c < 3; ++c) {
-    v[c] = v[c] + F[c] / k.m[j] * h;
+    v[c] = v[c] + F[c] * k.inv_m[j] * h;
     L[c] = L[c] + tau[c] * h;
   }
 }
@@ -325,6 +378,17 @@ RBJAX_INLINE void kick(const Consts<T>& k, int j, const T q[4], const T inv[9], 
 template <typename T, bool kForces, bool kQuad>
 void splitting_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], int n, T dt, int64_t steps) {
   const T half = dt / T(2);
+  T turns[4][kBlock];  // without forces L, and so H_L, stays: computed once per call
+  if (!kForces) {
+#pragma GCC ivdep
+    for (int j = 0; j < n; ++j) {
+      const T L[3] = {B.L[0][j], B.L[1][j], B.L[2][j]}, e[3] = {frame[4][j], frame[5][j], frame[6][j]};
+      T turn[4];
+      turn_about_L(L, e, dt, turn);
+#pragma GCC unroll 16
+      for (int c = 0; c < 4; ++c) turns[c][j] = turn[c];
+    }
+  }
   for (int64_t s = 0; s < steps; ++s) {
 #pragma GCC ivdep
     for (int j = 0; j < n; ++j) {
@@ -335,7 +399,14 @@ void splitting_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], 
       const T e[3] = {frame[4][j], frame[5][j], frame[6][j]};
 #pragma GCC unroll 16
       for (int c = 0; c < 3; ++c) B.x[c][j] = B.x[c][j] + v[c] * dt;
-      free_rotor(q, L, p, e, dt);
+      T turn[4];
+      if (kForces) {
+        turn_about_L(L, e, dt, turn);
+      } else {
+#pragma GCC unroll 16
+        for (int c = 0; c < 4; ++c) turn[c] = turns[c][j];
+      }
+      free_rotor(q, L, p, e, dt, turn);
       if (kForces) kick<T, kQuad>(k, j, q, inv, half, v, L);  // with the forces after the drift
       store_body(B, j, q, L, v);
     }
@@ -361,14 +432,18 @@ RBJAX_INLINE void body_derivative(const Consts<T>& k, int j, const T y[13], T d[
     d[3 + c] = T(0);
   }
   if (kForces) {
-    T Lw[3], ww[3], F[3], tau[3], tb[3];
-    quat_rotate(q, pi, Lw);
-    omega(q, Lw, inv, ww);
+    // the world state's ω = R I⁻¹ Rᵀ (R π), and Rᵀ τ, with R(q) built once
+    T R[9], Lw[3], b[3], a[3], ww[3], F[3], tau[3], tb[3];
+    rotation(q, R);
+    matvec3(R, pi, Lw);
+    matvec3_t(R, Lw, b);
+    matvec3(inv, b, a);
+    matvec3(R, a, ww);
     forces<T, kQuad>(k, j, y + 3, ww, F, tau);
-    quat_rotate_back(q, tau, tb);
+    matvec3_t(R, tau, tb);
 #pragma GCC unroll 16
     for (int c = 0; c < 3; ++c) {
-      d[3 + c] = F[c] / k.m[j];
+      d[3 + c] = F[c] * k.inv_m[j];
       d[10 + c] = d[10 + c] + tb[c];
     }
   }
@@ -415,38 +490,92 @@ void rk4_body_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps)
   }
 }
 
-// exp(r) as rbjax._math.quat_exp: [cos(θ/2), sin(θ/2)/θ r], with its Taylor series below
-// θ² < √eps; both branches computed and one selected, so the loops stay straight-line. In two
-// parts around the sine and cosine of θ/2 (exp_angle gives θ² and θ, the square root of 1 where
-// the series applies), which run in a scalar loop of their own: without -ffast-math the compiler
-// has no vector sin or cos, and a call in the loop would keep all of it scalar.
+// sin x and cos x for 0 <= x <= SinCos<T>::kLimit, straight-line so that the loop calling it
+// vectorises (without -ffast-math the compiler has no vector sin or cos, and a libm call keeps
+// its whole loop scalar). Cephes' sin.c/sinf.c: x reduced by the multiple k of π/2 nearest to it
+// (π/2 split in three parts, Cody–Waite, exact to the last bit up to kLimit), then their minimax
+// polynomials on [-π/4, π/4], within 1 ulp of libm there (checked over [0, kLimit]); k mod 4
+// picks which polynomial and sign each of sin and cos takes. k comes from adding 1.5·2^(digits-1),
+// which rounds x 2/π to an integer held in the low bits of the sum: no float-to-int conversion,
+// whose undefined range would need a branch. Larger x (and NaN) are left to libm by the caller.
 template <typename T>
-RBJAX_INLINE bool exp_angle(const T r[3], T& th2, T& th) {
-  th2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
-  const bool small = th2 < std::sqrt(std::numeric_limits<T>::epsilon());
-  th = std::sqrt(small ? T(1) : th2);
-  return small;
-}
+struct SinCos;
+template <>
+struct SinCos<double> {
+  using Bits = uint64_t;
+  static constexpr double kLimit = 1.0e6;
+  static constexpr double kTwoOverPi = 6.36619772367581343076e-1, kShifter = 6755399441055744.0;  // 1.5·2⁵²
+  // π/2 in three parts: 2 × Cephes' DP1..DP3 for π/4 (doubling is exact)
+  static constexpr double kDp1 = 2 * 7.85398125648498535156e-1, kDp2 = 2 * 3.77489470793079817668e-8,
+                          kDp3 = 2 * 2.69515142907905952645e-15;
+  static RBJAX_INLINE double sin_poly(double z, double zz) {
+    return z + z * zz * (((((1.58962301576546568060e-10 * zz + -2.50507477628578072866e-8) * zz +
+                           2.75573136213857245213e-6) * zz + -1.98412698295895385996e-4) * zz +
+                         8.33333333332211858878e-3) * zz + -1.66666666666666307295e-1);
+  }
+  static RBJAX_INLINE double cos_poly(double zz) {
+    return (1.0 - 0.5 * zz) + zz * zz * (((((-1.13585365213876817300e-11 * zz + 2.08757008419747316778e-9) * zz +
+                                           -2.75573141792967388112e-7) * zz + 2.48015872888517045348e-5) * zz +
+                                         -1.38888888888730564116e-3) * zz + 4.16666666666665929218e-2);
+  }
+};
+template <>
+struct SinCos<float> {
+  using Bits = uint32_t;
+  static constexpr float kLimit = 8192.0f;
+  static constexpr float kTwoOverPi = 6.36619772367581343076e-1f, kShifter = 12582912.0f;  // 1.5·2²³
+  static constexpr float kDp1 = 2 * 0.78515625f, kDp2 = 2 * 2.4187564849853515625e-4f,
+                         kDp3 = 2 * 3.77489497744594108e-8f;
+  static RBJAX_INLINE float sin_poly(float z, float zz) {
+    return ((-1.9515295891e-4f * zz + 8.3321608736e-3f) * zz + -1.6666654611e-1f) * zz * z + z;
+  }
+  static RBJAX_INLINE float cos_poly(float zz) {
+    return ((2.443315711809948e-5f * zz + -1.388731625493765e-3f) * zz + 4.166664568298827e-2f) * zz * zz -
+           0.5f * zz + 1.0f;
+  }
+};
 
 template <typename T>
-RBJAX_INLINE void quat_exp(const T r[3], T sin_half, T cos_half, T e[4]) {
-  T th2, th;
-  const bool small = exp_angle(r, th2, th);
-  const T half_sinc_series = (T(0.5) - th2 / T(48)) + th2 * th2 / T(3840);
-  const T cos_half_series = (T(1) - th2 / T(8)) + th2 * th2 / T(384);
-  const T hs = small ? half_sinc_series : sin_half / th;
-  e[0] = small ? cos_half_series : cos_half;
-#pragma GCC unroll 16
-  for (int c = 0; c < 3; ++c) e[1 + c] = hs * r[c];
+RBJAX_INLINE void sincos_reduced(T x, T& s, T& c) {
+  using K = SinCos<T>;
+  const T shifted = x * K::kTwoOverPi + K::kShifter;
+  const T k = shifted - K::kShifter;  // the nearest integer to x 2/π
+  typename K::Bits bits;
+  std::memcpy(&bits, &shifted, sizeof bits);
+  const T z = ((x - k * K::kDp1) - k * K::kDp2) - k * K::kDp3;  // x - k π/2, in [-π/4, π/4]
+  const T zz = z * z;
+  const T sp = K::sin_poly(z, zz), cp = K::cos_poly(zz);
+  const bool swap = (bits & 1) != 0, sin_neg = (bits & 2) != 0, cos_neg = ((bits + 1) & 2) != 0;
+  const T sin_abs = swap ? cp : sp, cos_abs = swap ? sp : cp;
+  s = sin_neg ? -sin_abs : sin_abs;
+  c = cos_neg ? -cos_abs : cos_abs;
+}
+
+// exp(r) = [cos(θ/2), sin(θ/2)/θ r] as rbjax._math.quat_exp, in two parts: exp_scalars gives
+// its first component and the factor hs of r, with the Taylor series below θ² < √eps (both
+// branches computed and one selected, so the loop stays straight-line; the series divides by
+// its constants' reciprocals, which moves terms below √eps/48 by an ulp, far under the result's).
+template <typename T>
+RBJAX_INLINE void exp_scalars(const T r[3], T& th, T& e0, T& hs) {
+  const T th2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
+  const bool small = th2 < std::sqrt(std::numeric_limits<T>::epsilon());
+  th = std::sqrt(small ? T(1) : th2);
+  T sin_half, cos_half;
+  sincos_reduced(th * T(0.5), sin_half, cos_half);
+  const T half_sinc_series = (T(0.5) - th2 * T(1.0 / 48)) + th2 * th2 * T(1.0 / 3840);
+  const T cos_half_series = (T(1) - th2 * T(0.125)) + th2 * th2 * T(1.0 / 384);
+  hs = small ? half_sinc_series : sin_half / th;
+  e0 = small ? cos_half_series : cos_half;
 }
 
 // `steps` semi-implicit Euler steps of a block (rbjax/_methods/semi_implicit_euler.py:
 // semi_implicit_state): kick(dt) with the forces at the step's start, then q ← exp(ω dt) ⊗ q
 // with ω from the new L and the old q, normalised, and x += v dt with the new v. Three loops
-// per step: the kick and r = ω dt (vectorised), sin and cos of θ/2 (scalar), the turn.
+// per step, vectorised: the kick and r = ω dt, exp's scalars, the turn; between the last two, a
+// scalar pass hands angles beyond sincos_reduced's range (which no accurate step reaches) to libm.
 template <typename T, bool kForces, bool kQuad>
 void semi_implicit_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
-  T r[3][kBlock], sin_half[kBlock], cos_half[kBlock];
+  T r[3][kBlock], th[kBlock], e0[kBlock], hs[kBlock];
   for (int64_t s = 0; s < steps; ++s) {
 #pragma GCC ivdep
     for (int j = 0; j < n; ++j) {
@@ -461,18 +590,23 @@ void semi_implicit_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t s
       }
       store_body(B, j, q, L, v);
     }
+#pragma GCC ivdep
     for (int j = 0; j < n; ++j) {
-      T rj[3] = {r[0][j], r[1][j], r[2][j]}, th2, th;
-      exp_angle(rj, th2, th);
-      sin_half[j] = std::sin(th / T(2));
-      cos_half[j] = std::cos(th / T(2));
+      const T rj[3] = {r[0][j], r[1][j], r[2][j]};
+      exp_scalars(rj, th[j], e0[j], hs[j]);
+    }
+    for (int j = 0; j < n; ++j) {
+      if (!(th[j] * T(0.5) <= SinCos<T>::kLimit)) {  // θ ≥ 1 here: not the series
+        hs[j] = std::sin(th[j] * T(0.5)) / th[j];
+        e0[j] = std::cos(th[j] * T(0.5));
+      }
     }
 #pragma GCC ivdep
     for (int j = 0; j < n; ++j) {
-      T q[4], rj[3] = {r[0][j], r[1][j], r[2][j]}, e[4], q1[4];
+      T q[4], q1[4];
+      const T e[4] = {e0[j], hs[j] * r[0][j], hs[j] * r[1][j], hs[j] * r[2][j]};
 #pragma GCC unroll 16
       for (int c = 0; c < 4; ++c) q[c] = B.q[c][j];
-      quat_exp(rj, sin_half[j], cos_half[j], e);
       quat_multiply(e, q, q1);
       normalize(q1);
       store_q(B, j, q1);
