@@ -49,7 +49,7 @@ from ._force_model import (
     is_concrete,
     rigid_only,
 )
-from ._math import broadcasts_to, dot3
+from ._math import broadcasts_to, norm3
 from ._pytree import field, pytree_dataclass, static_field
 from ._quantities import angular_velocity
 from ._state import AnyState, Forces
@@ -140,14 +140,6 @@ class LinearDrag(_Drag):
         return Forces(force=f, torque=-cast_to(self.angular, state) * w)
 
 
-def _norm3(a: Array) -> Array:
-    """``‖a‖`` of a ``(..., 3)`` vector by components (``safe_norm`` sums, a reduction that XLA:CPU
-    does not fuse into the step), with its double ``where``: gradient 0, not NaN, at ``a = 0``."""
-    sq = dot3(a, a)
-    zero = sq == 0
-    return jnp.where(zero, 0.0, jnp.sqrt(jnp.where(zero, 1.0, sq)))
-
-
 @pytree_dataclass
 class QuadraticDrag(_Drag):
     """Quadratic drag ``F = -c ‖v‖ v`` and, if ``angular`` is given, ``τ = -c_r ‖ω‖ ω``.
@@ -162,12 +154,12 @@ class QuadraticDrag(_Drag):
 
     def on_body(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         v = state.velocity
-        f = -cast_to(self.linear, state) * _norm3(v) * v
+        f = -cast_to(self.linear, state) * norm3(v) * v
         if self.angular is None:
             return Forces(force=f)
         w = angular_velocity(rigid_only("QuadraticDrag(angular=...)", state))
         w = _materialised(w)
-        return Forces(force=f, torque=-cast_to(self.angular, state) * _norm3(w) * w)
+        return Forces(force=f, torque=-cast_to(self.angular, state) * norm3(w) * w)
 
 
 # ---------------------------------------------------------------- prescribed loads

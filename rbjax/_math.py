@@ -175,6 +175,14 @@ def dot3(a: Array, b: Array) -> Array:
     return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
 
 
+def norm3(a: Array) -> Array:
+    """``‖a‖`` of ``(..., 3)`` vectors by components (:func:`safe_norm` sums, a reduction that
+    XLA:CPU does not fuse into a step), with its double ``where``: gradient 0, not NaN, at ``a = 0``."""
+    sq = dot3(a, a)
+    zero = sq == 0
+    return jnp.where(zero, 0.0, jnp.sqrt(jnp.where(zero, 1.0, sq)))
+
+
 def matmul3(A: Array, B: Array) -> Array:
     """``A @ B`` of ``(..., 3, 3)`` matrices by components: a batched ``dot`` of 3x3
     blocks is a separate, unfused XLA:CPU kernel per product."""
