@@ -235,7 +235,7 @@ def test_plotted_fit_rates_are_the_fitted_model(drag):
     import numpy as np
     from scipy.integrate import solve_ivp
 
-    from rbjax._cli import _fitted_rates
+    from rbjax._cli_fit import fitted_rates
 
     I = np.diag([1.0, 3.2, 4.1]) * 1e-4
     In = I / np.trace(I)
@@ -247,6 +247,6 @@ def test_plotted_fit_rates_are_the_fitted_model(drag):
         return np.linalg.solve(In, np.cross(In @ w, w) - (c1 + c2 * np.linalg.norm(w)) * w)
 
     ref = solve_ivp(rhs, (t[0], t[-1]), w0, "DOP853", t_eval=t, rtol=1e-12, atol=1e-12).y.T
-    got = _fitted_rates(I, w0, t, np.asarray(drag))
+    got = fitted_rates(I, w0, t, np.asarray(drag))
     tol = 1e-9 if np.isnan(drag[0]) else 5e-5
     np.testing.assert_allclose(got, ref, rtol=0, atol=tol)
