@@ -66,6 +66,18 @@ def test_noisy_with_gyro_beats_linear_baseline_and_uncertainty_covers_truth():
     # the residual RMS recovers the injected noise levels (per component)
     np.testing.assert_allclose(res.orientation_rms, 1e-3, rtol=0.1)
     np.testing.assert_allclose(res.rate_rms, 0.01, rtol=0.1)
+    # the fitted start state against the truth (q0 = 1, ω0 = W0) with its reported σ: 4σ for 6
+    # linearised components of one draw; σ below the per-sample noise (all samples inform it)
+    assert res.member_initial_orientation.shape == (1, 4)
+    np.testing.assert_array_equal(res.member_initial_orientation[0], res.initial_orientation)
+    q0 = np.asarray(res.initial_orientation)
+    dq = 2 * np.sign(q0[0]) * q0[1:]  # rotation vector of q_true⁻¹ ⊗ q0 for q_true = 1 (small angle)
+    q_std = np.asarray(res.member_initial_orientation_std[0])
+    np.testing.assert_array_less(np.abs(dq), 4 * q_std)
+    np.testing.assert_array_less(q_std, 1e-3)
+    w_std = np.asarray(res.member_initial_angular_velocity_std[0])
+    np.testing.assert_array_less(np.abs(np.asarray(res.initial_angular_velocity) - W0), 4 * w_std)
+    np.testing.assert_array_less(w_std, 0.01)
 
 
 def _torque(t, q, w):

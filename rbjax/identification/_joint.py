@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from .._pytree import replace
@@ -74,7 +75,7 @@ def fit_joint(members, options) -> FitResult:
         for i in good
     ]
     prob = _pad_segments(join_problems(packed), segment_bucket(sum(p.segments for p in packed)))
-    res = solve(prob, options)
+    res, starts = solve(prob, options, segment_starts=True)
     # per member: its segments' data rows (segment-major, as the model lays them out)
     seg = prob.data["seg"]
     S, K1 = seg["rw"].shape[1], seg["rw"].shape[-1]
@@ -99,6 +100,12 @@ def fit_joint(members, options) -> FitResult:
         stats[i] = (float(np.sqrt(ratio)), chi2, dof, pval)
     nan4 = (np.nan,) * 4
     per = [stats.get(i, nan4) for i in range(len(members))]
+    # each member's start state: that of its first segment (segments stacked in member order)
+    first = dict(zip(good, np.cumsum([0] + [p.segments for p in packed])[:-1], strict=False))
+    rows = {k: np.full((len(members), v.shape[-1]), np.nan, v.dtype) for k, v in starts.items()}
+    for i, s0 in first.items():
+        for k in rows:
+            rows[k][i] = starts[k][s0]
     return replace(
         res,
         member_errors=tuple(f"recording {i}: {msg}" for i, msg in sorted(errors.items())),
@@ -107,4 +114,8 @@ def fit_joint(members, options) -> FitResult:
         member_chi2=tuple(x[1] for x in per),
         member_dof=tuple(x[2] for x in per),
         member_pvalue=tuple(x[3] for x in per),
+        member_initial_orientation=jnp.asarray(rows["q"]),
+        member_initial_orientation_std=jnp.asarray(rows["q_std"]),
+        member_initial_angular_velocity=jnp.asarray(rows["w"]),
+        member_initial_angular_velocity_std=jnp.asarray(rows["w_std"]),
     )

@@ -167,6 +167,18 @@ class FitResult:
             levels: on short, fast throws the second differences include the
             motion's and over-estimate the noise; ``s²`` is checked by
             ``model_consistent``.)
+        member_initial_orientation: ``(M, 4)`` per recording given, its fitted
+            orientation ``[w, x, y, z]`` (body to world) at its first sample,
+            ``q_meas,0 ⊗ exp(δ)``: with ``joint=True`` one row per recording
+            (NaN for one left out), otherwise one row, ``initial_orientation``.
+            Without orientation data the body frame at the first sample is the
+            world frame: the identity.
+        member_initial_orientation_std: ``(M, 3)`` one-sigma uncertainty of
+            ``δ`` (rad, body frame, the same covariance as ``moment_std``); NaN
+            without orientation data (``δ`` is not fitted).
+        member_initial_angular_velocity: ``(M, 3)`` per recording, its fitted
+            body-frame ``ω`` at its first sample (rad/s).
+        member_initial_angular_velocity_std: ``(M, 3)`` its one-sigma uncertainty (rad/s).
     """
 
     inertia: Float[Array, "*N 3 3"] = field(core_ndim=2)
@@ -205,6 +217,10 @@ class FitResult:
     failed: Bool[Array, "*N"] = field(core_ndim=0)
     drag: Float[Array, "*N 2"] = field(core_ndim=1, default=(float("nan"),) * 2)
     drag_std: Float[Array, "*N 2"] = field(core_ndim=1, default=(float("nan"),) * 2)
+    member_initial_orientation: Float[Array, "*N M 4"] = field(core_ndim=2, default=((float("nan"),) * 4,))
+    member_initial_orientation_std: Float[Array, "*N M 3"] = field(core_ndim=2, default=((float("nan"),) * 3,))
+    member_initial_angular_velocity: Float[Array, "*N M 3"] = field(core_ndim=2, default=((float("nan"),) * 3,))
+    member_initial_angular_velocity_std: Float[Array, "*N M 3"] = field(core_ndim=2, default=((float("nan"),) * 3,))
     scale_fixed: bool = static_field(default=False)
     segments: int = static_field(default=1)
     member_errors: tuple = static_field(default=())
@@ -345,6 +361,11 @@ def summarise(
     _, axes = jnp.linalg.eigh(I)
     axes = axes * jnp.sign(jnp.linalg.det(axes))
     _, P = unpack(y, layout.shared, S)
+    P_std = param_std[layout.shared :].reshape(S, 6)
+    # each segment's start: q_start ⊗ exp(δ_s) and ω_s, with σ; δ_s pinned (delta_free = 0, no
+    # orientation data) has no σ
+    seg_q = jax.vmap(lambda q, d: quat_multiply(q, quat_exp(d)))(seg["q_start"], P[:, :3])
+    seg_q_std = jnp.where(seg["delta_free"][:, None] > 0, P_std[:, :3], jnp.nan)
     nan2 = jnp.full(2, jnp.nan, y.dtype)
     drag = layout.drag
     drag_value = c_drag(y) if drag else nan2
@@ -428,4 +449,5 @@ def summarise(
         noise_scale=noise_scale,
         drag=drag_value,
         drag_std=drag_std,
+        segment_start=dict(q=seg_q, q_std=seg_q_std, w=P[:, 3:], w_std=P_std[:, 3:]),
     )

@@ -178,11 +178,13 @@ OPTION_NAMES = (
 )
 
 
-def solve(prob, options, per_sample: bool = True) -> FitResult:
+def solve(prob, options, per_sample: bool = True, segment_starts: bool = False):
     """Run the compiled solver on a packed :class:`._problem.Problem`; ``options``: loss, tolerances.
 
     ``per_sample=False`` leaves ``robust_weights`` as the solver's per-segment
     rows (``(N, S, B, K+1)``) for the caller to map member by member.
+    ``segment_starts=True`` returns ``(result, starts)``, ``starts`` every
+    segment's fitted start (``q``, ``q_std``, ``w``, ``w_std``: ``(*N, S, ...)``).
     """
     loss = options["loss"]
     data = dict(prob.data, loss_scale=np.full(prob.y0.shape[0], float(options["loss_scale"]), prob.y0.dtype))
@@ -196,13 +198,21 @@ def solve(prob, options, per_sample: bool = True) -> FitResult:
         max_steps=int(options["max_steps"]),
         unbatch=not prob.batched,
     )
+    starts = jax.tree.map(np.asarray, out.pop("segment_start"))  # (*N, S, ...) per segment
+    # one recording (or a batch of them): its first segment's start; a joint fit puts in each member's
+    out.update(
+        member_initial_orientation=jnp.asarray(starts["q"][..., :1, :]),
+        member_initial_orientation_std=jnp.asarray(starts["q_std"][..., :1, :]),
+        member_initial_angular_velocity=jnp.asarray(starts["w"][..., :1, :]),
+        member_initial_angular_velocity_std=jnp.asarray(starts["w_std"][..., :1, :]),
+    )
     rw = np.asarray(out.pop("robust_weights"))
     if per_sample:
         out["robust_weights"], out["outliers"] = sample_weights(prob, rw, _robust.outlier_weight(loss))
     else:
         out["robust_weights"], out["outliers"] = jnp.asarray(rw), jnp.zeros(rw.shape[0], bool)
     out["failed"] = jnp.zeros(prob.y0.shape[0] if prob.batched else (), bool)
-    return new_unchecked(
+    res = new_unchecked(
         FitResult,
         **out,
         scale_fixed=prob.static["scale_fixed"],
@@ -210,6 +220,7 @@ def solve(prob, options, per_sample: bool = True) -> FitResult:
         member_errors=(),
         **NOT_JOINT,
     )
+    return (res, starts) if segment_starts else res
 
 
 # the static fields of a FitResult of recordings fitted one by one (see FitResult.joint)
