@@ -103,7 +103,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``python -m rbjax``; returns the exit status."""
+    """Entry point of ``python -m rbjax``; returns the exit status.
+
+    Called with ``argv=None`` (the process's own command line) ``fit`` also turns
+    on the persistent compilation cache (:func:`._cli_common.compile_cache_dir`).
+    """
+    entry = argv is None
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv
     try:
@@ -111,6 +116,7 @@ def main(argv: list[str] | None = None) -> int:
         if rest[:1] == ["demo"]:
             return _demo(rest[1:])
         args = build_parser().parse_args(argv)
+        args.compile_cache = entry  # the process's own command line: programs may be kept on disk
         return args.func(args)
     except KeyboardInterrupt:
         print("rbjax: interrupted", file=sys.stderr)

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ._cli_common import CLIError
+from ._cli_common import CLIError, use_compile_cache
 
 __all__ = ["FIT_OPTIONS", "add_fit_parser", "fitted_rates", "run_fit"]
 
@@ -31,6 +31,8 @@ def run_fit(args: argparse.Namespace) -> int:
     import jax
 
     jax.config.update("jax_enable_x64", True)
+    if getattr(args, "compile_cache", False):
+        use_compile_cache()
     from . import fit_inertia
     from ._recording import RecordingError, read_recording, time_unit_hint
 
