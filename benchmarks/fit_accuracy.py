@@ -362,8 +362,9 @@ def main() -> None:
             continue
         r = run(case, draws, rng)
         rows.append(r)
+        seconds = sum(r["throws"]) if r["throws"] else r["duration"]  # a multi-recording case: all of them
         print(
-            f"{r['sweep']:>10} {r['sensors']:>17} {(sum(r['throws']) if r['throws'] else r['duration']):>4g} {r['rate']:>5g} {r['orientation_std']:>7.0e} "
+            f"{r['sweep']:>10} {r['sensors']:>17} {seconds:>4g} {r['rate']:>5g} {r['orientation_std']:>7.0e} "
             f"{r['rate_std']:>6.0e} {r['excitation']:>9} {r['converged']:>5.2f} {r['error_median']:>8.1e} "
             f"{r['error_max']:>8.1e} {r['sigma_rel']:>8.1e} {r['crb_rel']:>8.1e} {r['z_rms']:>6.2f} {r['cal']:>5.2f} "
             f"{r['within_2sigma']:>5.2f} {r['dtype']:>7} {r['fit_s']:>6.1f}"
