@@ -36,9 +36,9 @@ fitted with ``drag="linear"``; also the error and calibration of ``c₁``),
 ``joint=True`` fit per draw, against the CRB of one inertia shared by all) and
 ``ragged`` (the same throws as a list fitted one by one, each against its own CRB).
 
-``--quick`` runs two small cases and the three model sweeps with 2 draws (about
-a minute on an idle 2-core machine); the default runs every sweep (about 10
-minutes on the 2-core machine).
+``--quick`` runs two small cases and the three model sweeps with 2 draws (2.5
+minutes on the 2-core machine shared with other jobs, 2026-12-02, most of it
+compiling six programs); the default runs every sweep.
 """
 
 from __future__ import annotations
