@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -12,6 +11,7 @@ from ._members import check_members
 from ._problem import Problem, join_problems
 from ._result import FitResult
 from ._solve import pack, solve
+from ._tails import chi2_sf
 
 __all__ = ["fit_joint", "segment_bucket"]
 
@@ -96,7 +96,7 @@ def fit_joint(members, options) -> FitResult:
         # against the joint fit's residual level s² (not the estimated noise levels, which the
         # motion's own second differences inflate on short throws): which throw stands out
         ratio = chi2 / (dof * s2)
-        pval = float(jax.scipy.special.gammaincc(dof / 2, ratio * dof / 2))
+        pval = float(chi2_sf(dof, ratio * dof))
         stats[i] = (float(np.sqrt(ratio)), chi2, dof, pval)
     nan4 = (np.nan,) * 4
     per = [stats.get(i, nan4) for i in range(len(members))]

@@ -21,7 +21,7 @@ from ._checks import check_arrays, check_options
 from ._model import model_residuals
 from ._problem import prepare
 from ._queue import run_queue, stage_widths
-from ._result import FitResult, summarise
+from ._result import CONSISTENCY_ALPHA, FitResult, consistency, summarise
 from ._solver import LMMember
 
 __all__ = [
@@ -197,6 +197,13 @@ def solve(prob, options, per_sample: bool = True, segment_starts: bool = False):
         atol=float(options["atol"]),
         max_steps=int(options["max_steps"]),
         unbatch=not prob.batched,
+    )
+    p_value = consistency(out.pop("consistency"))  # on the host: see ._tails
+    consistent = p_value >= CONSISTENCY_ALPHA
+    out.update(
+        consistency_pvalue=jnp.asarray(p_value, out["chi2"].dtype),
+        model_consistent=jnp.asarray(consistent),
+        converged=jnp.asarray(np.asarray(out["converged"]) & consistent),
     )
     starts = jax.tree.map(np.asarray, out.pop("segment_start"))  # (*N, S, ...) per segment
     # one recording (or a batch of them): its first segment's start; a joint fit puts in each member's
