@@ -181,6 +181,7 @@ def main():
         single_errors=[float(err_first), float(err)],
         single_iterations=int(res.iterations),
     )
+    print(json.dumps(out), flush=True)  # each case as it ends: a long run leaves what it measured
     bd, br = (dur, rate) if args.quick else (args.batch_duration, args.batch_rate)
     btimes = np.linspace(0, bd, int(bd * br) + 1)
     brecs = [recording(rng, btimes) for _ in range(max(sizes, default=0))]
@@ -202,6 +203,7 @@ def main():
             max_error=float(np.max(errs)),
             converged=float(np.mean(resb.converged)),
         )
+        print(json.dumps({f"batch{n}": out[f"batch{n}"]}), flush=True)  # each case as it ends
     out.update(throw_lists(rng, args.throws))
     print(json.dumps(out, indent=1))
     with open(args.json, "w") as f:
