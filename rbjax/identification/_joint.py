@@ -10,7 +10,7 @@ from ._layout import SEGMENT_PARAMS
 from ._members import check_members
 from ._problem import Problem, join_problems
 from ._result import FitResult
-from ._solve import pack, solve
+from ._solve import pack, solve_with_starts
 from ._tails import chi2_sf
 
 __all__ = ["fit_joint", "segment_bucket"]
@@ -75,7 +75,7 @@ def fit_joint(members, options) -> FitResult:
         for i in good
     ]
     prob = _pad_segments(join_problems(packed), segment_bucket(sum(p.segments for p in packed)))
-    res, starts = solve(prob, options, segment_starts=True)
+    res, starts = solve_with_starts(prob, options)
     # per member: its segments' data rows (segment-major, as the model lays them out)
     seg = prob.data["seg"]
     S, K1 = seg["rw"].shape[1], seg["rw"].shape[-1]

@@ -34,6 +34,7 @@ __all__ = [
     "pack",
     "sample_weights",
     "solve",
+    "solve_with_starts",
 ]
 
 
@@ -49,7 +50,7 @@ def fit_batch_jit(backend: str, small: bool = False):
     """
     key = (backend, small)
     if key not in _JITS:
-        options = {"xla_cpu_use_fusion_emitters": False} if backend == "cpu" else {}
+        options: dict[str, object] = {"xla_cpu_use_fusion_emitters": False} if backend == "cpu" else {}
         if small and backend == "cpu":
             options["xla_backend_optimization_level"] = 0
         static = ("model_opts", "loss", "rtol", "atol", "max_steps", "unbatch")
@@ -178,14 +179,17 @@ OPTION_NAMES = (
 )
 
 
-def solve(prob, options, per_sample: bool = True, segment_starts: bool = False):
+def solve(prob, options, per_sample: bool = True) -> FitResult:
     """Run the compiled solver on a packed :class:`._problem.Problem`; ``options``: loss, tolerances.
 
     ``per_sample=False`` leaves ``robust_weights`` as the solver's per-segment
     rows (``(N, S, B, K+1)``) for the caller to map member by member.
-    ``segment_starts=True`` returns ``(result, starts)``, ``starts`` every
-    segment's fitted start (``q``, ``q_std``, ``w``, ``w_std``: ``(*N, S, ...)``).
     """
+    return solve_with_starts(prob, options, per_sample)[0]
+
+
+def solve_with_starts(prob, options, per_sample: bool = True) -> tuple[FitResult, dict]:
+    """:func:`solve`, and every segment's fitted start: ``q``, ``q_std``, ``w``, ``w_std`` ``(*N, S, ...)``."""
     loss = options["loss"]
     data = dict(prob.data, loss_scale=np.full(prob.y0.shape[0], float(options["loss_scale"]), prob.y0.dtype))
     out = fit_batch_jit(jax.default_backend(), is_small(prob))(
@@ -227,7 +231,7 @@ def solve(prob, options, per_sample: bool = True, segment_starts: bool = False):
         member_errors=(),
         **NOT_JOINT,
     )
-    return (res, starts) if segment_starts else res
+    return res, starts
 
 
 # the static fields of a FitResult of recordings fitted one by one (see FitResult.joint)

@@ -106,7 +106,8 @@ def find_throws(
             "gyroscope alone, or record the accelerometer too (Recording(accelerations=...), phyphox's "
             "'Accelerometer' sensor)"
         )
-    if sensor == "gyro" and recording.gyro is None:
+    gyro = recording.gyro
+    if sensor == "gyro" and gyro is None:
         raise ValueError(
             "find_throws: the recording has neither accelerations nor gyro; free flight is found from the "
             "accelerometer (|a| ≈ 0) or the gyroscope (torque-free motion): record one of them"
@@ -118,10 +119,10 @@ def find_throws(
     if not (np.isfinite(margin) and margin >= 0):
         raise ValueError(f"find_throws: margin must be finite and >= 0 (s), got {margin!r}")
     t = recording.times
-    if sensor == "gyro":
-        runs = _torque_free_runs(t, recording.gyro, float(rate_threshold))
+    if sensor == "gyro" and gyro is not None:
+        runs = _torque_free_runs(t, gyro, float(rate_threshold))
         return _windows(t, runs, margin, min_duration)
-    free = _median3(np.linalg.norm(recording.accelerations, axis=-1)) < threshold
+    free = _median3(np.linalg.norm(np.asarray(recording.accelerations), axis=-1)) < threshold  # checked above
     return _windows(t, _runs(free), margin, min_duration)
 
 
