@@ -27,8 +27,15 @@ def _euler(_, w):
     return [(I2 - I3) / I1 * w[1] * w[2], (I3 - I1) / I2 * w[2] * w[0], (I1 - I2) / I3 * w[0] * w[1]]
 
 
-def make_recording(seed=0, flights=((1.0, 0.6), (2.4, 0.8), (4.0, 0.5)), hold_end=1.0, dt=0.01):
-    """``(times_g, gyro, times_a, accel, flights)``: the sensors' samples and the true (release, catch) times."""
+def make_recording(
+    seed=0, flights=((1.0, 0.6), (2.4, 0.8), (4.0, 0.5)), hold_end=1.0, dt=0.01, spin_up=0.0, spin_down=0.0
+):
+    """``(times_g, gyro, times_a, accel, flights)``: the sensors' samples and the true (release, catch) times.
+
+    ``spin_up``, ``spin_down`` (s): the hand's wind-up before release, ``ω`` growing linearly from
+    0 to the release rate, and the catch's braking, ``ω`` falling linearly to 0 (gyro only): fast
+    rotation under torque on both sides of each flight.
+    """
     rng = np.random.default_rng(seed)
     t_end = flights[-1][0] + flights[-1][1] + hold_end
     n = int(t_end / dt) + 1
@@ -47,6 +54,13 @@ def make_recording(seed=0, flights=((1.0, 0.6), (2.4, 0.8), (4.0, 0.5)), hold_en
         inside_g = (tg >= t_rel) & (tg <= t_catch)
         sol = solve_ivp(_euler, (t_rel, t_catch), w0, method="DOP853", rtol=1e-12, atol=1e-12, dense_output=True)
         gyro[inside_g] = sol.sol(tg[inside_g]).T + rng.normal(0, GYRO_STD, (inside_g.sum(), 3))
+        up = (tg > t_rel - spin_up) & (tg < t_rel)
+        gyro[up] = np.outer(1 - (t_rel - tg[up]) / spin_up, w0) + rng.normal(0, GYRO_STD, (up.sum(), 3))
+        down = (tg > t_catch) & (tg < t_catch + spin_down)
+        w_end = sol.sol(t_catch)
+        gyro[down] = np.outer((t_catch + spin_down - tg[down]) / spin_down, w_end) + rng.normal(
+            0, GYRO_STD, (down.sum(), 3)
+        )
         inside_a = (ta >= t_rel) & (ta <= t_catch)
         w = sol.sol(ta[inside_a]).T
         wdot = np.array([_euler(0, x) for x in w])

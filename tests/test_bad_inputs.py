@@ -410,7 +410,7 @@ def test_cli_fit_help_quotes_the_defaults_fit_inertia_uses():
     import inspect
     import re
 
-    from rbjax import _cli
+    from rbjax import _cli, _cli_fit
 
     parser = _cli.build_parser()
     sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
@@ -418,7 +418,7 @@ def test_cli_fit_help_quotes_the_defaults_fit_inertia_uses():
     defaults = inspect.signature(rb.fit_inertia).parameters
     checked = 0
     for action in fit._actions:
-        kw = _cli._FIT_OPTIONS.get(action.dest)
+        kw = _cli_fit.FIT_OPTIONS.get(action.dest)
         said = re.search(r"default ([^()\s]+)\)", action.help or "")
         if kw is None or said is None:
             continue

@@ -12,8 +12,9 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def _run(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "JAX_PLATFORMS": "cpu"}
+def _run(*args: str, timeout: float = 120, extra: dict | None = None) -> subprocess.CompletedProcess:
+    # no compile cache in ~/.cache from the tests (test_fit_keeps_compiled_programs_on_disk sets its own)
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "JAX_PLATFORMS": "cpu", "RBJAX_CACHE_DIR": "off", **(extra or {})}
     return subprocess.run(
         [sys.executable, "-m", "rbjax", *args],
         capture_output=True,
@@ -235,7 +236,7 @@ def test_plotted_fit_rates_are_the_fitted_model(drag):
     import numpy as np
     from scipy.integrate import solve_ivp
 
-    from rbjax._cli import _fitted_rates
+    from rbjax._cli_fit import fitted_rates
 
     I = np.diag([1.0, 3.2, 4.1]) * 1e-4
     In = I / np.trace(I)
@@ -247,6 +248,42 @@ def test_plotted_fit_rates_are_the_fitted_model(drag):
         return np.linalg.solve(In, np.cross(In @ w, w) - (c1 + c2 * np.linalg.norm(w)) * w)
 
     ref = solve_ivp(rhs, (t[0], t[-1]), w0, "DOP853", t_eval=t, rtol=1e-12, atol=1e-12).y.T
-    got = _fitted_rates(I, w0, t, np.asarray(drag))
+    got = fitted_rates(I, w0, t, np.asarray(drag))
     tol = 1e-9 if np.isnan(drag[0]) else 5e-5
     np.testing.assert_allclose(got, ref, rtol=0, atol=tol)
+
+
+@pytest.mark.slow  # two interpreters, each fitting
+def test_fit_keeps_compiled_programs_on_disk(tmp_path):
+    # python -m rbjax fit is a new process each time: its programs go to the persistent compile
+    # cache, and the second run reads them back and gives the same result
+    import json
+
+    import numpy as np
+    from scipy.integrate import solve_ivp
+
+    moments = np.array([1.0, 3.2, 4.1])
+
+    def euler(_, w):
+        return [
+            (moments[1] - moments[2]) / moments[0] * w[1] * w[2],
+            (moments[2] - moments[0]) / moments[1] * w[2] * w[0],
+            (moments[0] - moments[1]) / moments[2] * w[0] * w[1],
+        ]
+
+    t = np.arange(80) * 0.01
+    w = solve_ivp(euler, (0, t[-1]), [2.0, 6.0, 5.0], method="DOP853", rtol=1e-12, atol=1e-12, t_eval=t).y.T
+    w = w + np.random.default_rng(0).normal(0, 0.005, w.shape)
+    csv = tmp_path / "throw.csv"
+    np.savetxt(csv, np.column_stack([t, w]), delimiter=",", header="t,gx,gy,gz", comments="")
+    cache = tmp_path / "cache"
+    outs = []
+    for k in range(2):
+        out = tmp_path / f"fit{k}.json"
+        r = _run("fit", str(csv), "--out", str(out), timeout=300, extra={"RBJAX_CACHE_DIR": str(cache)})
+        assert r.returncode == 0, r.stderr
+        assert any(cache.iterdir()), "no program kept after the first run"
+        outs.append(json.loads(out.read_text()))
+    assert outs[0] == outs[1]
+    got = np.sort(np.asarray(outs[0]["principal_moments"]))
+    np.testing.assert_allclose(got, moments / moments.sum(), atol=4 * max(outs[0]["moment_std"]))

@@ -11,7 +11,7 @@ import reference
 from reference import imu_noise, reference_rotation, to_body
 
 import rbjax as rb
-from rbjax.identification import _checks, _fit, _model, _problem
+from rbjax.identification import _checks, _model, _problem, _solve
 
 # a generic asymmetric body with off-diagonal products of inertia (unit-trace shape below)
 I_TRUE = np.array([[1.0, 0.1, -0.05], [0.1, 2.0, 0.08], [-0.05, 0.08, 2.6]])
@@ -44,9 +44,9 @@ def test_clean_orientations_regular_and_irregular_times():
     rng = np.random.default_rng(3)
     t_irr = T_FAST + np.concatenate([[0.0], rng.uniform(-0.002, 0.002, 399), [0.0]])
     q_irr, _ = _record(t_irr)
-    n_compiled = _fit._fit_batch_jit(jax.default_backend())._cache_size()
+    n_compiled = _solve.compiled_programs()
     res = rb.fit_inertia(t_irr, q_irr)
-    assert _fit._fit_batch_jit(jax.default_backend())._cache_size() == n_compiled
+    assert _solve.compiled_programs() == n_compiled
     # gaps up to 9 ms (|ω| h ≈ 0.03 rad): rk4 error ~(ωh)⁴ ≈ 1e-6 per step at the coarsest
     assert _rel(res.inertia, I_BAR) < 1e-5
 
@@ -66,6 +66,18 @@ def test_noisy_with_gyro_beats_linear_baseline_and_uncertainty_covers_truth():
     # the residual RMS recovers the injected noise levels (per component)
     np.testing.assert_allclose(res.orientation_rms, 1e-3, rtol=0.1)
     np.testing.assert_allclose(res.rate_rms, 0.01, rtol=0.1)
+    # the fitted start state against the truth (q0 = 1, ω0 = W0) with its reported σ: 4σ for 6
+    # linearised components of one draw; σ below the per-sample noise (all samples inform it)
+    assert res.member_initial_orientation.shape == (1, 4)
+    np.testing.assert_array_equal(res.member_initial_orientation[0], res.initial_orientation)
+    q0 = np.asarray(res.initial_orientation)
+    dq = 2 * np.sign(q0[0]) * q0[1:]  # rotation vector of q_true⁻¹ ⊗ q0 for q_true = 1 (small angle)
+    q_std = np.asarray(res.member_initial_orientation_std[0])
+    np.testing.assert_array_less(np.abs(dq), 4 * q_std)
+    np.testing.assert_array_less(q_std, 1e-3)
+    w_std = np.asarray(res.member_initial_angular_velocity_std[0])
+    np.testing.assert_array_less(np.abs(np.asarray(res.initial_angular_velocity) - W0), 4 * w_std)
+    np.testing.assert_array_less(w_std, 0.01)
 
 
 def _torque(t, q, w):
@@ -133,10 +145,10 @@ def _three_noisy_recordings():
 
 def test_batch_compiles_once_and_matches_single_fits():
     bodies, qs = _three_noisy_recordings()
-    before = _fit._fit_batch_jit(jax.default_backend())._cache_size()
+    before = _solve.compiled_programs()
     res = rb.fit_inertia(T_FAST, qs, segments=2)
     res2 = rb.fit_inertia(T_FAST, qs[::-1], segments=2)  # new data, same shapes: no new trace
-    assert _fit._fit_batch_jit(jax.default_backend())._cache_size() == before + 1
+    assert _solve.compiled_programs() == before + 1
     for k, I in enumerate(bodies):
         Ib = I / np.trace(I)
         assert _rel(res.inertia[k], Ib) < 0.02  # orientation-only, 1e-3 rad noise, 2 s
@@ -168,9 +180,9 @@ def test_similar_lengths_share_one_compiled_program():
     # the second recording reuses the compiled solver
     q, _ = _record(T_FAST)
     rb.fit_inertia(T_FAST, q)
-    n_compiled = _fit._fit_batch_jit(jax.default_backend())._cache_size()
+    n_compiled = _solve.compiled_programs()
     res = rb.fit_inertia(T_FAST[:389], q[:389])
-    assert _fit._fit_batch_jit(jax.default_backend())._cache_size() == n_compiled
+    assert _solve.compiled_programs() == n_compiled
     assert _rel(res.inertia, I_BAR) < 1e-6  # padding (dt = 0, masked) does not bias the clean fit
 
 
@@ -270,10 +282,9 @@ def test_ragged_list_and_bad_members_are_fitted_one_by_one():
     # without saying which. Now the good ones are padded to one shape and fitted as one batch (one
     # compiled program), the bad one is named with its reason and gets NaN with failed=True
     ts, ws = _ragged_throws()
-    fit_jit = _fit._fit_batch_jit(jax.default_backend())
-    before = fit_jit._cache_size()
+    before = _solve.compiled_programs()
     res = rb.fit_inertia(ts, body_rates=[ws[0], _PURE_SPIN, ws[2]])
-    assert fit_jit._cache_size() <= before + 1  # the 41- and 100-sample throws: one program
+    assert _solve.compiled_programs() <= before + 1  # the 41- and 100-sample throws: one program
     np.testing.assert_array_equal(np.asarray(res.failed), [False, True, False])
     assert len(res.member_errors) == 1 and res.member_errors[0].startswith("recording 1: ")
     assert "too little excitation" in res.member_errors[0]

@@ -13,7 +13,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import rbjax as rb
-from rbjax.identification import _fit
+from rbjax.identification import _joint, _solve
 
 jax.config.update("jax_enable_x64", True)
 
@@ -28,14 +28,19 @@ def _euler(_, w, moments):
     return [(I2 - I3) / I1 * w[1] * w[2], (I3 - I1) / I2 * w[2] * w[0], (I1 - I2) / I3 * w[0] * w[1]]
 
 
-def throws(seed=1, moments=MOMENTS, lengths=LENGTHS):
-    """``(times, gyro)`` lists: one throw per length, 8-12 rad/s about a random axis."""
+def throws(seed=1, moments=MOMENTS, lengths=LENGTHS, starts=None):
+    """``(times, gyro)`` lists: one throw per length, 8-12 rad/s about a random axis.
+
+    ``starts``: a list that receives each throw's true ``ω(0)`` (body frame, rad/s).
+    """
     rng = np.random.default_rng(seed)
     ts, ws = [], []
     for n in lengths:
         t = np.arange(n) * 0.01
         w0 = rng.normal(0, 1, 3)
         w0 = w0 / np.linalg.norm(w0) * rng.uniform(8, 12)
+        if starts is not None:
+            starts.append(w0)
         sol = solve_ivp(_euler, (0, t[-1]), w0, args=(moments,), method="DOP853", rtol=1e-12, atol=1e-12, t_eval=t)
         ts.append(t)
         ws.append(sol.y.T + rng.normal(0, GYRO_STD, (n, 3)))
@@ -46,6 +51,21 @@ def throws(seed=1, moments=MOMENTS, lengths=LENGTHS):
 def five():
     ts, ws = throws()
     return ts, ws, rb.fit_inertia(ts, body_rates=ws, joint=True)
+
+
+def test_each_throw_gets_its_own_start_state(five):
+    ts, ws, joint = five
+    w_true = []
+    throws(starts=w_true)  # the same draws as the fixture's (seed 1): their true ω(0)
+    w, w_std = np.asarray(joint.member_initial_angular_velocity), np.asarray(joint.member_initial_angular_velocity_std)
+    assert w.shape == w_std.shape == (5, 3)
+    # every throw's fitted ω(0) within 4σ of the DOP853 truth (15 linearised components); σ below the
+    # 0.005 rad/s per-sample noise (40-100 samples inform it) and above 1e-4 (not a blanket 0)
+    np.testing.assert_array_less(np.abs(w - np.array(w_true)), 4 * w_std)
+    assert np.all((w_std > 1e-4) & (w_std < GYRO_STD))
+    # gyro only: the body frame at each throw's first sample is its world frame, δ not fitted
+    np.testing.assert_array_equal(np.asarray(joint.member_initial_orientation), np.tile([1.0, 0, 0, 0], (5, 1)))
+    assert np.all(np.isnan(np.asarray(joint.member_initial_orientation_std)))
 
 
 def test_joint_fit_recovers_the_inertia(five):
@@ -99,9 +119,9 @@ def test_joint_fit_of_new_lengths_in_the_same_buckets_does_not_recompile(five):
     # bucket (98 and 99 → 104 padded), the same substeps: the compiled joint program is reused
     ts, ws, _ = five
     cut = (38, 53, 66, 84, 99)
-    n_compiled = _fit._fit_batch_jit(jax.default_backend())._cache_size()
+    n_compiled = _solve.compiled_programs()
     res = rb.fit_inertia([t[:n] for t, n in zip(ts, cut)], body_rates=[w[:n] for w, n in zip(ws, cut)], joint=True)
-    assert _fit._fit_batch_jit(jax.default_backend())._cache_size() == n_compiled
+    assert _solve.compiled_programs() == n_compiled
     np.testing.assert_array_less(np.abs(np.asarray(res.principal_moments) - TRUTH), 3 * np.asarray(res.moment_std))
 
 
@@ -124,3 +144,32 @@ def test_joint_needs_several_recordings():
         rb.fit_inertia(t, body_rates=np.zeros((50, 3)), joint=True)
     with pytest.raises(TypeError, match="joint must be True or False"):
         rb.fit_inertia([t, t], body_rates=[np.zeros((50, 3))] * 2, joint="yes")
+
+
+def test_a_sixth_throw_reuses_the_program_and_blank_segments_change_nothing(five, monkeypatch):
+    ts, ws, joint = five
+    # 5 and 6 one-segment throws both pad to 6 segments (segment_bucket): one compiled program
+    t6, w6 = throws(seed=4, lengths=(60,))
+    n_compiled = _solve.compiled_programs()
+    six = rb.fit_inertia(ts + t6, body_rates=ws + w6, joint=True)
+    assert _solve.compiled_programs() == n_compiled
+    assert six.segments == 6 and len(six.member_rms) == 6
+    np.testing.assert_array_less(np.abs(np.asarray(six.principal_moments) - TRUTH), 3 * np.asarray(six.moment_std))
+    # blank segments carry no data: the five throws padded to 9 segments instead of 6 give the same
+    # fit. Their parameters have zero Jacobian columns, so the damped steps of the real ones are the
+    # same arithmetic; agreement to rounding (1e-9 relative), dof and χ² included
+    monkeypatch.setattr(_joint, "segment_bucket", lambda n: n + 4)
+    padded = rb.fit_inertia(ts, body_rates=ws, joint=True)
+    assert padded.segments == joint.segments == 5
+    np.testing.assert_allclose(padded.principal_moments, joint.principal_moments, rtol=1e-9)
+    np.testing.assert_allclose(padded.moment_std, joint.moment_std, rtol=1e-9)
+    np.testing.assert_allclose([padded.chi2, padded.dof], [joint.chi2, joint.dof], rtol=1e-9)
+    np.testing.assert_allclose(padded.member_pvalue, joint.member_pvalue, rtol=1e-9)
+    assert int(padded.iterations) == int(joint.iterations)
+
+
+def test_segment_buckets_pad_by_at_most_half():
+    sizes = [_joint.segment_bucket(n) for n in range(1, 200)]
+    assert sizes[:8] == [1, 2, 3, 4, 6, 6, 8, 8]
+    assert all(n <= b <= 1.5 * n for n, b in zip(range(1, 200), sizes))
+    assert len(set(sizes)) <= 16  # 199 counts, few programs

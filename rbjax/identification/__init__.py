@@ -13,6 +13,10 @@ One concept per private module, so the simulator's core stays small:
 * :mod:`._solver`: trust-region Levenberg–Marquardt with MINPACK's stop;
 * :mod:`._queue`: a batch of solves as a work queue, each member stopping on its own;
 * :mod:`._result`: :class:`FitResult`, the covariance and the diagnostics;
+* :mod:`._tails`: χ² and F tail probabilities (NumPy) for the consistency tests;
+* :mod:`._solve`: one packed problem through the compiled solver (one program per shape);
+* :mod:`._members`: several recordings fitted one by one (batches, ragged lists, bad ones set aside);
+* :mod:`._joint`: one inertia fitted to several recordings (`joint=True`), padded to segment buckets;
 * :mod:`._fit`: the entry point :func:`fit_inertia`;
 * :mod:`._recording_data`: :class:`Recording` and its readers (rbjax's table, phyphox exports);
 * :mod:`._throws`: :func:`find_throws`, the free flights of a recording with throws and catches.

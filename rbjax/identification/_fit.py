@@ -23,121 +23,17 @@ differentiated data), which also gives the identifiability check
 
 from __future__ import annotations
 
-import dataclasses
-import functools
-
-import jax
-import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Float
 
-from .._pytree import new_unchecked, replace
 from .._typing import ArrayLike
-from . import _robust
-from ._checks import check_arrays, check_options
-from ._model import model_residuals
-from ._problem import join_problems, prepare
-from ._queue import run_queue, stage_widths
+from ._joint import fit_joint
+from ._members import batch_members, fit_members, is_ragged, ragged_members
 from ._recording_data import Recording, to_fit_arguments
-from ._result import FitResult, summarise
-from ._solver import LMMember
+from ._result import FitResult
+from ._solve import fit_regular
 
 __all__ = ["fit_inertia"]
-
-
-@functools.cache
-def _fit_batch_jit(backend: str):
-    """The jitted solver for ``backend``; made on first use, so importing rbjax starts no backend.
-
-    On CPU it is compiled with XLA's classic loop emitters instead of the MLIR
-    fusion emitters: for the 4 s @ 1 kHz fit that halved the compile (10.6 → 5.1
-    CPU-s) and made the solve faster too (3.1 → 2.0 CPU-s), same result.
-    """
-    options = {"xla_cpu_use_fusion_emitters": False} if backend == "cpu" else None
-    static = ("model_opts", "loss", "rtol", "atol", "max_steps", "unbatch")
-    return jax.jit(_fit_batch, static_argnames=static, compiler_options=options)
-
-
-def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
-    """Fit ``N`` recordings (leading axes of ``y0``, ``data``); ``model_opts``: sorted ``(name, value)`` pairs.
-
-    Each recording is one Levenberg–Marquardt solve (:class:`._solver.LMMember`),
-    repeated with new weights for a robust loss (IRLS, :mod:`._robust`). A batch
-    runs through a work queue (:mod:`._queue`): every recording stops on its own
-    instead of being stepped until the slowest one stops.
-    """
-    opts = dict(model_opts)
-    member = lambda tree, i: jax.tree.map(lambda a: a[i], tree)
-    # one recording keeps J in its slot, so the model is compiled once (see `summary`)
-    lm = LMMember(functools.partial(model_residuals, **opts), rtol, atol, max_steps, keep_jacobian=unbatch)
-    kw = {k: opts[k] for k in _SUMMARY_OPTS}
-    outlier_weight = _robust.outlier_weight(loss)
-    zero = jnp.zeros((), jnp.int32)
-
-    def start(y, d, round=zero, total=zero):
-        return dict(lm.start(y, d), round=round, total=total)
-
-    def retire(slot):
-        """``(again, next round's slot, solution)`` of a stopped solve."""
-        d, y, total = slot["data"], slot["y"], slot["total"] + slot["steps"]
-        rw = d["seg"]["rw"]
-        out = dict(y=y, converged=lm.converged(slot), iterations=total, rw=rw)
-        if lm.keep_jacobian:
-            out.update(r=slot["r"], J=slot["J"])
-        if loss == "squared":
-            return jnp.array(False), slot, out
-        rw_new = _robust.weights(slot["r"], rw, loss, d["loss_scale"])
-        again = _robust.another_round(rw, rw_new, slot["round"])
-        restarted = start(y, {**d, "seg": {**d["seg"], "rw": rw_new}}, slot["round"] + 1, total)
-        return again, restarted, out
-
-    def summary(sol, d):
-        """FitResult fields at the solution, with its final weights.
-
-        A batch's slots keep ``JᵀJ``, not ``J`` (:class:`._solver.LMMember`), and
-        the covariance is formed from ``J``'s SVD, so there the model is
-        re-evaluated at the solution. A single solve keeps its ``J``: a second
-        model in the program doubled the first call's compile (4.2 → 6.5 s on
-        4 s @ 1 kHz).
-        """
-        d = {**d, "seg": {**d["seg"], "rw": sol["rw"]}}
-        r, J = (sol["r"], sol["J"]) if "J" in sol else lm.model(sol["y"], d)
-        out = summarise(sol["y"], r, J, d, sol["converged"], sol["iterations"], **kw, outlier_weight=outlier_weight)
-        return dict(out, robust_weights=sol["rw"])
-
-    if not unbatch:
-        sols = run_queue(
-            y0.shape[0],
-            lambda i: start(y0[i], member(data, i)),
-            lm.advance,
-            lm.running,
-            retire,
-            widths=stage_widths(y0.shape[0], first=_SLOTS),
-            steps_per_round=_STEPS_PER_ROUND,
-        )
-        # in slices of the queue's width: the memory of one model evaluation per slice
-        return jax.lax.map(lambda a: summary(*a), (sols, data), batch_size=min(_SLOTS, y0.shape[0]))
-    # one recording: no queue (and no vmap, whose batching of the solver's loops doubles tracing)
-
-    def body(c):
-        slot = jax.lax.while_loop(lm.running, lm.advance, c[1])
-        return retire(slot)
-
-    first = start(y0[0], member(data, 0))
-    out0 = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(lambda s: retire(s)[2], first))
-    return summary(jax.lax.while_loop(lambda c: c[0], body, (jnp.array(True), first, out0))[2], member(data, 0))
-
-
-_SUMMARY_OPTS = ("scale_fixed", "use_rates", "use_orientations", "layout")
-# Levenberg–Marquardt steps per round of the queue between retiring and refilling slots
-_STEPS_PER_ROUND = 4
-# the queue's width: per recording, the model of 64 slots of 1 s @ 200 Hz was 1.25-1.5x cheaper
-# than that of 128 (the flow's working set stays in cache), and narrower ones pay fixed costs
-_SLOTS = 64
-
-
-# ----------------------------------------------------------------------------------------
-# Public entry point
 
 
 def fit_inertia(
@@ -217,7 +113,9 @@ def fit_inertia(
             512 sample intervals and per ``4π`` (two turns) of recorded rotation,
             rounded up to a power of two, at least 1 and at most ``(T-1) // 8``.
         substeps: integrator steps per sample interval; default enough that no
-            step turns more than 0.05 rad.
+            step turns more than 0.05 rad, rounded up to a power of two; 2 becomes
+            4 for recordings of at most 256 intervals (throws: so that throws of
+            different speeds share one compiled program).
         orientation_std, rate_std: noise standard deviations (rad, rad/s) that
             weight the residuals; default estimated from second differences of
             the data (valid for smooth motion sampled finely).
@@ -292,9 +190,10 @@ def fit_inertia(
             fitted (too short, non-finite, unexcited) is left out and named in
             ``member_errors``. Recordings are packed with one intervals-per-segment
             and ``substeps`` (the longest's, the largest), each with its own
-            number of segments: one compiled program per total number of
-            segments and padded length, so new throws of lengths in the same
-            buckets reuse it (a different number of throws compiles anew).
+            number of segments: one compiled program per bucket of the total
+            number of segments (1, 2, 3, 4, 6, 8, 12, 16, ...: padded with
+            blank segments) and padded length, so new throws of lengths in the
+            same buckets, and 5 or 6 throws alike, reuse it.
             ``robust_weights`` and ``outliers`` run over the recordings' samples
             one after the other. ``False`` (default): each recording is fitted on its own.
         drag: air drag, opt-in: ``"linear"`` adds the body-frame damping torque
@@ -380,344 +279,19 @@ def fit_inertia(
     if not isinstance(joint, (bool, np.bool_)):
         raise TypeError(f"fit_inertia: joint must be True or False, got {type(joint).__name__}")
     if joint:
-        members = _ragged_members(times, arrays) if _is_ragged(times) else _batch_members(times, arrays)
+        members = ragged_members(times, arrays) if is_ragged(times) else batch_members(times, arrays)
         if members is None:
             raise ValueError(
                 "fit_inertia: joint=True fits several recordings of one body together; pass a list of "
                 "recordings (or a batch (N, T, ...)), or leave joint=False for one recording"
             )
-        return _fit_joint(members, options)
-    if _is_ragged(times):
-        return _fit_members(_ragged_members(times, arrays), options)
+        return fit_joint(members, options)
+    if is_ragged(times):
+        return fit_members(ragged_members(times, arrays), options)
     try:
-        return _fit_regular(times, arrays, options)
+        return fit_regular(times, arrays, options)
     except ValueError:
-        members = _batch_members(times, arrays)
+        members = batch_members(times, arrays)
         if members is None:  # one recording, or a batch-wide problem: the message stands
             raise
-        return _fit_members(members, options)
-
-
-def _fit_regular(times, arrays, options) -> FitResult:
-    """:func:`fit_inertia` on one recording or a regular batch ``(N, T, ...)``: any bad input raises."""
-    stds = {k: options[k] for k in ("initial_inertia", "orientation_std", "rate_std", "acceleration_std")}
-    check_arrays(times=times, **arrays, **stds)
-    check_options(**{k: options[k] for k in _OPTION_NAMES})
-    return _solve(_fit_regular_check(times, arrays, options), options)
-
-
-_OPTION_NAMES = (
-    "orientation_std",
-    "rate_std",
-    "continuity_weight",
-    "excitation_tol",
-    "rtol",
-    "atol",
-    "max_steps",
-    "segments",
-    "substeps",
-    "loss",
-    "loss_scale",
-    "acceleration_std",
-)
-
-
-def _solve(prob, options, sample_weights: bool = True) -> FitResult:
-    """Run the compiled solver on a packed :class:`._problem.Problem`; ``options``: loss, tolerances.
-
-    ``sample_weights=False`` leaves ``robust_weights`` as the solver's per-segment
-    rows (``(N, S, B, K+1)``) for the caller to map member by member.
-    """
-    loss = options["loss"]
-    data = dict(prob.data, loss_scale=np.full(prob.y0.shape[0], float(options["loss_scale"]), prob.y0.dtype))
-    out = _fit_batch_jit(jax.default_backend())(
-        prob.y0,
-        data,
-        model_opts=tuple(sorted(prob.static.items())),
-        loss=loss,
-        rtol=float(options["rtol"]),
-        atol=float(options["atol"]),
-        max_steps=int(options["max_steps"]),
-        unbatch=not prob.batched,
-    )
-    rw = np.asarray(out.pop("robust_weights"))
-    if sample_weights:
-        out["robust_weights"], out["outliers"] = _sample_weights(prob, rw, _robust.outlier_weight(loss))
-    else:
-        out["robust_weights"], out["outliers"] = jnp.asarray(rw), jnp.zeros(rw.shape[0], bool)
-    out["failed"] = jnp.zeros(prob.y0.shape[0] if prob.batched else (), bool)
-    return new_unchecked(
-        FitResult,
-        **out,
-        scale_fixed=prob.static["scale_fixed"],
-        segments=prob.segments,
-        member_errors=(),
-        **_NOT_JOINT,
-    )
-
-
-# the static fields of a FitResult of recordings fitted one by one (see FitResult.joint)
-_NOT_JOINT = dict(joint=False, member_rms=(), member_chi2=(), member_dof=(), member_pvalue=())
-
-
-def _is_ragged(times) -> bool:
-    """``times`` given as a list (or tuple) of 1-D arrays: one per recording, lengths free."""
-    return isinstance(times, (list, tuple)) and len(times) > 0 and all(np.ndim(t) == 1 for t in times)
-
-
-_PER_MEMBER_NDIM = {"orientations": 3, "body_rates": 3, "torques": 3, "body_torques": 3, "accelerations": 3}
-
-
-def _ragged_members(times, arrays):
-    """Per-recording ``(times, arrays)`` of a ragged list; ``ValueError`` if the lists do not match."""
-    n = len(times)
-    for name, a in arrays.items():
-        if a is not None and not (isinstance(a, (list, tuple)) and len(a) == n):
-            raise ValueError(
-                f"fit_inertia: times is a list of {n} recordings, so {name} must be a list of {n} arrays "
-                f"(one per recording, each of its own length), got {type(a).__name__}"
-                + (f" of length {len(a)}" if isinstance(a, (list, tuple)) else "")
-            )
-    return [(times[i], {k: None if a is None else a[i] for k, a in arrays.items()}) for i in range(n)]
-
-
-def _batch_members(times, arrays):
-    """Per-recording ``(times, arrays)`` of a regular batch ``(N, T, ...)``; ``None`` for a single recording."""
-    main = arrays["orientations"] if arrays["orientations"] is not None else arrays["body_rates"]
-    if main is None or np.ndim(main) != 3:
-        return None
-    main = np.asarray(main)
-    if np.ndim(times) != 1 or main.shape[1] != np.shape(times)[0]:
-        return None
-    for k, a in arrays.items():  # a shape that does not match the batch: the batch-wide message stands
-        if a is not None and np.ndim(a) == _PER_MEMBER_NDIM[k] and np.shape(a)[0] != main.shape[0]:
-            return None
-    out = []
-    for i in range(main.shape[0]):
-        member = {}
-        for k, a in arrays.items():
-            a = None if a is None else np.asarray(a)
-            member[k] = a[i] if a is not None and a.ndim == _PER_MEMBER_NDIM[k] else a
-        out.append((times, member))
-    return out
-
-
-def _fit_members(members, options) -> FitResult:
-    """Fit recordings one by one (ragged) or as one batch (equal lengths), setting bad ones aside.
-
-    Each member is checked first (:func:`._problem.prepare`, NumPy); one that raises
-    ``ValueError`` (too little excitation, non-finite data, too few samples, ...) gets
-    NaN results, ``failed = True`` and its reason in ``FitResult.member_errors``; the
-    others are fitted. Members of equal length share one batched solve; ragged ones
-    with the same number of segments are padded to the longest and fitted as one
-    batch too (:func:`_fit_padded`). Arrays whose length varies (``residuals``, ``robust_weights``,
-    ``outliers``) are padded with NaN (``False``) to the longest.
-    """
-    probs, errors, good = _check_members(members, options)
-    lengths = {np.shape(members[i][0])[0] for i in good}
-    results: dict[int, FitResult] = {}
-    if len(lengths) == 1 and all(members[i][0] is members[good[0]][0] for i in good):
-        t = members[good[0]][0]
-        stacked = {k: _stack_or_share([members[i][1][k] for i in good]) for k in _PER_MEMBER_NDIM}
-        batch = _fit_regular(t, stacked, options)
-        for j, i in enumerate(good):
-            results[i] = jax.tree.map(lambda a, j=j: a[j], batch)
-    else:
-        results = _fit_padded(members, probs, options)
-    return _stack_results(results, len(members), errors)
-
-
-def _check_members(members, options):
-    """``(problems, errors, good)``: each member packed alone, or its ``ValueError``'s message.
-
-    Raises only when no member can be fitted (one message when all share it).
-    """
-    check_options(**{k: options[k] for k in _OPTION_NAMES})  # an option's error is raised once
-    errors: dict[int, str] = {}
-    probs = {}
-    for i, (t, arrays) in enumerate(members):
-        try:
-            probs[i] = _fit_regular_check(t, arrays, options)
-        except ValueError as e:
-            errors[i] = str(e)
-    good = [i for i in range(len(members)) if i not in errors]
-    if not good:
-        reasons = list(dict.fromkeys(errors.values()))
-        if len(reasons) == 1:  # the same for all (an option, a shared array): say it once
-            raise ValueError(reasons[0])
-        listed = list(errors.items())
-        raise ValueError(
-            f"fit_inertia: none of the {len(members)} recordings can be fitted: "
-            + "; ".join(f"recording {i}: {msg}" for i, msg in listed[:5])
-            + (f"; and {len(listed) - 5} more" if len(listed) > 5 else "")
-        )
-    return probs, errors, good
-
-
-def _fit_joint(members, options) -> FitResult:
-    """One inertia for all members (:func:`._problem.join_problems`); bad members left out and named."""
-    probs, errors, good = _check_members(members, options)
-    K = max(probs[i].data["seg"]["dt"].shape[-1] for i in good)
-    substeps = max(probs[i].static["substeps"] for i in good)  # more steps only add accuracy
-    packed = [
-        _fit_regular_check(
-            members[i][0], members[i][1], options, segments=probs[i].segments, substeps=substeps, pad_intervals=K
-        )
-        for i in good
-    ]
-    prob = join_problems(packed)
-    res = _solve(prob, options)
-    # per member: its segments' data rows (segment-major, as the model lays them out)
-    seg = prob.data["seg"]
-    S, K1 = seg["rw"].shape[1], seg["rw"].shape[-1]
-    blocks = len(prob.sensors)
-    r = np.asarray(res.residuals)[: S * blocks * K1 * 3].reshape(S, blocks, K1, 3)
-    valid = np.concatenate([seg["first"][0][:, None], seg["mask"][0]], 1)  # (S, K+1)
-    n_all = 3 * blocks * valid.sum()
-    n_shared = prob.static["layout"].shared
-    s2 = float(res.residual_ratio) ** 2
-    stats = {}
-    start = 0
-    for i, p in zip(good, packed):
-        part = slice(start, start + p.segments)
-        start += p.segments
-        chi2 = float(np.sum(r[part] ** 2))
-        n_i = 3 * blocks * float(valid[part].sum())
-        dof = n_i - (6 - float(p.data["n_unused"][0])) - n_shared * n_i / n_all
-        # against the joint fit's residual level s² (not the estimated noise levels, which the
-        # motion's own second differences inflate on short throws): which throw stands out
-        ratio = chi2 / (dof * s2)
-        pval = float(jax.scipy.special.gammaincc(dof / 2, ratio * dof / 2))
-        stats[i] = (float(np.sqrt(ratio)), chi2, dof, pval)
-    nan4 = (np.nan,) * 4
-    per = [stats.get(i, nan4) for i in range(len(members))]
-    return replace(
-        res,
-        member_errors=tuple(f"recording {i}: {msg}" for i, msg in sorted(errors.items())),
-        joint=True,
-        member_rms=tuple(x[0] for x in per),
-        member_chi2=tuple(x[1] for x in per),
-        member_dof=tuple(x[2] for x in per),
-        member_pvalue=tuple(x[3] for x in per),
-    )
-
-
-def _stack_or_share(values):
-    """The members' arrays as one batch array; one shared array (the same object) passed as is."""
-    if values[0] is None:
-        return None
-    if len(values) > 1 and all(v is values[0] for v in values):
-        return values[0]
-    return np.stack([np.asarray(v) for v in values])
-
-
-def _fit_regular_check(t, arrays, options, **fixed):
-    """:func:`fit_inertia`'s checks and packing of one recording (NumPy only, nothing compiled).
-
-    ``fixed``: ``segments``, ``substeps``, ``pad_intervals`` overriding the options.
-    """
-    check_arrays(times=t, **arrays)
-    options = {**options, **{k: v for k, v in fixed.items() if k != "pad_intervals"}}
-    return prepare(
-        t,
-        arrays["orientations"],
-        arrays["body_rates"],
-        arrays["torques"],
-        initial_inertia=options["initial_inertia"],
-        method=options["method"],
-        segments=options["segments"],
-        substeps=options["substeps"],
-        orientation_std=options["orientation_std"],
-        rate_std=options["rate_std"],
-        continuity_weight=options["continuity_weight"],
-        excitation_tol=options["excitation_tol"],
-        check_gyro_frame=bool(options["check_gyro_frame"]),
-        gyro_bias=options["gyro_bias"],
-        body_torques=arrays["body_torques"],
-        gyro_rotation=options["gyro_rotation"],
-        accelerations=arrays["accelerations"],
-        acceleration_std=None if options["acceleration_std"] is None else float(options["acceleration_std"]),
-        pad_intervals=fixed.get("pad_intervals"),
-        drag=options["drag"],
-    )
-
-
-def _fit_padded(members, probs, options) -> dict:
-    """Fit ragged recordings in groups that share one compiled program: ``{index: FitResult}``.
-
-    Recordings with the same number of segments (their default, or the option) are
-    packed with the intervals per segment of the group's longest (the padding is
-    masked: ``dt = 0``, no residuals) and the group's largest ``substeps``, stacked
-    and fitted as one batch.
-    """
-    groups: dict = {}
-    for i, prob in probs.items():
-        groups.setdefault(prob.segments, []).append(i)
-    out = {}
-    for S, idx in groups.items():
-        K = max(probs[i].data["seg"]["dt"].shape[-1] for i in idx)
-        substeps = max(probs[i].static["substeps"] for i in idx)  # more steps only add accuracy
-        packed = {
-            i: _fit_regular_check(members[i][0], members[i][1], options, segments=S, substeps=substeps, pad_intervals=K)
-            for i in idx
-        }
-        if len(idx) == 1:
-            i = idx[0]
-            out[i] = _solve(packed[i], options)
-            continue
-        first = packed[idx[0]]
-        batch = first._replace(
-            y0=np.concatenate([packed[i].y0 for i in idx]),
-            data=jax.tree.map(lambda *a: np.concatenate(a), *[packed[i].data for i in idx]),
-            batched=True,
-        )
-        res = _solve(batch, options, sample_weights=False)
-        rw = np.asarray(res.robust_weights)
-        for j, i in enumerate(idx):
-            one = jax.tree.map(lambda a, j=j: a[j], res)
-            w, o = _sample_weights(packed[i], rw[j], _robust.outlier_weight(options["loss"]))
-            fields = {f.name: getattr(one, f.name) for f in dataclasses.fields(FitResult)}
-            out[i] = new_unchecked(FitResult, **{**fields, "robust_weights": w, "outliers": o})
-    return out
-
-
-def _stack_results(results: dict, n: int, errors: dict) -> FitResult:
-    """One batched :class:`FitResult` of ``n`` members; the failed ones NaN (False, 0), padded to the longest."""
-    template = next(iter(results.values()))
-    fields = {}
-    for f in dataclasses.fields(FitResult):
-        if f.metadata.get("static"):
-            continue
-        arrs = [None if i not in results else np.asarray(getattr(results[i], f.name)) for i in range(n)]
-        ref = np.asarray(getattr(template, f.name))
-        shape = tuple(max(a.shape[d] for a in arrs if a is not None) for d in range(ref.ndim))
-        fill = np.nan if np.issubdtype(ref.dtype, np.floating) else (0 if ref.dtype != bool else False)
-        out = np.full((n,) + shape, fill, ref.dtype)
-        for i, a in enumerate(arrs):
-            if a is not None:
-                out[(i,) + tuple(slice(0, s) for s in a.shape)] = a
-        fields[f.name] = jnp.asarray(out)
-    fields["failed"] = jnp.asarray([i in errors for i in range(n)])
-    return new_unchecked(
-        FitResult,
-        **fields,
-        scale_fixed=template.scale_fixed,
-        segments=max(r.segments for r in results.values()),
-        member_errors=tuple(f"recording {i}: {msg}" for i, msg in sorted(errors.items())),
-        **_NOT_JOINT,
-    )
-
-
-def _sample_weights(prob, rw: np.ndarray, outlier_weight: float):
-    """Segment-row weights ``(*N, S, B, K+1)`` as ``(*N, T, 3)`` [orientation, gyro, accelerometer]
-    (1 for a sensor not fitted), and the outliers ``(*N, T)``."""
-    rw = rw if prob.batched else rw[None]
-    idx, valid = prob.sample_index[prob.sample_valid], prob.sample_valid
-    T = int(idx.max()) + 1
-    W = np.ones((rw.shape[0], T, 3), rw.dtype)
-    for b, name in enumerate(prob.sensors):
-        W[:, idx, ("orientation", "gyro", "accelerometer").index(name)] = rw[:, :, b, :][:, valid]
-    outliers = np.any(W < outlier_weight, -1)
-    if not prob.batched:
-        W, outliers = W[0], outliers[0]
-    return jnp.asarray(W), jnp.asarray(outliers)
+        return fit_members(members, options)

@@ -41,6 +41,9 @@ _MAD_DOF = 0.2
 # Default numerics (see fit_inertia's docstring for the error budget)
 _MAX_STEP_ANGLE = 0.05  # rad turned per integrator step: rk4 error ~1e-9 rad per step at this size
 _SEGMENT_INTERVALS = 512  # target intervals per shooting segment (scan depth)
+# fast recordings of at most this many intervals get at least _SHORT_SUBSTEPS integrator steps per interval
+_SHORT_INTERVALS = 256
+_SHORT_SUBSTEPS = 4
 
 
 def _next_pow2(x: float) -> int:
@@ -210,6 +213,11 @@ def prepare(
         q = np.broadcast_to(np.array([1.0, 0.0, 0.0, 0.0]), (N, T, 4))  # body frame at t0 = world
     if substeps is None:  # a power of two, so similar recordings share a compiled program
         substeps = _next_pow2(np.ceil(angles.max() / _MAX_STEP_ANGLE))
+        if T - 1 <= _SHORT_INTERVALS and substeps > 1:
+            # a throw (short and fast): 2 becomes _SHORT_SUBSTEPS, so throws of ~8-20 rad/s at 100 Hz
+            # (2 or 4 by the angle alone) share one program; the extra steps cost a few ms, a new
+            # program seconds. Slow recordings (1 substep) keep theirs: their solve would pay 4x
+            substeps = max(substeps, _SHORT_SUBSTEPS)
     if segments is None:
         segments = _default_segments(T - 1, angles.sum(-1).max())
     S = int(segments)

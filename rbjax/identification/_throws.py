@@ -1,10 +1,19 @@
 """Finding the free flights (throws) in a continuous recording, and a plot to inspect them.
 
-In free flight an accelerometer reads the specific force ``a - g ≈ 0`` (plus
-the centripetal term ``ω × (ω × r)`` of its offset ``r`` from the centre of
-mass, a few m/s² at most for a hand-thrown phone); held in the hand it reads
+With an accelerometer: in free flight it reads the specific force ``a - g ≈ 0``
+(plus the centripetal term ``ω × (ω × r)`` of its offset ``r`` from the centre
+of mass, a few m/s² at most for a hand-thrown phone); held in the hand it reads
 about ``g = 9.81 m/s²``, and release and catch show as spikes. A throw is a
 run of samples with ``|a|`` below a threshold.
+
+With a gyro alone: in free flight the torque-free Euler equations
+``I ω̇ + ω × I ω = 0`` (body frame) hold for the body's inertia ``I``, which
+is unknown but the same all through the flight. A throw is a run of fast
+samples (``|ω|`` above a rate threshold, the hand's own rotation being slow)
+around whose middle one inertia explains the motion: the residual
+``I ω̇_i + ω_i × I ω_i`` of the inertia fitted to the middle stays at the
+noise level out to release and catch, where the hand's torque (or an impact)
+makes it jump.
 """
 
 from __future__ import annotations
@@ -32,10 +41,13 @@ def find_throws(
     threshold: float = 0.4 * STANDARD_GRAVITY,
     margin: float = 0.03,
     min_duration: float = 0.25,
+    sensor: str | None = None,
+    rate_threshold: float = 3.0,
 ) -> list[tuple[float, float]]:
     """Free-flight windows ``[(t0, t1), ...]`` (s, ascending) of a recording with throws and catches.
 
-    A sample is in free flight when the 3-sample running median of the
+    From the accelerometer (``sensor="accelerometer"``, the default when the
+    recording has one): a sample is in free flight when the 3-sample running median of the
     accelerometer magnitude ``|a|`` (body frame, m/s²) is below ``threshold``
     (the median sets single-sample glitches aside without moving the edges of
     a flight). Each run of such samples from ``t_a`` to ``t_b`` gives the
@@ -43,49 +55,144 @@ def find_throws(
     push and the catch stay out; windows shorter than ``min_duration`` are
     dropped.
 
+    From the gyro alone (``sensor="gyro"``, the default without an
+    accelerometer): a flight is a run of samples with ``|ω|`` (3-sample running
+    median, rad/s) above ``rate_threshold``, cut to where the motion is
+    torque-free. With ``ω̇_i`` from central differences (irregular times
+    allowed), the inertia ``I`` (symmetric, up to scale) that best satisfies
+    ``I ω̇_i + ω_i × I ω_i = 0`` (body frame) on the middle half of the run is
+    the smallest right singular vector of that homogeneous linear system; the
+    flight extends from the middle while each sample's residual (3-sample
+    running median) stays below 8 times the middle's median residual, and the
+    first sample beyond is the release (or catch): the hand's torque, or the
+    impact, breaks the torque-free law. A run that one inertia cannot explain
+    over at least ``min_duration`` gives no window. ``margin`` and
+    ``min_duration`` apply as above.
+
     Args:
         recording: a :class:`rbjax.Recording` with ``accelerations`` ``(T, 3)``
-            (gravity included, as a phone's accelerometer reports it).
+            (gravity included, as a phone's accelerometer reports it) or ``gyro``
+            ``(T, 3)`` (body frame, rad/s).
         threshold: ``|a|`` below which a sample counts as free fall (m/s²);
             default ``0.4 g`` ≈ 3.9 m/s²: held, ``|a| ≈ g``; flying, ``|a|``
             is the noise plus the centripetal term of the sensor's offset
             (``|ω|² |r|`` = 1 m/s² for 10 rad/s at 1 cm).
         margin: time trimmed at both ends of each flight (s, ≥ 0).
         min_duration: shortest window kept, after trimming (s, > 0).
+        sensor: ``"accelerometer"``, ``"gyro"`` or ``None`` (the accelerometer
+            if recorded, else the gyro).
+        rate_threshold: gyro only: ``|ω|`` above which a sample may be in
+            flight (rad/s, > 0); default 3 rad/s, half a turn per second: a
+            tossed phone turns faster, a hand holding one slower.
 
     Returns:
         A list of ``(t0, t1)`` pairs in seconds on the recording's clock; pass
         them to :meth:`Recording.window`. Empty when there is no flight.
 
     Raises:
-        ValueError: a recording without ``accelerations``, or a ``threshold``,
+        ValueError: a recording without the sensor asked for (or with neither),
+            an unknown ``sensor``, or a ``threshold``, ``rate_threshold``,
             ``margin`` or ``min_duration`` that is not finite and positive
             (``margin`` may be 0).
     """
     _check_recording("find_throws", recording)
-    if recording.accelerations is None:
+    if sensor not in (None, "accelerometer", "gyro"):
+        raise ValueError(f"find_throws: sensor must be 'accelerometer', 'gyro' or None, got {sensor!r}")
+    if sensor is None:
+        sensor = "accelerometer" if recording.accelerations is not None else "gyro"
+    if sensor == "accelerometer" and recording.accelerations is None:
         raise ValueError(
-            "find_throws: the recording has no accelerations; free flight is found from the accelerometer "
-            "(|a| ≈ 0), so record the accelerometer with the gyroscope (Recording(accelerations=...), "
-            "or phyphox's 'Accelerometer' sensor), or give the windows yourself"
+            "find_throws: the recording has no accelerations; pass sensor='gyro' to find the flights from the "
+            "gyroscope alone, or record the accelerometer too (Recording(accelerations=...), phyphox's "
+            "'Accelerometer' sensor)"
         )
-    for name, value, low in (("threshold", threshold, 0.0), ("min_duration", min_duration, 0.0)):
-        if not (np.isfinite(value) and value > low):
+    gyro = recording.gyro
+    if sensor == "gyro" and gyro is None:
+        raise ValueError(
+            "find_throws: the recording has neither accelerations nor gyro; free flight is found from the "
+            "accelerometer (|a| ≈ 0) or the gyroscope (torque-free motion): record one of them"
+        )
+    checked = (("threshold", threshold), ("min_duration", min_duration), ("rate_threshold", rate_threshold))
+    for name, value in checked:
+        if not (np.isfinite(value) and value > 0):
             raise ValueError(f"find_throws: {name} must be finite and > 0, got {value!r}")
     if not (np.isfinite(margin) and margin >= 0):
         raise ValueError(f"find_throws: margin must be finite and >= 0 (s), got {margin!r}")
     t = recording.times
-    mag = np.linalg.norm(recording.accelerations, axis=-1)
-    padded = np.concatenate([mag[:1], mag, mag[-1:]])
-    smooth = np.median(np.stack([padded[:-2], padded[1:-1], padded[2:]]), axis=0)
-    free = np.concatenate([[False], smooth < threshold, [False]])
-    edges = np.flatnonzero(np.diff(free.astype(np.int8)))
+    if sensor == "gyro" and gyro is not None:
+        runs = _torque_free_runs(t, gyro, float(rate_threshold))
+        return _windows(t, runs, margin, min_duration)
+    free = _median3(np.linalg.norm(np.asarray(recording.accelerations), axis=-1)) < threshold  # checked above
+    return _windows(t, _runs(free), margin, min_duration)
+
+
+def _median3(x: np.ndarray) -> np.ndarray:
+    """3-sample running median along axis 0 (the ends repeated)."""
+    padded = np.concatenate([x[:1], x, x[-1:]])
+    return np.median(np.stack([padded[:-2], padded[1:-1], padded[2:]]), axis=0)
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """``[(start, stop), ...]``: the runs of ``True`` in ``mask``, samples ``start .. stop - 1``."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
+
+
+def _windows(t, runs, margin, min_duration) -> list[tuple[float, float]]:
     windows = []
-    for start, stop in zip(edges[::2], edges[1::2]):  # samples start .. stop - 1 are free
+    for start, stop in runs:
         t0, t1 = t[start] + margin, t[stop - 1] - margin
         if t1 - t0 >= min_duration:
             windows.append((float(t0), float(t1)))
     return windows
+
+
+# residual above this multiple of the flight's median residual: the torque-free law is broken
+_TORQUE_FREE_LIMIT = 8.0
+
+
+def _euler_rows(w: np.ndarray, wdot: np.ndarray) -> np.ndarray:
+    """``(n, 3, 6)``: ``A_i`` with ``A_i x = I ω̇_i + ω_i × I ω_i`` for ``x`` the 6 entries of symmetric ``I``
+    (``Ixx, Iyy, Izz, Ixy, Ixz, Iyz``), body frame."""
+    basis = np.zeros((6, 3, 3))
+    for k, (i, j) in enumerate(((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))):
+        basis[k, i, j] = basis[k, j, i] = 1.0
+    Iwdot = np.einsum("kab,nb->nak", basis, wdot)
+    Iw = np.einsum("kab,nb->nka", basis, w)
+    return Iwdot + np.moveaxis(np.cross(w[:, None, :], Iw), 1, 2)
+
+
+def _torque_free_runs(t: np.ndarray, gyro: np.ndarray, rate_threshold: float) -> list[tuple[int, int]]:
+    """Sample runs of torque-free motion (see :func:`find_throws`) inside the fast runs of ``gyro``."""
+    fast = _median3(np.linalg.norm(gyro, axis=-1)) > rate_threshold
+    out = []
+    for start, stop in _runs(fast):
+        if stop - start < 8:  # too few samples to fit 5 shape parameters to a middle half
+            continue
+        # central differences on irregular times (exact for a quadratic), the ends one-sided
+        i = np.arange(start + 1, stop - 1)
+        h0, h1 = t[i] - t[i - 1], t[i + 1] - t[i]
+        wdot = (
+            -(h1 / (h0 * (h0 + h1)))[:, None] * gyro[i - 1]
+            + ((h1 - h0) / (h0 * h1))[:, None] * gyro[i]
+            + (h0 / (h1 * (h0 + h1)))[:, None] * gyro[i + 1]
+        )
+        A = _euler_rows(gyro[i], wdot)
+        n = len(i)
+        core = slice(n // 4, n - n // 4)
+        x = np.linalg.svd(A[core].reshape(-1, 6), full_matrices=False)[2][-1]
+        r = _median3(np.linalg.norm(A @ x, axis=-1))
+        limit = _TORQUE_FREE_LIMIT * np.median(r[core])
+        inside = r <= limit
+        a = b = n // 2
+        if not inside[a]:
+            continue
+        while a > 0 and inside[a - 1]:
+            a -= 1
+        while b < n - 1 and inside[b + 1]:
+            b += 1
+        out.append((int(i[a]), int(i[b]) + 1))
+    return out
 
 
 def plot_throws(recording: Recording, windows, ax=None):

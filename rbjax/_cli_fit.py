@@ -1,0 +1,510 @@
+"""``python -m rbjax fit``: an inertia fitted to a recording file, or to the throws of a phyphox export."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ._cli_common import CLIError, use_compile_cache
+
+__all__ = ["FIT_OPTIONS", "add_fit_parser", "fitted_rates", "run_fit"]
+
+
+FIT_OPTIONS = {  # CLI flag destination -> fit_inertia keyword, passed only when given
+    "method": "method",
+    "segments": "segments",
+    "substeps": "substeps",
+    "orientation_std": "orientation_std",
+    "rate_std": "rate_std",
+    "acceleration_std": "acceleration_std",
+    "max_steps": "max_steps",
+    "loss": "loss",
+    "loss_scale": "loss_scale",
+    "drag": "drag",
+}
+
+
+def run_fit(args: argparse.Namespace) -> int:
+    import json
+
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    if getattr(args, "compile_cache", False):
+        use_compile_cache()
+    from . import fit_inertia
+    from ._recording import RecordingError, read_recording, time_unit_hint
+
+    if _is_phyphox(Path(args.recording)):
+        return _fit_throws(args)
+    for flag in ("threshold", "margin", "min_duration", "plot"):
+        if getattr(args, flag) is not None:
+            raise CLIError(f"--{flag.replace('_', '-')} applies to phyphox exports (throws), not to {args.recording}")
+    if args.separate:
+        raise CLIError(f"--separate applies to phyphox exports (throws), not to {args.recording}")
+    try:
+        rec = read_recording(Path(args.recording), args.time_unit or "s")
+    except RecordingError as e:
+        raise CLIError(str(e)) from e
+    if "quaternions" not in rec and "gyro" not in rec:
+        raise CLIError(f"{args.recording}: the recording has neither quaternions (qw,qx,qy,qz) nor gyro (gx,gy,gz)")
+    if args.time_unit is None and (hint := time_unit_hint(rec)) is not None:
+        if not hint.startswith("note:"):
+            raise CLIError(f"{args.recording}: {hint}")
+        print(f"{args.recording}: {hint}", file=sys.stderr)
+    if args.gyro_only:
+        rec.pop("quaternions", None)
+    for flag, key, what in (
+        (args.accelerometer, "accelerations", "--accelerometer"),
+        (args.gyro_bias or args.gyro_rotation or args.gyro_only, "gyro", "--gyro-bias/--gyro-rotation/--gyro-only"),
+    ):
+        if flag and key not in rec:
+            raise CLIError(f"{args.recording}: {what} needs the {key} columns in the recording")
+    ignored = [] if args.accelerometer or "accelerations" not in rec else ["ax,ay,az (pass --accelerometer)"]
+    if ignored:
+        print(f"note: ignoring columns {', '.join(ignored)}", file=sys.stderr)
+    kwargs = {kw: getattr(args, dest) for dest, kw in FIT_OPTIONS.items() if getattr(args, dest) is not None}
+    kwargs.update({k: True for k in ("gyro_bias", "gyro_rotation") if getattr(args, k)})
+    if args.accelerometer:
+        kwargs["accelerations"] = rec["accelerations"]
+    try:
+        res = fit_inertia(
+            rec["times"],
+            rec.get("quaternions"),
+            body_rates=rec.get("gyro"),
+            torques=rec.get("torques"),
+            body_torques=rec.get("body_torques"),
+            **kwargs,
+        )
+    except (ValueError, TypeError) as e:
+        raise CLIError(str(e)) from e
+    out = _fit_report(res)
+    unit = "kg m²" if out["scale_fixed"] else "normalised to trace 1 (no torques: scale not identifiable)"
+    print(f"inertia ({unit}), body frame:")
+    for row in out["inertia"]:
+        print("  [" + "  ".join(f"{v: .6e}" for v in row) + "]")
+    print(
+        "principal moments: "
+        + ", ".join(f"{m:.6e} ± {s:.1e}" for m, s in zip(out["principal_moments"], out["moment_std"]))
+    )
+    for key, label, unit in (
+        ("gyro_bias", "gyro bias", "rad/s"),
+        ("lever_arm", "accelerometer lever arm", "m"),
+        ("accelerometer_bias", "accelerometer bias", "m/s²"),
+    ):
+        if key in out:
+            values = zip(out[key], out[key + "_std"], strict=True)
+            print(f"{label} ({unit}): " + ", ".join(f"{v: .4e} ± {s:.1e}" for v, s in values))
+    if "drag" in out:
+        values = zip(out["drag"], out["drag_std"], strict=True)
+        print("drag (c1, c2; relative to tr I without torques): " + ", ".join(f"{v: .4e} ± {s:.1e}" for v, s in values))
+    if "gyro_rotation" in out:
+        print("gyro to body rotation [w, x, y, z]: " + ", ".join(f"{v: .6f}" for v in out["gyro_rotation"]))
+    if out.get("outliers"):
+        times = ", ".join(f"{rec['times'][i]:.4g}" for i in out["outliers"][:10])
+        more = " ..." if len(out["outliers"]) > 10 else ""
+        print(f"down-weighted samples (robust loss): {len(out['outliers'])}, at t = {times}{more} s")
+    print(
+        f"converged: {out['converged']} after {out['iterations']} iterations"
+        f" (solver converged {out['solver_converged']}, on boundary {out['on_boundary']},"
+        f" residual ratio {out['residual_ratio']:.3g})"
+    )
+    if args.out:
+        Path(args.out).write_text(json.dumps(out, indent=1))
+        print(f"saved: {args.out}")
+    return 0 if out["converged"] else 1
+
+
+def _is_phyphox(path: Path) -> bool:
+    """A phyphox export: a directory, a ``.zip``, or a ``.csv`` whose header names ``Time (s)``."""
+    if path.is_dir() or path.suffix.lower() == ".zip":
+        return True
+    if path.suffix.lower() != ".csv" or not path.is_file():
+        return False
+    with path.open(encoding="utf-8-sig", errors="replace") as f:
+        return "time (s)" in f.readline().lower()
+
+
+def _fit_throws(args: argparse.Namespace) -> int:
+    """``fit`` of a phyphox export: find the throws, fit the gyro of each (one ragged call), report."""
+    import dataclasses
+    import json
+
+    import numpy as np
+
+    from . import Recording, RecordingError, find_throws, fit_inertia
+
+    unsupported = [
+        flag
+        for flag, on in (
+            ("--time-unit", args.time_unit is not None),
+            ("--accelerometer", args.accelerometer),
+            ("--gyro-rotation", args.gyro_rotation),
+            ("--orientation-std", args.orientation_std is not None),
+            ("--acceleration-std", args.acceleration_std is not None),
+        )
+        if on
+    ]
+    if unsupported:
+        raise CLIError(
+            f"{args.recording}: {', '.join(unsupported)} do(es) not apply to a phyphox export "
+            "(times in s; each throw is fitted from the gyroscope alone)"
+        )
+    try:
+        rec = Recording.from_phyphox(args.recording)
+    except RecordingError as e:
+        raise CLIError(str(e)) from e
+    if rec.gyro is None:
+        raise CLIError(f"{args.recording}: no gyroscope columns; record 'Gyroscope rotation rate' with phyphox")
+    found = {k: getattr(args, k) for k in ("threshold", "margin", "min_duration") if getattr(args, k) is not None}
+    try:
+        windows = find_throws(rec, **found)
+    except ValueError as e:
+        raise CLIError(f"{args.recording}: {e}") from e
+    if not windows:
+        raise CLIError(
+            f"{args.recording}: no free flight found (|a| below the threshold for at least the minimum duration); "
+            "check with rbjax.plot_throws, or lower --min-duration / raise --threshold"
+        )
+    throws = [dataclasses.replace(rec.window(t0, t1), accelerations=None) for t0, t1 in windows]
+    kwargs = {kw: getattr(args, dest) for dest, kw in FIT_OPTIONS.items() if getattr(args, dest) is not None}
+    if args.gyro_bias:
+        kwargs["gyro_bias"] = True
+    try:
+        res = fit_inertia(throws, **kwargs)
+    except (ValueError, TypeError) as e:
+        raise CLIError(str(e)) from e
+    joint = None
+    if len(throws) > 1 and not args.separate:
+        try:
+            joint = fit_inertia(throws, **kwargs, joint=True)
+        except (ValueError, TypeError) as e:
+            raise CLIError(str(e)) from e
+    report = _throws_report(res, windows, [len(r) for r in throws], joint)
+    print(f"{args.recording}: {len(windows)} throw(s); principal moments as I_k / tr I (ascending), gyro-only fits")
+    for k, row in enumerate(report["throws"]):
+        head = f"throw {k + 1}: t = {row['t0']:.3f}-{row['t1']:.3f} s ({row['samples']} samples): "
+        if row["failed"]:
+            print(head + f"not fitted: {row['error']}")
+            continue
+        moments = ", ".join(f"{m:.4f} ± {s:.4f}" for m, s in zip(row["moments"], row["moment_std"]))
+        ratios = ", ".join(f"{m:.4f} ± {s:.4f}" for m, s in zip(row["ratios"], row["ratio_std"]))
+        print(head + f"I/trI = {moments}; I1/I3, I2/I3 = {ratios}")
+        print(
+            f"    converged {row['converged']} (chi2 p-value {row['pvalue']:.3g}, "
+            f"gyro rms {row['rate_rms']:.3g} rad/s, {row['iterations']} iterations)"
+            + (
+                ""
+                if "joint_rms" not in row
+                else f"; in the joint fit: rms {row['joint_rms']:.3g} x its level, p-value {row['joint_pvalue']:.3g}"
+            )
+        )
+    comb = report["combined"]
+    if comb is not None and comb.get("joint"):
+        m = ", ".join(f"{m:.4f} ± {s:.4f}" for m, s in zip(comb["moments"], comb["moment_std"]))
+        rat = ", ".join(f"{m:.4f} ± {s:.4f}" for m, s in zip(comb["ratios"], comb["ratio_std"]))
+        print(f"combined: one inertia fitted to {comb['throws']} throw(s) jointly: I/trI = {m}; I1/I3, I2/I3 = {rat}")
+        print(
+            f"    joint fit converged: {comb['converged']} (chi2 p-value {comb['pvalue']:.3g}, gyro rms "
+            f"{comb['rate_rms']:.3g} rad/s); spread of the separate fits: "
+            + ", ".join(f"{x:.4f}" for x in comb["moments_spread"])
+        )
+    elif comb is None:
+        print("combined: no throw converged; nothing to combine (see the diagnostics above)")
+    else:
+        med = ", ".join(f"{m:.4f} ± {s:.4f}" for m, s in zip(comb["moments"], comb["moments_spread"]))
+        rat = ", ".join(f"{m:.4f} ± {s:.4f}" for m, s in zip(comb["ratios"], comb["ratios_spread"]))
+        print(
+            f"combined over {comb['throws']} converged throw(s), median ± spread: I/trI = {med}; I1/I3, I2/I3 = {rat}"
+        )
+    if args.plot:
+        _plot_throw_fits(args.plot, throws, res)
+        print(f"plot: {args.plot}")
+    if args.out:
+        Path(args.out).write_text(json.dumps(report, indent=1, default=lambda v: np.asarray(v).tolist()))
+        print(f"saved: {args.out}")
+    return 0 if comb is not None else 1
+
+
+def _normalised(res):
+    """``(I/trI, σ, [I1/I3, I2/I3], σ)`` of a result (any leading axes).
+
+    The ratios' σ propagates the moments' σ to first order as if independent,
+    ``σ(a/b)² ≈ (a/b)² ((σ_a/a)² + (σ_b/b)²)`` (:class:`FitResult` holds no
+    covariance between the moments).
+    """
+    import numpy as np
+
+    m, s = np.asarray(res.principal_moments), np.asarray(res.moment_std)
+    m, s = m / m.sum(-1, keepdims=True), s / m.sum(-1, keepdims=True)
+    ratios = m[..., :2] / m[..., 2:]
+    ratio_std = ratios * np.sqrt((s[..., :2] / m[..., :2]) ** 2 + (s[..., 2:] / m[..., 2:]) ** 2)
+    return m, s, ratios, ratio_std
+
+
+def _throws_report(res, windows, samples, joint=None) -> dict:
+    """Per throw: window, normalised moments ± σ, the ratios ``I1/I3, I2/I3`` ± σ, diagnostics; and the combination.
+
+    The combination is the ``joint`` fit (``fit_inertia(..., joint=True)``) when
+    given: one inertia for all throws, with its σ; each throw's row then also
+    holds its residual level and p-value in it. Otherwise it is over the converged
+    throws: the median, and as spread the sample standard deviation (0 for one
+    throw); the joint one keeps that spread of the separate fits too.
+    """
+    import numpy as np
+
+    m, s, ratios, ratio_std = _normalised(res)
+    errors = {int(e.split(":")[0].split()[-1]): e.split(":", 1)[1].strip() for e in res.member_errors}
+    rows = []
+    for k, (t0, t1) in enumerate(windows):
+        rows.append(
+            dict(
+                t0=t0,
+                t1=t1,
+                samples=samples[k],
+                failed=bool(np.asarray(res.failed)[k]),
+                error=errors.get(k, ""),
+                moments=m[k].tolist(),
+                moment_std=s[k].tolist(),
+                ratios=ratios[k].tolist(),
+                ratio_std=ratio_std[k].tolist(),
+                converged=bool(np.asarray(res.converged)[k]),
+                pvalue=float(np.asarray(res.consistency_pvalue)[k]),
+                rate_rms=float(np.asarray(res.rate_rms)[k]),
+                iterations=int(np.asarray(res.iterations)[k]),
+            )
+        )
+        if joint is not None:
+            rows[-1].update(joint_rms=joint.member_rms[k], joint_pvalue=joint.member_pvalue[k])
+    ok = np.asarray(res.converged) & ~np.asarray(res.failed)
+    combined = None
+
+    def spread(x):
+        return np.std(x, 0, ddof=1) if len(x) > 1 else np.zeros(x.shape[1:])
+
+    if ok.any():
+        combined = dict(
+            throws=int(ok.sum()),
+            moments=np.median(m[ok], 0).tolist(),
+            moments_spread=spread(m[ok]).tolist(),
+            ratios=np.median(ratios[ok], 0).tolist(),
+            ratios_spread=spread(ratios[ok]).tolist(),
+        )
+    if joint is not None:
+        jm, js, jr, jrs = _normalised(joint)
+        combined = dict(
+            joint=True,
+            throws=len(rows) - len(joint.member_errors),
+            moments=jm.tolist(),
+            moment_std=js.tolist(),
+            ratios=jr.tolist(),
+            ratio_std=jrs.tolist(),
+            moments_spread=spread(m[ok]).tolist() if ok.any() else [np.nan] * 3,
+            converged=bool(joint.converged),
+            pvalue=float(joint.consistency_pvalue),
+            rate_rms=float(joint.rate_rms),
+        )
+    return {"throws": rows, "combined": combined}
+
+
+def _plot_throw_fits(path: str, throws, res) -> None:
+    """A PNG with one panel per throw: measured gyro (dots) against the fitted model's rates (lines)."""
+    import numpy as np
+
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError as e:
+        raise CLIError("--plot needs matplotlib: pip install 'rbjax[demo]'") from e
+    n = len(throws)
+    fig, axes = plt.subplots(n, 1, figsize=(8, 2.6 * n), squeeze=False)
+    for k, (rec, ax) in enumerate(zip(throws, axes[:, 0])):
+        t = rec.times
+        for j, c in enumerate("xyz"):
+            ax.plot(t, rec.gyro[:, j], ".", ms=3, color=f"C{j}", label=f"ω{c} measured")
+        if not bool(np.asarray(res.failed)[k]):
+            I = np.asarray(res.inertia)[k]
+            w0 = np.asarray(res.initial_angular_velocity)[k]
+            w = fitted_rates(I, w0, t, np.asarray(res.drag)[k]) + np.asarray(res.gyro_bias)[k]
+            for j, c in enumerate("xyz"):
+                ax.plot(t, w[:, j], "-", lw=1, color=f"C{j}", label=f"ω{c} fitted")
+        ax.set_ylabel("ω (rad/s, body)")
+        ax.set_title(f"throw {k + 1}", fontsize=9)
+    axes[-1, 0].set_xlabel("t (s)")
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="upper center", ncol=6, fontsize=7)  # above the panels, hiding no data
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.35 / (2.6 * n)))
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def fitted_rates(I, w0, t, drag, per_sample: int = 20):
+    """Body rates ``(T, 3)`` at the sample times ``t`` of the fitted model, from ``ω(t[0]) = w0`` (body).
+
+    Torque-free, the exact solution (:func:`rbjax.torque_free`). With a fitted
+    drag torque ``-(c1 + c2|ω|) ω``, which has the same form in the body and the
+    world frame, :func:`rbjax.simulate` with ``"rk4"`` at ``per_sample`` steps per
+    mean sample interval, interpolated linearly onto ``t``. ``I`` and ``drag``
+    are given relative to ``tr I`` (a gyro-only fit fixes no scale), so the body is ``I / tr I``.
+    """
+    import numpy as np
+
+    import rbjax as rb
+
+    state = rb.State.create(rb.Body(1.0, I / np.trace(I)), angular_velocity=w0)  # identity: body = world at t[0]
+    c1, c2 = np.nan_to_num(np.asarray(drag, float))  # NaN: no drag was fitted
+    if c1 == 0 and c2 == 0:
+        traj = rb.torque_free(state, t - t[0])
+        return np.asarray(rb.body_angular_velocity(traj))
+    steps = per_sample * (len(t) - 1)
+    dt = (t[-1] - t[0]) / steps
+    forces = rb.LinearDrag(0.0, angular=c1) + rb.QuadraticDrag(0.0, angular=c2)
+    traj = rb.simulate(state, forces, dt, steps, "rk4")
+    grid = t[0] + dt * np.arange(steps + 1)
+    w = np.asarray(rb.body_angular_velocity(traj))
+    return np.stack([np.interp(t, grid, w[:, j]) for j in range(3)], axis=-1)
+
+
+def _fit_report(res) -> dict:
+    """The JSON-ready fields of a FitResult (plain floats, lists and bools)."""
+    import numpy as np
+
+    out: dict = {"scale_fixed": bool(res.scale_fixed), "segments": int(res.segments)}
+    for k in ("inertia", "principal_moments", "moment_std", "principal_axes", "initial_angular_velocity"):
+        out[k] = np.asarray(getattr(res, k)).tolist()
+    for k in ("converged", "solver_converged", "on_boundary"):
+        out[k] = bool(getattr(res, k))
+    out["iterations"] = int(res.iterations)
+    for k, name in (
+        ("orientation_rms", "orientation_rms_rad"),
+        ("rate_rms", "rate_rms_rad_s"),
+        ("residual_ratio", "residual_ratio"),
+    ):
+        v = float(getattr(res, k))
+        if np.isfinite(v):
+            out[name] = v
+    # sensor models: only the fitted ones (a field that was not fitted is zeros / NaN)
+    for k in ("gyro_bias", "lever_arm", "accelerometer_bias"):
+        std = getattr(res, k + "_std")
+        if np.all(np.isfinite(np.asarray(std))):
+            out[k], out[k + "_std"] = np.asarray(getattr(res, k)).tolist(), np.asarray(std).tolist()
+    if np.any(np.isfinite(np.asarray(res.drag))):  # NaN unless drag= was given
+        out["drag"], out["drag_std"] = np.asarray(res.drag).tolist(), np.asarray(res.drag_std).tolist()
+    if np.all(np.isfinite(np.asarray(res.gyro_rotation_std))):  # NaN unless gyro_rotation=True
+        out["gyro_rotation"] = np.asarray(res.gyro_rotation).tolist()
+        out["gyro_rotation_std_rad"] = np.asarray(res.gyro_rotation_std).tolist()
+    out["outliers"] = np.flatnonzero(np.asarray(res.outliers)).tolist()
+    return out
+
+
+def _recording_help() -> str:
+    from ._recording import __doc__ as doc
+
+    return (doc or "").split("\n\n", 1)[1].split("\nEvery way")[0]
+
+
+def _fit_default(name: str) -> object:
+    """The default of ``fit_inertia``'s keyword ``name``: the help text quotes the code's value."""
+    import inspect
+
+    from .identification import fit_inertia
+
+    return inspect.signature(fit_inertia).parameters[name].default
+
+
+def _throws_default(name: str) -> float:
+    """The default of ``find_throws``' keyword ``name``, quoted in the help."""
+    import inspect
+
+    from .identification import find_throws
+
+    return inspect.signature(find_throws).parameters[name].default
+
+
+def add_fit_parser(sub, common: argparse.ArgumentParser) -> None:
+    """Add the ``fit`` subcommand to ``sub`` (the subparsers of ``python -m rbjax``)."""
+    fit = sub.add_parser(
+        "fit",
+        parents=[common],
+        help="fit an inertia tensor to recorded motion",
+        description="Fit an inertia tensor to recorded motion. Exit status 0: converged; 1: not "
+        "converged (see the diagnostics printed); 2: an error.\n\n" + _recording_help(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    fit.add_argument(
+        "recording",
+        help="a .csv or .npz recording (see above), or a phyphox export (a directory or .zip of CSVs, "
+        "or one CSV with 'Time (s)' columns): its throws are found and each is fitted from the gyroscope "
+        "(exit status 0 when at least one throw converged)",
+    )
+    fit.add_argument("--out", default=None, help="write the result as JSON to this path")
+    fit.add_argument("--time-unit", choices=["s", "ms", "us"], default=None, help="unit of the t column (default s)")
+    fit.add_argument(
+        "--method",
+        default=None,
+        help=f"integrator of the model (see rbjax.methods(); default {_fit_default('method')})",
+    )
+    fit.add_argument("--segments", type=int, default=None, help="multiple-shooting segments (default: one per 2π)")
+    fit.add_argument("--substeps", type=int, default=None, help="integrator steps per sample interval")
+    fit.add_argument(
+        "--max-steps",
+        type=int,
+        default=None,
+        help=f"Levenberg–Marquardt step limit (default {_fit_default('max_steps')})",
+    )
+    noise = fit.add_argument_group("noise levels (default: estimated from the data)")
+    noise.add_argument("--orientation-std", type=float, default=None, metavar="RAD")
+    noise.add_argument("--rate-std", type=float, default=None, metavar="RAD_S", help="gyro noise")
+    noise.add_argument("--acceleration-std", type=float, default=None, metavar="M_S2", help="accelerometer noise")
+    sensors = fit.add_argument_group("sensor models (each opt-in)")
+    sensors.add_argument("--gyro-only", action="store_true", help="ignore the quaternion columns: fit body rates alone")
+    sensors.add_argument(
+        "--drag",
+        choices=["linear", "quadratic"],
+        default=None,
+        help="fit a body-frame air-drag torque -(c1 + c2|w|) w (default: none)",
+    )
+    sensors.add_argument("--gyro-bias", action="store_true", help="fit a constant gyro bias (rad/s)")
+    sensors.add_argument(
+        "--gyro-rotation", action="store_true", help="fit a fixed rotation from the gyro frame to the body frame"
+    )
+    sensors.add_argument(
+        "--accelerometer",
+        action="store_true",
+        help="use the ax,ay,az columns: fit the lever arm and accelerometer bias",
+    )
+    throws = fit.add_argument_group("phyphox exports: finding the throws (see rbjax.find_throws)")
+    throws.add_argument(
+        "--threshold",
+        type=float,
+        default=None,
+        metavar="M_S2",
+        help=f"free fall: |a| below this (default {_throws_default('threshold'):.3g})",
+    )
+    throws.add_argument(
+        "--margin",
+        type=float,
+        default=None,
+        metavar="S",
+        help=f"trimmed at both ends of a flight (default {_throws_default('margin'):g})",
+    )
+    throws.add_argument(
+        "--min-duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help=f"shortest throw kept (default {_throws_default('min_duration'):g})",
+    )
+    throws.add_argument(
+        "--separate",
+        action="store_true",
+        help="combine the throws as the median of separate fits (default: one joint fit of all throws)",
+    )
+    throws.add_argument("--plot", default=None, metavar="PNG", help="write measured against fitted rates per throw")
+    robust = fit.add_argument_group("robust fitting")
+    robust.add_argument("--loss", choices=["squared", "huber", "cauchy"], default=None, help="default squared")
+    robust.add_argument("--loss-scale", type=float, default=None, metavar="SIGMAS", help="where the robust loss bends")
+    fit.set_defaults(func=run_fit)

@@ -1,0 +1,287 @@
+"""The compiled solver of :func:`rbjax.fit_inertia` and one packed problem through it.
+
+:func:`pack` checks and packs one recording (NumPy, :mod:`._problem`);
+:func:`solve` runs a packed :class:`._problem.Problem` (one recording, a
+batch, or a joint problem) through one compiled program: Levenberg–Marquardt
+(:mod:`._solver`) per recording, a work queue (:mod:`._queue`) for a batch,
+then the covariance and diagnostics (:mod:`._result`).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._pytree import new_unchecked
+from . import _robust
+from ._checks import check_arrays, check_options
+from ._model import model_residuals
+from ._problem import prepare
+from ._queue import run_queue, stage_widths
+from ._result import CONSISTENCY_ALPHA, FitResult, consistency, summarise
+from ._solver import LMMember
+
+__all__ = [
+    "NOT_JOINT",
+    "OPTION_NAMES",
+    "compiled_programs",
+    "fit_batch_jit",
+    "is_small",
+    "fit_regular",
+    "pack",
+    "sample_weights",
+    "solve",
+    "solve_with_starts",
+]
+
+
+def fit_batch_jit(backend: str, small: bool = False):
+    """The jitted solver for ``backend``; made on first use, so importing rbjax starts no backend.
+
+    On CPU it is compiled with XLA's classic loop emitters instead of the MLIR
+    fusion emitters: for the 4 s @ 1 kHz fit that halved the compile (10.6 → 5.1
+    CPU-s) and made the solve faster too (3.1 → 2.0 CPU-s), same result.
+    ``small`` (a problem whose solve is short: :func:`is_small`) also turns
+    LLVM's optimisation off (``xla_backend_optimization_level=0``): it cuts the
+    compile by ~40% and slows the solve, which for a short throw is a few ms.
+    """
+    key = (backend, small)
+    if key not in _JITS:
+        options: dict[str, object] = {"xla_cpu_use_fusion_emitters": False} if backend == "cpu" else {}
+        if small and backend == "cpu":
+            options["xla_backend_optimization_level"] = 0
+        static = ("model_opts", "loss", "rtol", "atol", "max_steps", "unbatch")
+        _JITS[key] = jax.jit(_fit_batch, static_argnames=static, compiler_options=options or None)
+    return _JITS[key]
+
+
+_JITS: dict = {}
+
+
+def compiled_programs() -> int:
+    """How many solver programs have been compiled in this process (all variants): tests check reuse."""
+    return sum(f._cache_size() for f in _JITS.values())
+
+
+def is_small(prob) -> bool:
+    """Whether ``prob``'s solve is cheap next to its compile: one recording, or one joint problem,
+    of at most ``_SMALL_INTERVALS`` sample intervals in all (segments x padded intervals)."""
+    S, K = prob.data["seg"]["dt"].shape[-2:]
+    return not prob.batched and S * K <= _SMALL_INTERVALS
+
+
+# a throw, a few seconds at 200 Hz, or a joint fit of up to ~12 throws of <= 100 samples. Measured
+# (2026-12-02, 2-core EPYC, quiet): 5 throws joint, compile 2.4 -> 1.4 s, solve 0.06-0.08 ->
+# 0.10-0.12 CPU-s; 4 s @ 1 kHz (4096 intervals, left optimised): compile 2.8 -> 1.7-1.9 s but the
+# solve 0.14 -> 0.28-0.52 s, which repeated fits would pay every time
+_SMALL_INTERVALS = 1536
+
+
+def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
+    """Fit ``N`` recordings (leading axes of ``y0``, ``data``); ``model_opts``: sorted ``(name, value)`` pairs.
+
+    Each recording is one Levenberg–Marquardt solve (:class:`._solver.LMMember`),
+    repeated with new weights for a robust loss (IRLS, :mod:`._robust`). A batch
+    runs through a work queue (:mod:`._queue`): every recording stops on its own
+    instead of being stepped until the slowest one stops.
+    """
+    opts = dict(model_opts)
+    member = lambda tree, i: jax.tree.map(lambda a: a[i], tree)
+    # one recording keeps J in its slot, so the model is compiled once (see `summary`)
+    lm = LMMember(functools.partial(model_residuals, **opts), rtol, atol, max_steps, keep_jacobian=unbatch)
+    kw = {k: opts[k] for k in _SUMMARY_OPTS}
+    outlier_weight = _robust.outlier_weight(loss)
+    zero = jnp.zeros((), jnp.int32)
+
+    def start(y, d, round=zero, total=zero):
+        return dict(lm.start(y, d), round=round, total=total)
+
+    def retire(slot):
+        """``(again, next round's slot, solution)`` of a stopped solve."""
+        d, y, total = slot["data"], slot["y"], slot["total"] + slot["steps"]
+        rw = d["seg"]["rw"]
+        out = dict(y=y, converged=lm.converged(slot), iterations=total, rw=rw)
+        if lm.keep_jacobian:
+            out.update(r=slot["r"], J=slot["J"])
+        if loss == "squared":
+            return jnp.array(False), slot, out
+        rw_new = _robust.weights(slot["r"], rw, loss, d["loss_scale"])
+        again = _robust.another_round(rw, rw_new, slot["round"])
+        restarted = start(y, {**d, "seg": {**d["seg"], "rw": rw_new}}, slot["round"] + 1, total)
+        return again, restarted, out
+
+    def summary(sol, d):
+        """FitResult fields at the solution, with its final weights.
+
+        A batch's slots keep ``JᵀJ``, not ``J`` (:class:`._solver.LMMember`), and
+        the covariance is formed from ``J``'s SVD, so there the model is
+        re-evaluated at the solution. A single solve keeps its ``J``: a second
+        model in the program doubled the first call's compile (4.2 → 6.5 s on
+        4 s @ 1 kHz).
+        """
+        d = {**d, "seg": {**d["seg"], "rw": sol["rw"]}}
+        r, J = (sol["r"], sol["J"]) if "J" in sol else lm.model(sol["y"], d)
+        out = summarise(sol["y"], r, J, d, sol["converged"], sol["iterations"], **kw, outlier_weight=outlier_weight)
+        return dict(out, robust_weights=sol["rw"])
+
+    if not unbatch:
+        sols = run_queue(
+            y0.shape[0],
+            lambda i: start(y0[i], member(data, i)),
+            lm.advance,
+            lm.running,
+            retire,
+            widths=stage_widths(y0.shape[0], first=_SLOTS),
+            steps_per_round=_STEPS_PER_ROUND,
+        )
+        # in slices of the queue's width: the memory of one model evaluation per slice
+        return jax.lax.map(lambda a: summary(*a), (sols, data), batch_size=min(_SLOTS, y0.shape[0]))
+    # one recording: no queue (and no vmap, whose batching of the solver's loops doubles tracing)
+
+    def body(c):
+        slot = jax.lax.while_loop(lm.running, lm.advance, c[1])
+        return retire(slot)
+
+    first = start(y0[0], member(data, 0))
+    out0 = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(lambda s: retire(s)[2], first))
+    return summary(jax.lax.while_loop(lambda c: c[0], body, (jnp.array(True), first, out0))[2], member(data, 0))
+
+
+_SUMMARY_OPTS = ("scale_fixed", "use_rates", "use_orientations", "layout")
+# Levenberg–Marquardt steps per round of the queue between retiring and refilling slots
+_STEPS_PER_ROUND = 4
+# the queue's width: per recording, the model of 64 slots of 1 s @ 200 Hz was 1.25-1.5x cheaper
+# than that of 128 (the flow's working set stays in cache), and narrower ones pay fixed costs
+_SLOTS = 64
+
+
+def fit_regular(times, arrays, options) -> FitResult:
+    """:func:`fit_inertia` on one recording or a regular batch ``(N, T, ...)``: any bad input raises."""
+    stds = {k: options[k] for k in ("initial_inertia", "orientation_std", "rate_std", "acceleration_std")}
+    check_arrays(times=times, **arrays, **stds)
+    check_options(**{k: options[k] for k in OPTION_NAMES})
+    return solve(pack(times, arrays, options), options)
+
+
+OPTION_NAMES = (
+    "orientation_std",
+    "rate_std",
+    "continuity_weight",
+    "excitation_tol",
+    "rtol",
+    "atol",
+    "max_steps",
+    "segments",
+    "substeps",
+    "loss",
+    "loss_scale",
+    "acceleration_std",
+)
+
+
+def solve(prob, options, per_sample: bool = True) -> FitResult:
+    """Run the compiled solver on a packed :class:`._problem.Problem`; ``options``: loss, tolerances.
+
+    ``per_sample=False`` leaves ``robust_weights`` as the solver's per-segment
+    rows (``(N, S, B, K+1)``) for the caller to map member by member.
+    """
+    return solve_with_starts(prob, options, per_sample)[0]
+
+
+def solve_with_starts(prob, options, per_sample: bool = True) -> tuple[FitResult, dict]:
+    """:func:`solve`, and every segment's fitted start: ``q``, ``q_std``, ``w``, ``w_std`` ``(*N, S, ...)``."""
+    loss = options["loss"]
+    data = dict(prob.data, loss_scale=np.full(prob.y0.shape[0], float(options["loss_scale"]), prob.y0.dtype))
+    out = fit_batch_jit(jax.default_backend(), is_small(prob))(
+        prob.y0,
+        data,
+        model_opts=tuple(sorted(prob.static.items())),
+        loss=loss,
+        rtol=float(options["rtol"]),
+        atol=float(options["atol"]),
+        max_steps=int(options["max_steps"]),
+        unbatch=not prob.batched,
+    )
+    p_value = consistency(out.pop("consistency"))  # on the host: see ._tails
+    consistent = p_value >= CONSISTENCY_ALPHA
+    out.update(
+        consistency_pvalue=jnp.asarray(p_value, out["chi2"].dtype),
+        model_consistent=jnp.asarray(consistent),
+        converged=jnp.asarray(np.asarray(out["converged"]) & consistent),
+    )
+    starts = jax.tree.map(np.asarray, out.pop("segment_start"))  # (*N, S, ...) per segment
+    # one recording (or a batch of them): its first segment's start; a joint fit puts in each member's
+    out.update(
+        member_initial_orientation=jnp.asarray(starts["q"][..., :1, :]),
+        member_initial_orientation_std=jnp.asarray(starts["q_std"][..., :1, :]),
+        member_initial_angular_velocity=jnp.asarray(starts["w"][..., :1, :]),
+        member_initial_angular_velocity_std=jnp.asarray(starts["w_std"][..., :1, :]),
+    )
+    rw = np.asarray(out.pop("robust_weights"))
+    if per_sample:
+        out["robust_weights"], out["outliers"] = sample_weights(prob, rw, _robust.outlier_weight(loss))
+    else:
+        out["robust_weights"], out["outliers"] = jnp.asarray(rw), jnp.zeros(rw.shape[0], bool)
+    out["failed"] = jnp.zeros(prob.y0.shape[0] if prob.batched else (), bool)
+    res = new_unchecked(
+        FitResult,
+        **out,
+        scale_fixed=prob.static["scale_fixed"],
+        segments=prob.segments,
+        member_errors=(),
+        **NOT_JOINT,
+    )
+    return res, starts
+
+
+# the static fields of a FitResult of recordings fitted one by one (see FitResult.joint)
+NOT_JOINT = dict(joint=False, member_rms=(), member_chi2=(), member_dof=(), member_pvalue=())
+
+
+def pack(t, arrays, options, **fixed):
+    """:func:`fit_inertia`'s checks and packing of one recording (NumPy only, nothing compiled).
+
+    ``fixed``: ``segments``, ``substeps``, ``pad_intervals`` overriding the options.
+    """
+    check_arrays(times=t, **arrays)
+    options = {**options, **{k: v for k, v in fixed.items() if k != "pad_intervals"}}
+    return prepare(
+        t,
+        arrays["orientations"],
+        arrays["body_rates"],
+        arrays["torques"],
+        initial_inertia=options["initial_inertia"],
+        method=options["method"],
+        segments=options["segments"],
+        substeps=options["substeps"],
+        orientation_std=options["orientation_std"],
+        rate_std=options["rate_std"],
+        continuity_weight=options["continuity_weight"],
+        excitation_tol=options["excitation_tol"],
+        check_gyro_frame=bool(options["check_gyro_frame"]),
+        gyro_bias=options["gyro_bias"],
+        body_torques=arrays["body_torques"],
+        gyro_rotation=options["gyro_rotation"],
+        accelerations=arrays["accelerations"],
+        acceleration_std=None if options["acceleration_std"] is None else float(options["acceleration_std"]),
+        pad_intervals=fixed.get("pad_intervals"),
+        drag=options["drag"],
+    )
+
+
+def sample_weights(prob, rw: np.ndarray, outlier_weight: float):
+    """Segment-row weights ``(*N, S, B, K+1)`` as ``(*N, T, 3)`` [orientation, gyro, accelerometer]
+    (1 for a sensor not fitted), and the outliers ``(*N, T)``."""
+    rw = rw if prob.batched else rw[None]
+    idx, valid = prob.sample_index[prob.sample_valid], prob.sample_valid
+    T = int(idx.max()) + 1
+    W = np.ones((rw.shape[0], T, 3), rw.dtype)
+    for b, name in enumerate(prob.sensors):
+        W[:, idx, ("orientation", "gyro", "accelerometer").index(name)] = rw[:, :, b, :][:, valid]
+    outliers = np.any(W < outlier_weight, -1)
+    if not prob.batched:
+        W, outliers = W[0], outliers[0]
+    return jnp.asarray(W), jnp.asarray(outliers)
