@@ -12,6 +12,7 @@ from .._math import quat_exp, quat_multiply
 from .._pytree import field, pytree_dataclass, static_field
 from ._layout import Layout
 from ._model import drag_coefficients, normalised_moments, unpack
+from ._solver import solve_small
 from ._tails import chi2_sf, f_sf
 
 
@@ -362,7 +363,7 @@ def summarise(
     pick = jnp.array([0, 4, 8, 1, 2, 5]) if scale_fixed else jnp.array([0, 4, 1, 2, 5])
     c_of = lambda th: normalised_moments(jnp.concatenate([th, y[n_I:]]), scale_fixed)[0].reshape(-1)[pick]
     M = jax.jacfwd(c_of)(y[:n_I])  # (n_I, n_I)
-    J_c = jnp.concatenate([jnp.linalg.solve(M.T, J[:, :n_I].T).T, J[:, n_I:]], 1)
+    J_c = jnp.concatenate([solve_small(M.T, J[:, :n_I].T).T, J[:, n_I:]], 1)
 
     def inertia_of_c(c):
         full = jnp.zeros(9, y.dtype).at[pick].set(c).reshape(3, 3)

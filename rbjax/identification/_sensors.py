@@ -17,6 +17,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
+from .._body import inverse_3x3
 from .._math import quat_conjugate, quat_exp, quat_rotate
 
 
@@ -31,5 +32,6 @@ def accelerometer_reading(I: Array, w: Array, r: Array, b: Array) -> Array:
     ``ω̇ = -I⁻¹ (ω × I ω)``: the torque-free Euler equations with the model's
     inertia ``I`` ``(3, 3)`` (any scale: ``ω̇`` does not depend on it).
     """
-    wd = -jnp.linalg.solve(I, jnp.cross(w, I @ w))
+    # closed-form inverse: a batched LAPACK solve here could deadlock beside another (see _solver.solve_small)
+    wd = -inverse_3x3(I) @ jnp.cross(w, I @ w)
     return jnp.cross(wd, r) + jnp.cross(w, jnp.cross(w, r)) + b

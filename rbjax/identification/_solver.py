@@ -103,6 +103,30 @@ def cholesky_solve(A, b):
     return jax.lax.fori_loop(0, n, backward, jnp.zeros_like(b))
 
 
+def solve_small(A, B):
+    """``X = A⁻¹ B`` for a small square ``(n, n)`` ``A`` (``n`` ≤ ~8) and ``(n, k)`` ``B``, in plain jnp.
+
+    Gaussian elimination with partial pivoting, unrolled over the ``n`` columns, then back
+    substitution. Not ``jnp.linalg.solve``, for the reason :func:`cholesky_solve` gives: two batched
+    LAPACK solves running at once in one program deadlock on a small CPU (reproduced with jaxlib
+    0.10.2 on 2 cores: two independent ``vmap``-ed 6x6 solves over 1,000 members never return).
+    """
+    n = A.shape[0]
+    M = jnp.concatenate([A, B], axis=1)
+    for k in range(n):
+        p = k + jnp.argmax(jnp.abs(M[k:, k]))
+        row_k, row_p = M[k], M[p]
+        M = M.at[k].set(row_p).at[p].set(row_k)
+        M = M.at[k + 1 :].add(-(M[k + 1 :, k] / M[k, k])[:, None] * M[k])
+    X = [None] * n
+    for i in reversed(range(n)):
+        acc = M[i, n:]
+        for j in range(i + 1, n):
+            acc = acc - M[i, j] * X[j]
+        X[i] = acc / M[i, i]
+    return jnp.stack(X)
+
+
 class LMMember:
     """One member's Levenberg–Marquardt solve as a state machine for :func:`._queue.run_queue`.
 
