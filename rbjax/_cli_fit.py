@@ -447,7 +447,12 @@ def add_fit_parser(sub, common: argparse.ArgumentParser) -> None:
         default=None,
         help=f"integrator of the model (see rbjax.methods(); default {_fit_default('method')})",
     )
-    fit.add_argument("--segments", type=int, default=None, help="multiple-shooting segments (default: about one per 512 sample intervals and per two turns, 4π)")
+    fit.add_argument(
+        "--segments",
+        type=int,
+        default=None,
+        help="multiple-shooting segments (default: per 512 intervals and per 4π turned)",
+    )
     fit.add_argument("--substeps", type=int, default=None, help="integrator steps per sample interval")
     fit.add_argument(
         "--max-steps",
