@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 import jax
+import numpy as np
 import pytest
 
 import rbjax as rb
@@ -79,6 +80,11 @@ def test_page_examples_run(page, tmp_path, monkeypatch):
         for k, v in saved.items():
             jax.config.update(k, v)
     print(f"{page.name}: {len(todo)} blocks in {time.perf_counter() - t0:.1f} s")
+    # beyond running (and the examples' own asserts): no float array an example computed and kept
+    # is NaN or infinite, so a page never shows a silent wrong number
+    arrays = {k: np.asarray(v) for k, v in namespace.items() if isinstance(v, (jax.Array, np.ndarray))}
+    bad = [k for k, a in arrays.items() if np.issubdtype(a.dtype, np.floating) and not np.isfinite(a).all()]
+    assert not bad, f"{page.name}: the examples left non-finite values in {bad}"
 
 
 def test_readme_is_a_short_front_door_whose_links_resolve():
