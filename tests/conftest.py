@@ -37,6 +37,28 @@ def pytest_addoption(parser):
 _CACHE_ENV = "RBJAX_TEST_COMPILATION_CACHE_DIR"
 
 
+# The suite's programs are small and run for milliseconds; compiling them is most of its time.
+# XLA's classic CPU emitters and LLVM without optimisation compile them in less than half the
+# CPU time (tests/test_gradients.py: 67 -> 30 CPU-s) and compute the same arithmetic to
+# round-off. Set before any backend starts, and inherited by the workers and the processes
+# tests start. The benchmarks and users' programs keep XLA's defaults, and so do the tests that
+# hold a property of XLA's default pipeline (they run in a process of their own with
+# ``default_xla_env()``). RBJAX_TEST_FAST_COMPILE=0 runs the whole suite with the defaults.
+_FAST_COMPILE = ("--xla_cpu_use_fusion_emitters=false", "--xla_backend_optimization_level=0")
+_FLAGS_BEFORE = "RBJAX_TEST_XLA_FLAGS_BEFORE"
+if os.environ.get("RBJAX_TEST_FAST_COMPILE", "1") != "0" and _FLAGS_BEFORE not in os.environ:
+    os.environ[_FLAGS_BEFORE] = os.environ.get("XLA_FLAGS", "")
+    os.environ["XLA_FLAGS"] = " ".join(os.environ[_FLAGS_BEFORE].split() + list(_FAST_COMPILE))
+
+
+def default_xla_env() -> dict[str, str]:
+    """This process's environment with XLA's flags as they were before the suite's (for a subprocess)."""
+    env = dict(os.environ, RBJAX_TEST_FAST_COMPILE="0")  # also where the subprocess imports this file
+    if _FLAGS_BEFORE in env:
+        env["XLA_FLAGS"] = env.pop(_FLAGS_BEFORE)
+    return env
+
+
 def pytest_configure(config):
     if os.environ.get("RBJAX_TEST_COMPILATION_CACHE", "1") == "0":
         return

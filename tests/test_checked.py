@@ -2,14 +2,21 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import default_xla_env
 
 import rbjax as rb
 
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
 DT = 0.01
 N = 5
 
@@ -82,8 +89,8 @@ def test_energy_jump_is_reported_at_the_saved_step():
     assert np.isfinite(np.asarray(traj.angular_momentum)).all()
 
 
-@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
-def test_sound_runs_pass_and_equal_the_unchecked_result(dtype):
+def sound_runs_are_bitwise_unchecked(dtype) -> None:
+    """A sound run's checked trajectory is bitwise the unchecked one (``AssertionError`` otherwise)."""
     s = _state(dtype)
     gravity = rb.Forces.gravity(s)  # from rest translationally: energy starts at rotation only
     # the matrix form in float64 only, to keep compilations few
@@ -95,8 +102,21 @@ def test_sound_runs_pass_and_equal_the_unchecked_result(dtype):
         # the checks only read the state: bitwise the same trajectory
         for a, b in zip(jax.tree.leaves(plain), jax.tree.leaves(checked), strict=True):
             assert a.dtype == b.dtype and np.asarray(a).tobytes() == np.asarray(b).tobytes()
+
+
+def test_sound_runs_pass_and_equal_the_unchecked_result():
+    # Bitwise equality is a property of the programs XLA compiles by default, not of the suite's
+    # fast-compile flags (tests/conftest.py): checked in a process with XLA's default flags.
+    code = (
+        "import jax, jax.numpy as jnp; jax.config.update('jax_enable_x64', True); "
+        "from test_checked import sound_runs_are_bitwise_unchecked as check; "
+        "check(jnp.float32); check(jnp.float64)"
+    )
+    env = dict(default_xla_env(), PYTHONPATH=os.pathsep.join([HERE, ROOT]))
+    res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-3000:]
     # a particle dropped from exact rest: E = 0 initially is not above the floor, then grows ∝ t²
-    p = rb.ParticleState.create(jnp.ones(3, dtype))
+    p = rb.ParticleState.create(jnp.ones(3))
     rb.simulate(p, rb.Forces.gravity(p), DT, 40, "euler", checked=True)
 
 
