@@ -181,23 +181,6 @@ def _kinematics(body: Body, position: Any, velocity: Any, orientation: Any, angu
     )
 
 
-def _rigid_batch(cls: str, body: Body, x: Array, v: Array, w: Array, **orientation: Array) -> tuple[int, ...]:
-    """``create``'s vectors checked (:func:`_check_vectors`) and their broadcast batch shape (:func:`_batch`).
-
-    ``orientation``: one keyword, the state's orientation field (``orientation=q`` or ``rotation=R``).
-    """
-    ((name, o),) = orientation.items()
-    _check_vectors(cls, position=x, velocity=v, **orientation, angular_velocity=w)
-    return _batch(
-        cls,
-        body.batch_shape,
-        position=x.shape[:-1],
-        velocity=v.shape[:-1],
-        orientation=o.shape[: o.ndim - len(_CORE_SHAPES[name])],
-        angular_velocity=w.shape[:-1],
-    )
-
-
 def _batch(cls: str, body_shape: tuple[int, ...] | None, **shapes: tuple[int, ...]) -> tuple[int, ...]:
     """The broadcast batch shape of ``create``'s arguments; ``ValueError`` naming each one's otherwise."""
     named = ({"body": body_shape} if body_shape is not None else {}) | shapes
@@ -270,6 +253,8 @@ class _RigidStateBase(_StateBase):
         """
         where = f"{cls.__name__}.create"
         body, x, v, o, w = _kinematics(body, position, velocity, orientation, angular_velocity)
+        if is_concrete(o) and not np.all(np.isfinite(np.asarray(o))):
+            raise ValueError(f"{where}: orientation must be finite, got non-finite entries")
         if o.shape[-1:] == (4,):
             _check_unit_quaternion(where, o)
         elif o.shape[-2:] == (3, 3):
@@ -279,13 +264,18 @@ class _RigidStateBase(_StateBase):
                 f"{where}: orientation must end in (4,) (a unit quaternion [w, x, y, z]) or (3, 3) "
                 f"(a rotation matrix), got shape {o.shape}"
             )
-        return cls._from_kinematics(where, body, x, v, o, w, time)
+        _check_vectors(where, position=x, velocity=v, angular_velocity=w)
+        vectors = dict(position=x.shape[:-1], velocity=v.shape[:-1], angular_velocity=w.shape[:-1])
+        orientation_batch = o.shape[:-1] if o.shape[-1:] == (4,) else o.shape[:-2]
+        shape = _batch(where, body.batch_shape, **vectors, orientation=orientation_batch)
+        return cls._from_kinematics(body, x, v, o, w, _time(where, time, x.dtype, shape))
 
     @classmethod
-    def _from_kinematics(
-        cls: type[_Rigid], where: str, body: Body, x: Array, v: Array, o: Array, w: Array, time: Any
-    ) -> _Rigid:
-        """The state from ``create``'s checked arrays; ``o``: a unit quaternion ``(..., 4)`` or a rotation matrix."""
+    def _from_kinematics(cls: type[_Rigid], body: Body, x: Array, v: Array, o: Array, w: Array, t: Array) -> _Rigid:
+        """The state from ``create``'s checked arrays, broadcast to ``t``'s batch shape ``B``.
+
+        ``o``: a unit quaternion ``(..., 4)`` or a rotation matrix ``(..., 3, 3)``.
+        """
         raise NotImplementedError
 
 
@@ -330,12 +320,11 @@ class State(_RigidStateBase):
         _check_unit_quaternion("State", self.orientation)
 
     @classmethod
-    def _from_kinematics(cls, where: str, body: Body, x: Array, v: Array, o: Array, w: Array, time: Any) -> State:
+    def _from_kinematics(cls, body: Body, x: Array, v: Array, o: Array, w: Array, t: Array) -> State:
         q = o if o.shape[-1:] == (4,) else matrix_to_quat(o)
-        shape = _rigid_batch(where, body, x, v, w, orientation=q)
         L = quat_rotate(q, matvec3(inertia_of(body), quat_rotate(quat_conjugate(q), w)))
-        bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])
-        return cls(body, bc(x), bc(v), bc(q), bc(L), _time(where, time, x.dtype, shape))
+        bc = lambda a: jnp.broadcast_to(a, t.shape + a.shape[-1:])
+        return cls(body, bc(x), bc(v), bc(q), bc(L), t)
 
 
 @pytree_dataclass
@@ -364,11 +353,10 @@ class MatrixState(_RigidStateBase):
         _check_rotation("MatrixState", self.rotation)
 
     @classmethod
-    def _from_kinematics(cls, where: str, body: Body, x: Array, v: Array, o: Array, w: Array, time: Any) -> MatrixState:
+    def _from_kinematics(cls, body: Body, x: Array, v: Array, o: Array, w: Array, t: Array) -> MatrixState:
         R = quat_to_matrix(o) if o.shape[-1:] == (4,) else o
-        shape = _rigid_batch(where, body, x, v, w, rotation=R)
-        bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])
-        return cls(body, bc(x), bc(v), jnp.broadcast_to(R, shape + (3, 3)), bc(w), _time(where, time, x.dtype, shape))
+        bc = lambda a: jnp.broadcast_to(a, t.shape + a.shape[-1:])
+        return cls(body, bc(x), bc(v), jnp.broadcast_to(R, t.shape + (3, 3)), bc(w), t)
 
 
 @pytree_dataclass
