@@ -324,8 +324,7 @@ def drag_coefficients(y, scale_fixed, layout: Layout):
     return c / jnp.trace(_inertia(y[:5], scale_fixed))
 
 
-def normalised_moments(y, scale_fixed):
+def normalised_inertia(y, scale_fixed):
+    """The fitted inertia ``(3, 3)`` of parameter vector ``y``: ``I``, or ``I / tr I`` without torques."""
     I = _inertia(y[: 6 if scale_fixed else 5], scale_fixed)
-    if not scale_fixed:
-        I = I / jnp.trace(I)
-    return I, jnp.linalg.eigvalsh(I)
+    return I if scale_fixed else I / jnp.trace(I)
