@@ -14,6 +14,7 @@ from __future__ import annotations
 import re
 
 import jax
+import jax.extend.core as jex
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -107,9 +108,9 @@ _LAPACK = {"eigh", "svd", "lu", "cholesky", "triangular_solve", "qr", "household
 def _sub_jaxprs(eqn):
     for p in eqn.params.values():
         for v in p if isinstance(p, (tuple, list)) else (p,):
-            if isinstance(v, jax.extend.core.ClosedJaxpr):
+            if isinstance(v, jex.ClosedJaxpr):
                 yield v.jaxpr
-            elif isinstance(v, jax.extend.core.Jaxpr):
+            elif isinstance(v, jex.Jaxpr):
                 yield v
 
 
@@ -125,7 +126,7 @@ def _unordered_lapack_pairs(jaxpr, where="top"):
     for k, eqn in enumerate(jaxpr.eqns):
         d = set()
         for v in eqn.invars:
-            if isinstance(v, jax.extend.core.Var) and v in producer:
+            if isinstance(v, jex.Var) and v in producer:
                 j = producer[v]
                 d |= deps[j] | {j}
         deps.append(d)
