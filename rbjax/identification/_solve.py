@@ -18,7 +18,7 @@ import numpy as np
 from .._pytree import new_unchecked
 from . import _robust
 from ._checks import check_arrays, check_options
-from ._model import model_residuals
+from ._model import model_residuals, model_shapes
 from ._problem import prepare
 from ._queue import run_queue, stage_widths
 from ._result import CONSISTENCY_ALPHA, FitResult, consistency, summarise
@@ -91,7 +91,8 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
     opts = dict(model_opts)
     member = lambda tree, i: jax.tree.map(lambda a: a[i], tree)
     # one recording keeps J in its slot, so the model is compiled once (see `summary`)
-    lm = LMMember(functools.partial(model_residuals, **opts), rtol, atol, max_steps, keep_jacobian=unbatch)
+    model, shapes = (functools.partial(f, **opts) for f in (model_residuals, model_shapes))
+    lm = LMMember(model, rtol, atol, max_steps, keep_jacobian=unbatch, shapes=shapes)
     kw = {k: opts[k] for k in _SUMMARY_OPTS}
     outlier_weight = _robust.outlier_weight(loss)
     zero = jnp.zeros((), jnp.int32)
