@@ -137,11 +137,10 @@ class LMMember:
     (trial), at ``y`` the residuals ``r``, ``G = JᵀJ`` and ``g = Jᵀr``,
     ``step_size``, ``first``, ``steps``, ``terminate`` and ``ok`` (every
     iterate finite). ``J`` itself is kept only with ``keep_jacobian`` (then
-    as ``J``, at ``y``): the step needs only ``G`` and ``g``, and the slots of
-    a batch are carried through loops and selected every step, where an
-    ``(m, n)`` matrix per member was most of the memory traffic. A single
-    solve keeps it so that its caller can form the covariance without
-    evaluating (and compiling) the model a second time. The loop belongs to
+    as ``J``, at ``y``): the step needs only ``G`` and ``g``, but with ``J``
+    the caller can form the covariance without evaluating (and compiling) the
+    model a second time, at the cost of an ``(m, n)`` matrix per slot carried
+    through the loops. The loop belongs to
     the caller, which may stop, move and restart members one by one.
     ``shapes(y, data)``: ``model``'s output shapes (``jax.ShapeDtypeStruct``);
     default ``jax.eval_shape`` of it, which traces the model once more.
