@@ -7,13 +7,15 @@ short real throws (40-100 samples) the joint fit is for.
 
 from __future__ import annotations
 
+import inspect
+
 import jax
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
 import rbjax as rb
-from rbjax.identification import _joint, _solve
+from rbjax.identification import _joint, _members, _solve
 
 jax.config.update("jax_enable_x64", True)
 
@@ -173,3 +175,30 @@ def test_segment_buckets_pad_by_at_most_half():
     assert sizes[:8] == [1, 2, 3, 4, 6, 6, 8, 8]
     assert all(n <= b <= 1.5 * n for n, b in zip(range(1, 200), sizes))
     assert len(set(sizes)) <= 16  # 199 counts, few programs
+
+
+@pytest.mark.parametrize("gyro_bias", [False, True])
+def test_the_solver_sizes_its_slots_as_the_model_shapes_its_output(gyro_bias):
+    # the solver takes the residual and Jacobian shapes from _model.model_shapes instead of tracing
+    # the model; they must be the model's own for a single recording of 1 and 4 segments (with
+    # orientations) and a joint problem (joins inside each recording only, a blank segment)
+    from rbjax.identification._model import model_residuals, model_shapes
+
+    defaults = {k: p.default for k, p in inspect.signature(rb.fit_inertia).parameters.items()}
+    opts = dict(defaults, gyro_bias=gyro_bias)
+    ts, ws = throws(lengths=(40, 100, 100))
+    q = np.tile([1.0, 0, 0, 0], (100, 1))
+    arrays = lambda **given: {k: given.get(k) for k in _members.PER_MEMBER_NDIM}
+    packed = [
+        _solve.pack(t, arrays(body_rates=w), opts, segments=s, substeps=4, pad_intervals=99)
+        for t, w, s in zip(ts, ws, (1, 2, 2), strict=True)
+    ]
+    probs = [
+        _solve.pack(ts[1], arrays(body_rates=ws[1]), opts),
+        _solve.pack(ts[1], arrays(orientations=q, body_rates=ws[1]), dict(opts, segments=4)),
+        _joint._pad_segments(_joint.join_problems(packed), 6),
+    ]
+    for prob in probs:
+        y, data = prob.y0[0], jax.tree.map(lambda a: a[0], prob.data)
+        expected = jax.eval_shape(lambda y, d: model_residuals(y, d, **prob.static), y, data)  # noqa: B023
+        assert model_shapes(y, data, **prob.static) == expected

@@ -309,6 +309,20 @@ def model_residuals(
     return jnp.concatenate([r_seg.reshape(-1), r_c.reshape(-1)]), J
 
 
+def model_shapes(y, data, *, joins=None, **_):
+    """The shapes of :func:`model_residuals`' ``(r, J)`` as ``jax.ShapeDtypeStruct``, without tracing it.
+
+    ``S`` segments of ``B`` sensor blocks of ``K + 1`` samples give ``3 S B (K+1)``
+    data rows, and each join 6 more; ``J`` has one column per entry of ``y``.
+    The solver sizes its slots from these: ``jax.eval_shape`` of the model
+    would trace the whole flow once more just to learn them.
+    """
+    S, B, K1 = data["seg"]["rw"].shape
+    n_joins = 0 if S == 1 else S - 1 if joins is None else len(joins)
+    m = 3 * S * B * K1 + 6 * n_joins
+    return jax.ShapeDtypeStruct((m,), y.dtype), jax.ShapeDtypeStruct((m, y.shape[0]), y.dtype)
+
+
 def drag_coefficients(y, scale_fixed, layout: Layout):
     """The fitted drag coefficients (``layout``'s ``drag`` block of ``y``) padded to ``(c₁, c₂)``, in reported units.
 
