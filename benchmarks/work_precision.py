@@ -23,7 +23,10 @@ their error falls 64-256x per doubling and reaches round-off within a few):
 * the work: wall time per body-step, timed on a batch of 1e4 copies of the
   problem (batch throughput; ``rbjax.step`` in a ``fori_loop``, best of 3), times
   ``n`` steps = wall time per body to reach T. Compile time is reported apart.
-  The error at each dt comes from one body (copies are identical).
+  The error at each dt comes from one body (copies are identical). A method with a
+  native kernel (``rbjax.native_status()``) gets a second curve, ``"<method> native"``:
+  the same errors (the kernel agrees with the JAX step to round-off), the time of
+  ``rbjax.simulate(..., native=True)`` on the same batch (``--no-native``: none).
 
 The peer is diffrax (Tsit5, Dopri8 with a PID controller) on the same ODE
 (``rbjax.derivative`` on the flattened ``(x, v, q, L)`` state, the same force
@@ -234,8 +237,13 @@ def step_counts(order: int, quick: bool) -> list[int]:
     return [2**k for k in range(4, 19)]
 
 
-def rbjax_curves(p: Problem, ref: dict, dtype, n_batch: int, methods, quick: bool, log) -> list[dict]:
-    """Errors from one body (full) or the batch's first body (quick: one compile); cost from the batch."""
+def rbjax_curves(
+    p: Problem, ref: dict, dtype, n_batch: int, methods, quick: bool, log, native: bool = True
+) -> list[dict]:
+    """Errors from one body (full) or the batch's first body (quick: one compile); cost from the batch.
+
+    With ``native``, a method with a native kernel gets a second curve, ``"<method> native"``.
+    """
     rows = []
     sN = p.state(dtype, n_batch)
     s1 = sN if quick else p.state(dtype)
@@ -247,29 +255,42 @@ def rbjax_curves(p: Problem, ref: dict, dtype, n_batch: int, methods, quick: boo
         compiled, t_compile = compile_timed(jax.jit(run), sN, dt_t, steps_t)
         jax.block_until_ready(compiled(sN, dt_t, steps_t))
         t_bs = best_time(compiled, sN, dt_t, steps_t) / (n_batch * steps_t)
+        # the native kernel, where simulate has one: the same steps to round-off (tests/test_native.py),
+        # so the same errors at a cost of its own; timed on the same batch through simulate
+        t_native = None
+        if native and method in rb.native_status().methods:
+            sim = functools.partial(rb.simulate, method=method, save_every=steps_t, native=True)
+            try:
+                jax.block_until_ready(sim(sN, p.force, dt_t, steps_t))
+                t_native = best_time(sim, sN, p.force, dt_t, steps_t) / (n_batch * steps_t)
+            except ValueError as e:  # forces the kernel does not evaluate (a callable): no native curve
+                log(f"  rbjax {method:>20} no native curve: {str(e).split(';')[0]}")
+        variants = [(method, t_bs)] + ([(f"{method} native", t_native)] if t_native else [])
         for n in ns:
             dt = p.T / n
             out = (compiled if quick else run)(s1, jnp.asarray(dt, dtype), n)
             q, w = out.orientation.reshape(-1, 4)[0], rb.angular_velocity(out).reshape(-1, 3)[0]
             e = errors(q, w, ref)
-            rows.append(
-                _finite(
-                    dict(
-                        solver="rbjax",
-                        method=method,
-                        dtype=np.dtype(dtype).name,
-                        dt=dt,
-                        steps=n,
-                        time_per_body_step_s=t_bs,
-                        time_per_body_s=t_bs * n,
-                        compile_s=t_compile,
-                        **e,
+            for name, t in variants:
+                rows.append(
+                    _finite(
+                        dict(
+                            solver="rbjax",
+                            method=name,
+                            dtype=np.dtype(dtype).name,
+                            dt=dt,
+                            steps=n,
+                            time_per_body_step_s=t,
+                            time_per_body_s=t * n,
+                            compile_s=t_compile,
+                            **e,
+                        )
                     )
                 )
-            )
         log(
-            f"  rbjax {method:>20} {np.dtype(dtype).name}: {t_bs * 1e9:7.1f} ns/body-step, "
-            f"compile {t_compile:.2f} s, "
+            f"  rbjax {method:>20} {np.dtype(dtype).name}: {t_bs * 1e9:7.1f} ns/body-step"
+            + (f" (native {t_native * 1e9:.1f}, {t_bs / t_native:.2f}x faster)" if t_native else "")
+            + f", compile {t_compile:.2f} s, "
             f"best angle error {min(r['err_angle'] or np.inf for r in rows[-len(ns) :]):.2e}"
         )
     return rows
@@ -489,6 +510,7 @@ def main(argv=None) -> int:
     )
     ap.add_argument("--out", default=os.path.join(ROOT, "benchmarks", "results"), help="output folder")
     ap.add_argument("--no-diffrax", action="store_true", help="skip the diffrax peer")
+    ap.add_argument("--no-native", action="store_true", help="only rbjax's JAX path (no native-kernel curves)")
     ap.add_argument(
         "--methods",
         default="all",
@@ -533,7 +555,7 @@ def main(argv=None) -> int:
         log = lambda s: print(s, flush=True)
         rows = []
         for dtype in dtypes:
-            rows += rbjax_curves(p, ref, dtype, n_batch, methods, args.quick, log)
+            rows += rbjax_curves(p, ref, dtype, n_batch, methods, args.quick, log, native=not args.no_native)
             if not args.no_diffrax and dtype in tols:
                 rows += diffrax_curves(p, ref, dtype, n_batch, solvers, tols[dtype], max_steps, args.quick, log)
         results[name] = rows

@@ -19,23 +19,13 @@ from typing import Any
 
 import numpy as np
 
+from ._rotations_np import np_qmat
+
 __all__ = ["animate"]
 
 # faces of the unit cube [-1, 1]^3 by corner index (corner k has coordinates from the bits of k)
 _CORNERS = np.array(list(itertools.product((-1.0, 1.0), repeat=3)))
 _FACES = np.array([[0, 1, 3, 2], [4, 5, 7, 6], [0, 1, 5, 4], [2, 3, 7, 6], [0, 2, 6, 4], [1, 3, 7, 5]])
-
-
-def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """``R`` (body to world) of unit quaternions ``[w, x, y, z]`` ``(..., 4)`` -> ``(..., 3, 3)``."""
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    rows = [
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ]
-    return np.stack([np.stack(r, -1) for r in rows], -2)
 
 
 def ellipsoid_mesh(n_lon: int = 14, n_lat: int = 8) -> np.ndarray:
@@ -95,7 +85,8 @@ def frames_of(traj: Any) -> dict[str, Any]:
     pos = pos.reshape(T, n, 3)
     field = lambda name, core: np.asarray(getattr(traj, name), np.float64).reshape(T, n, *core)
     if hasattr(traj, "orientation"):
-        R = _quat_to_matrix(field("orientation", (4,)))
+        q = field("orientation", (4,))
+        R = np_qmat(q / np.linalg.norm(q, axis=-1, keepdims=True))
         L = field("angular_momentum", (3,))
     else:  # MatrixState: L = R I_L Rᵀ ω
         R = field("rotation", (3, 3))

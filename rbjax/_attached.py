@@ -198,14 +198,7 @@ class Spring(ForceModel):
         damping: Float[ArrayLike, "*S"] | None = None,
     ) -> Spring:
         """Springs from body points (body frame; ``None`` = COM) to world ``anchor`` points."""
-        return cls(
-            body=body,
-            stiffness=stiffness,
-            point=point,
-            anchor=anchor,
-            rest_length=rest_length,
-            damping=damping,
-        )
+        return cls(body, stiffness, point=point, anchor=anchor, rest_length=rest_length, damping=damping)
 
     @classmethod
     def between(
@@ -221,13 +214,7 @@ class Spring(ForceModel):
     ) -> Spring:
         """Springs between points on two bodies (each in its own body frame; ``None`` = COM)."""
         return cls(
-            body=body_a,
-            stiffness=stiffness,
-            point=point_a,
-            anchor=point_b,
-            other=body_b,
-            rest_length=rest_length,
-            damping=damping,
+            body_a, stiffness, point=point_a, anchor=point_b, other=body_b, rest_length=rest_length, damping=damping
         )
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:

@@ -19,6 +19,7 @@ integer arrays are computed in the default float dtype, as everywhere in rbjax.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import Any
 
 import jax
@@ -215,6 +216,34 @@ def _cross(a: tuple, b: tuple) -> tuple:
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
+# The quaternion formulas below act on component tuples, so that one formula serves both
+# these jnp functions and the NumPy ones of the host-side code (identification's data checks,
+# the animation), which stack the same components with NumPy.
+def hamilton(p: Iterable[Any], q: Iterable[Any]) -> tuple[Any, Any, Any, Any]:
+    """Components of ``p ⊗ q`` from the components ``(w, x, y, z)`` of ``p`` and ``q`` (any array type)."""
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    return (
+        pw * qw - px * qx - py * qy - pz * qz,
+        pw * qx + px * qw + py * qz - pz * qy,
+        pw * qy - px * qz + py * qw + pz * qx,
+        pw * qz + px * qy - py * qx + pz * qw,
+    )
+
+
+def rotation_rows(q: Iterable[Any]) -> tuple[tuple[Any, Any, Any], ...]:
+    """Rows of ``R(q) = (w² - u·u) 1 + 2 u uᵀ + 2 w ũ`` from the components ``(w, x, y, z)`` of a unit ``q``."""
+    w, x, y, z = q
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz = x * y, x * z, y * z
+    wx, wy, wz = w * x, w * y, w * z
+    return (
+        (1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy)),
+        (2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx)),
+        (2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy)),
+    )
+
+
 def quat_multiply(p: Float[ArrayLike, "... 4"], q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
     """Hamilton product ``p ⊗ q`` of ``(..., 4)`` quaternions ``[w, x, y, z]``.
 
@@ -222,17 +251,7 @@ def quat_multiply(p: Float[ArrayLike, "... 4"], q: Float[ArrayLike, "... 4"]) ->
     """
     p, q = array_arg("quat_multiply", "p", p, (4,)), array_arg("quat_multiply", "q", q, (4,))
     _batches("quat_multiply", p=(p, 1), q=(q, 1))
-    pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
-    qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return jnp.stack(
-        [
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        ],
-        axis=-1,
-    )
+    return jnp.stack(hamilton(_unstack(p), _unstack(q)), axis=-1)
 
 
 def quat_conjugate(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
@@ -274,18 +293,7 @@ def quat_to_matrix(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 3 3"]:
     expressed in the world frame, as in the notes.
     """
     q = array_arg("quat_to_matrix", "q", q, (4,))
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    xx, yy, zz = x * x, y * y, z * z
-    xy, xz, yz = x * y, x * z, y * z
-    wx, wy, wz = w * x, w * y, w * z
-    return jnp.stack(
-        [
-            jnp.stack([1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy)], axis=-1),
-            jnp.stack([2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx)], axis=-1),
-            jnp.stack([2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy)], axis=-1),
-        ],
-        axis=-2,
-    )
+    return jnp.stack([jnp.stack(row, axis=-1) for row in rotation_rows(_unstack(q))], axis=-2)
 
 
 def matrix_to_quat(R: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 4"]:

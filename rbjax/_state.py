@@ -17,7 +17,7 @@ from jax import Array
 from jaxtyping import Float
 
 from ._body import Body, as_float, finite_float, floats, inertia_of, is_concrete
-from ._math import array_arg, cross, matvec3, quat_conjugate, quat_rotate, quat_to_matrix
+from ._math import array_arg, cross, matrix_to_quat, matvec3, quat_conjugate, quat_rotate, quat_to_matrix
 from ._pytree import core_shape_of, field, pytree_dataclass, replace
 from ._trajectory import BatchIndexing
 from ._typing import ArrayLike, array_like, optional_array_like
@@ -77,7 +77,7 @@ def _check_unit_quaternion(cls: str, q: Array) -> None:
         )
 
 
-def _check_rotation(cls: str, R: Array) -> None:
+def _check_rotation(cls: str, R: Array, name: str = "rotation") -> None:
     if not is_concrete(R):
         return
     R64 = np.asarray(R, dtype=np.float64)
@@ -85,7 +85,7 @@ def _check_rotation(cls: str, R: Array) -> None:
     tol = quat_tolerance(R.dtype)
     if err > tol or np.any(np.linalg.det(R64) <= 0):
         raise ValueError(
-            f"{cls}: rotation must be a proper rotation matrix (RᵀR = 1, det R = +1); "
+            f"{cls}: {name} must be a proper rotation matrix (RᵀR = 1, det R = +1); "
             f"max |RᵀR - 1| = {err:.3g}, tolerance {tol:.3g}"
         )
 
@@ -181,23 +181,6 @@ def _kinematics(body: Body, position: Any, velocity: Any, orientation: Any, angu
     )
 
 
-def _rigid_batch(cls: str, body: Body, x: Array, v: Array, w: Array, **orientation: Array) -> tuple[int, ...]:
-    """``create``'s vectors checked (:func:`_check_vectors`) and their broadcast batch shape (:func:`_batch`).
-
-    ``orientation``: one keyword, the state's orientation field (``orientation=q`` or ``rotation=R``).
-    """
-    ((name, o),) = orientation.items()
-    _check_vectors(cls, position=x, velocity=v, **orientation, angular_velocity=w)
-    return _batch(
-        cls,
-        body.batch_shape,
-        position=x.shape[:-1],
-        velocity=v.shape[:-1],
-        orientation=o.shape[: o.ndim - len(_CORE_SHAPES[name])],
-        angular_velocity=w.shape[:-1],
-    )
-
-
 def _batch(cls: str, body_shape: tuple[int, ...] | None, **shapes: tuple[int, ...]) -> tuple[int, ...]:
     """The broadcast batch shape of ``create``'s arguments; ``ValueError`` naming each one's otherwise."""
     named = ({"body": body_shape} if body_shape is not None else {}) | shapes
@@ -233,6 +216,9 @@ class _StateBase(BatchIndexing):
         return self.position.dtype
 
 
+_Rigid = TypeVar("_Rigid", bound="_RigidStateBase")  # create returns the class it is called on
+
+
 class _RigidStateBase(_StateBase):
     """What :class:`State` and :class:`MatrixState` share beyond :class:`_StateBase`: the body's mass."""
 
@@ -243,6 +229,54 @@ class _RigidStateBase(_StateBase):
     def mass(self) -> Array:
         """Mass ``m`` (kg) of each body: ``(*B,)``, or the shared body's shape (broadcasts to ``(*B,)``)."""
         return self.body.mass
+
+    @classmethod
+    def create(
+        cls: type[_Rigid],
+        body: Body,
+        *,
+        position: Float[ArrayLike, "*B 3"] | None = None,
+        velocity: Float[ArrayLike, "*B 3"] | None = None,
+        orientation: Float[ArrayLike, "*B 4"] | Float[ArrayLike, "*B 3 3"] | None = None,
+        angular_velocity: Float[ArrayLike, "*B 3"] | None = None,
+        time: Float[ArrayLike, ""] = 0.0,
+    ) -> _Rigid:
+        """State from kinematic quantities; missing ones are zero / identity.
+
+        ``position`` ``x`` (m) and ``velocity`` ``v`` (m/s) are world-frame;
+        ``orientation`` (body to world) is a unit quaternion ``[w, x, y, z]``
+        ``(*B, 4)`` or a rotation matrix ``(*B, 3, 3)``; ``angular_velocity``
+        ``ω`` is world-frame (rad/s). :class:`State` stores the momentum
+        ``L = R I_L Rᵀ ω`` and the quaternion, :class:`MatrixState` ``ω`` and
+        ``R``. All arguments broadcast against the body's batch shape; ``time``
+        (s) is the state's ``t``.
+        """
+        where = f"{cls.__name__}.create"
+        body, x, v, o, w = _kinematics(body, position, velocity, orientation, angular_velocity)
+        if is_concrete(o) and not np.all(np.isfinite(np.asarray(o))):
+            raise ValueError(f"{where}: orientation must be finite, got non-finite entries")
+        if o.shape[-1:] == (4,):
+            _check_unit_quaternion(where, o)
+        elif o.shape[-2:] == (3, 3):
+            _check_rotation(where, o, "orientation")
+        else:
+            raise ValueError(
+                f"{where}: orientation must end in (4,) (a unit quaternion [w, x, y, z]) or (3, 3) "
+                f"(a rotation matrix), got shape {o.shape}"
+            )
+        _check_vectors(where, position=x, velocity=v, angular_velocity=w)
+        vectors = dict(position=x.shape[:-1], velocity=v.shape[:-1], angular_velocity=w.shape[:-1])
+        orientation_batch = o.shape[:-1] if o.shape[-1:] == (4,) else o.shape[:-2]
+        shape = _batch(where, body.batch_shape, **vectors, orientation=orientation_batch)
+        return cls._from_kinematics(body, x, v, o, w, _time(where, time, x.dtype, shape))
+
+    @classmethod
+    def _from_kinematics(cls: type[_Rigid], body: Body, x: Array, v: Array, o: Array, w: Array, t: Array) -> _Rigid:
+        """The state from ``create``'s checked arrays, broadcast to ``t``'s batch shape ``B``.
+
+        ``o``: a unit quaternion ``(..., 4)`` or a rotation matrix ``(..., 3, 3)``.
+        """
+        raise NotImplementedError
 
 
 @pytree_dataclass
@@ -286,28 +320,11 @@ class State(_RigidStateBase):
         _check_unit_quaternion("State", self.orientation)
 
     @classmethod
-    def create(
-        cls,
-        body: Body,
-        *,
-        position: Float[ArrayLike, "*B 3"] | None = None,
-        velocity: Float[ArrayLike, "*B 3"] | None = None,
-        orientation: Float[ArrayLike, "*B 4"] | None = None,
-        angular_velocity: Float[ArrayLike, "*B 3"] | None = None,
-        time: Float[ArrayLike, ""] = 0.0,
-    ) -> State:
-        """State from kinematic quantities; missing ones are zero / identity.
-
-        ``angular_velocity`` ``ω`` is in the world frame (rad/s); the stored
-        momentum is ``L = R I_L Rᵀ ω``. All arguments broadcast against the
-        body's batch shape; ``time`` (s) is the state's ``t``.
-        """
-        body, x, v, q, w = _kinematics(body, position, velocity, orientation, angular_velocity)
-        shape = _rigid_batch("State.create", body, x, v, w, orientation=q)
-        _check_unit_quaternion("State.create", q)
+    def _from_kinematics(cls, body: Body, x: Array, v: Array, o: Array, w: Array, t: Array) -> State:
+        q = o if o.shape[-1:] == (4,) else matrix_to_quat(o)
         L = quat_rotate(q, matvec3(inertia_of(body), quat_rotate(quat_conjugate(q), w)))
-        bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])
-        return cls(body, bc(x), bc(v), bc(q), bc(L), _time("State.create", time, x.dtype, shape))
+        bc = lambda a: jnp.broadcast_to(a, t.shape + a.shape[-1:])
+        return cls(body, bc(x), bc(v), bc(q), bc(L), t)
 
 
 @pytree_dataclass
@@ -336,31 +353,10 @@ class MatrixState(_RigidStateBase):
         _check_rotation("MatrixState", self.rotation)
 
     @classmethod
-    def create(
-        cls,
-        body: Body,
-        *,
-        position: Float[ArrayLike, "*B 3"] | None = None,
-        velocity: Float[ArrayLike, "*B 3"] | None = None,
-        orientation: Float[ArrayLike, "*B 4"] | Float[ArrayLike, "*B 3 3"] | None = None,
-        angular_velocity: Float[ArrayLike, "*B 3"] | None = None,
-        time: Float[ArrayLike, ""] = 0.0,
-    ) -> MatrixState:
-        """State from kinematic quantities, as :meth:`State.create`.
-
-        ``orientation`` is a unit quaternion ``[w, x, y, z]`` or a ``(3, 3)``
-        rotation matrix; ``angular_velocity`` is world-frame ``ω`` (rad/s).
-        """
-        body, x, v, o, w = _kinematics(body, position, velocity, orientation, angular_velocity)
-        if o.shape[-1:] == (4,):
-            _check_unit_quaternion("MatrixState.create", o)
-            R = quat_to_matrix(o)
-        else:
-            R = o
-        shape = _rigid_batch("MatrixState.create", body, x, v, w, rotation=R)
-        bc = lambda a: jnp.broadcast_to(a, shape + a.shape[-1:])
-        R = jnp.broadcast_to(R, shape + (3, 3))
-        return cls(body, bc(x), bc(v), R, bc(w), _time("MatrixState.create", time, x.dtype, shape))
+    def _from_kinematics(cls, body: Body, x: Array, v: Array, o: Array, w: Array, t: Array) -> MatrixState:
+        R = quat_to_matrix(o) if o.shape[-1:] == (4,) else o
+        bc = lambda a: jnp.broadcast_to(a, t.shape + a.shape[-1:])
+        return cls(body, bc(x), bc(v), jnp.broadcast_to(R, t.shape + (3, 3)), bc(w), t)
 
 
 @pytree_dataclass

@@ -236,7 +236,7 @@ def test_plotted_fit_rates_are_the_fitted_model(drag):
     import numpy as np
     from scipy.integrate import solve_ivp
 
-    from rbjax._cli_fit import fitted_rates
+    from rbjax._cli_plot import fitted_rates
 
     I = np.diag([1.0, 3.2, 4.1]) * 1e-4
     In = I / np.trace(I)

@@ -157,6 +157,21 @@ def test_batch_compiles_once_and_matches_single_fits():
 
 
 @pytest.mark.slow
+def test_a_batch_too_large_to_keep_its_jacobians_gets_the_same_result(monkeypatch):
+    # a batch keeps each solve's J for the covariance unless they would take more than
+    # _KEEP_J_BYTES; then it re-evaluates the model at each solution. The same J (the model at the
+    # same point), so the same result to rounding (1e-9 relative; the moments' σ are formed from
+    # an SVD of J, whose rounding differs with the order of the operations around it)
+    _, qs = _three_noisy_recordings()
+    kept = rb.fit_inertia(T_FAST, qs, segments=2)
+    monkeypatch.setattr(_solve, "_KEEP_J_BYTES", 0)
+    monkeypatch.setattr(_solve, "_JITS", {})  # a new program, not the cached one
+    again = rb.fit_inertia(T_FAST, qs, segments=2)
+    for name in ("inertia", "moment_std", "residuals", "iterations", "chi2"):
+        np.testing.assert_allclose(getattr(again, name), getattr(kept, name), rtol=1e-9, err_msg=name)
+
+
+@pytest.mark.slow
 def test_batch_members_report_their_own_iterations():
     # A vmapped solver loop runs until every member stops; each member's state and step
     # count must freeze when it converges. If the count were the batch's, all would equal

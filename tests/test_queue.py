@@ -2,7 +2,7 @@
 
 A toy member machine whose step counts and restarts are known in advance: member
 ``i`` needs ``need(i)`` steps per round and ``rounds(i)`` extra rounds, so each
-output can be checked exactly, whatever the slots, stages and round length.
+output can be checked exactly, whatever the slots, chunks and round length.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from rbjax.identification._queue import run_queue, stage_widths
+from rbjax.identification._queue import run_queue
 
 
 def need(i):
@@ -44,11 +44,19 @@ def _machine():
 
 
 @pytest.mark.parametrize(
-    ("n", "widths", "k"),
-    [(50, (16, 4), 3), (50, (16, 4, 1), 1), (7, (8, 2), 5), (1, (1,), 100), (40, (40,), 2)],
+    ("n", "slots", "chunk", "k", "retire"),
+    [
+        (50, 16, 4, 3, 4),
+        (50, 16, 4, 1, 3),  # retiring 3 at a time: 16 slots retire 2 at a time (whole chunks)
+        (50, 12, 8, 2, 4),  # 12 slots in chunks of 8: 16 slots, two whole chunks
+        (7, 8, 2, 5, 4),
+        (1, 1, 1, 100, 4),
+        (40, 40, 40, 2, 1),
+    ],
 )
-def test_each_member_gets_its_own_steps_and_rounds(n, widths, k):
-    out = jax.jit(lambda: run_queue(n, *_machine(), widths=widths, steps_per_round=k))()
+def test_each_member_gets_its_own_steps_and_rounds(n, slots, chunk, k, retire):
+    run = lambda: run_queue(n, *_machine(), slots=slots, chunk=chunk, steps_per_round=k, retire_chunk=retire)
+    out = jax.jit(run)()
     i = np.arange(n)
     np.testing.assert_array_equal(out["i"], i)  # every member once, in its own row
     expected = np.array([need(j) * (1 + rounds(j)) for j in i])
@@ -56,8 +64,15 @@ def test_each_member_gets_its_own_steps_and_rounds(n, widths, k):
     np.testing.assert_array_equal(out["round"], [int(rounds(j)) for j in i])
 
 
-def test_stage_widths_shrink_by_four_down_to_the_last():
-    assert stage_widths(1000) == (128, 32, 8)
-    assert stage_widths(100) == (100, 25, 6)
-    assert stage_widths(3) == (3,)
-    assert stage_widths(1) == (1,)
+def test_one_step_per_program():
+    # the member's step is what the fit's model compiles into: it must appear once in the program
+    # (not once per stage), whatever the slots and chunks
+    start, advance, running, retire = _machine()
+    calls = []
+
+    def counted(s):
+        calls.append(1)  # once per trace of the step
+        return advance(s)
+
+    jax.jit(lambda: run_queue(50, start, counted, running, retire, slots=32, chunk=8, steps_per_round=2)).lower()
+    assert len(calls) == 1

@@ -14,6 +14,7 @@ from __future__ import annotations
 import re
 
 import jax
+import jax.extend.core as jex
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -98,3 +99,78 @@ def test_solve_small_matches_numpy_and_pivots(n):
     np.testing.assert_allclose(X, np.linalg.solve(A, B), rtol=1e-10 * np.linalg.cond(A))
     hlo = solve.lower(jnp.asarray(A), jnp.asarray(B[None].repeat(2, 0))).compile().as_text()
     assert not re.search(r'custom_call_target="lapack', hlo)
+
+
+# jax primitives that XLA:CPU runs as LAPACK custom calls (det is an lu)
+_LAPACK = {"eigh", "svd", "lu", "cholesky", "triangular_solve", "qr", "householder_product", "schur", "eig"}
+
+
+def _sub_jaxprs(eqn):
+    for p in eqn.params.values():
+        for v in p if isinstance(p, (tuple, list)) else (p,):
+            if isinstance(v, jex.ClosedJaxpr):
+                yield v.jaxpr
+            elif isinstance(v, jex.Jaxpr):
+                yield v
+
+
+def _calls_lapack(eqn) -> bool:
+    return eqn.primitive.name in _LAPACK or any(_calls_lapack(e) for j in _sub_jaxprs(eqn) for e in j.eqns)
+
+
+def _unordered_lapack_pairs(jaxpr, where="top"):
+    """Pairs of LAPACK-calling equations of ``jaxpr`` (and of each nested jaxpr) that no data
+    dependency orders: XLA may run them at the same time."""
+    producer = {}
+    deps = []  # the equations each equation depends on, transitively
+    for k, eqn in enumerate(jaxpr.eqns):
+        d = set()
+        for v in eqn.invars:
+            if isinstance(v, jex.Var) and v in producer:
+                j = producer[v]
+                d |= deps[j] | {j}
+        deps.append(d)
+        for v in eqn.outvars:
+            producer[v] = k
+    calls = [k for k, e in enumerate(jaxpr.eqns) if _calls_lapack(e)]
+    bad = [
+        (where, jaxpr.eqns[a].primitive.name, jaxpr.eqns[b].primitive.name)
+        for i, a in enumerate(calls)
+        for b in calls[i + 1 :]
+        if a not in deps[b]
+    ]
+    for k, eqn in enumerate(jaxpr.eqns):
+        for j in _sub_jaxprs(eqn):
+            bad += _unordered_lapack_pairs(j, f"{where}/{eqn.primitive.name}[{k}]")
+    return bad
+
+
+def test_a_batched_fit_runs_its_lapack_calls_one_after_another(monkeypatch):
+    # Batched over a fit's members, each LAPACK call (eigh, SVD, det) waits for its batch on
+    # XLA's intra-op thread pool; two at once can starve each other on a 2-core machine and hang
+    # the fit (reproduced with two batched solves, see cholesky_solve). The result pass chains
+    # them: in the batch program's jaxpr every two of them are ordered by a data dependency.
+    import rbjax as rb
+    from rbjax.identification import _solve
+
+    seen = []
+    real = _solve.fit_batch_jit
+
+    def recording(backend, small=False):
+        jitted = real(backend, small)
+
+        def call(*args, **kwargs):
+            seen.append((args, kwargs))
+            return jitted(*args, **kwargs)
+
+        return call
+
+    monkeypatch.setattr(_solve, "fit_batch_jit", recording)
+    t = np.linspace(0.0, 2.0, 101)  # a tumble near the intermediate axis: every axis excited
+    state = rb.State.create(rb.Body(1.0, np.diag([1.0, 2.0, 2.6])), angular_velocity=[0.3, 3.0, 0.4])
+    q = np.asarray(rb.torque_free(state, t).orientation)
+    rb.fit_inertia(t, np.stack([q, q]), segments=2)  # a batch of two recordings; joins: two more SVDs
+    ((args, kwargs),) = seen
+    jaxpr = jax.make_jaxpr(lambda *a: _solve._fit_batch(*a, **kwargs))(*args).jaxpr
+    assert sum(_calls_lapack(e) for e in jaxpr.eqns), "the check found no LAPACK call to order"
+    assert not _unordered_lapack_pairs(jaxpr)

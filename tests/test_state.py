@@ -66,6 +66,13 @@ def test_matrix_state_agrees_with_state(particle_body):
     back = rb.to_state(rb.to_matrix_state(s))
     assert float(rb.quat_angle(back.orientation, s.orientation)) < 1e-7  # arccos-free angle, round-off level
     np.testing.assert_allclose(back.angular_momentum, s.angular_momentum, rtol=TOL)
+    # either state from a rotation matrix: the same state as from its quaternion
+    R = _kinematics(q, [0, 0, 0])[0]  # scipy's matrix, independent of rbjax's quat_to_matrix
+    from_R = rb.State.create(body, orientation=R, angular_velocity=[0.5, -1.0, 2.0], velocity=[1.0, 0, 0])
+    assert float(rb.quat_angle(from_R.orientation, s.orientation)) < 1e-7
+    np.testing.assert_allclose(from_R.angular_momentum, s.angular_momentum, rtol=TOL, atol=TOL)
+    ms_from_R = rb.MatrixState.create(body, orientation=R, angular_velocity=[0.5, -1.0, 2.0])
+    np.testing.assert_allclose(ms_from_R.rotation, ms.rotation, atol=TOL)
 
 
 def test_particles_angular_momentum_is_r_cross_p():
@@ -127,11 +134,14 @@ def test_pytrees_work_under_jit_vmap_grad():
         (dict(position=[np.nan, 0, 0]), "finite"),
         (dict(position=[0.0, 0.0]), "shape"),
         (dict(angular_velocity=[0.0, 0.0, 1.0, 0.0]), "broadcast|shape"),
+        (dict(orientation=[1.0, 0.0, 0.0]), r"orientation must end in \(4,\) .* or \(3, 3\)"),
+        (dict(orientation=np.diag([1.0, 1.0, -1.0])), "orientation must be a proper rotation matrix"),
     ],
 )
-def test_invalid_states_raise(kwargs, match):
+@pytest.mark.parametrize("cls", [rb.State, rb.MatrixState])
+def test_invalid_states_raise(cls, kwargs, match):
     with pytest.raises(ValueError, match=match):
-        rb.State.create(rb.sphere(1.0, 1.0), **kwargs)
+        cls.create(rb.sphere(1.0, 1.0), **kwargs)
 
 
 def test_invalid_matrix_and_particles_raise():

@@ -29,12 +29,18 @@ RBJAX_INLINE void quat_rotate_back(const T q[4], const T a[3], T out[3]) {
   quat_rotate(conj, a, out);
 }
 
+// out_i = Σ_k A[i·kRow + k·kCol] a_k, summed left to right: A v for a row-major 3x3 A
+// with (kRow, kCol) = (3, 1), Aᵀ v with (1, 3).
+template <int kRow, int kCol, typename T>
+RBJAX_INLINE void strided_matvec3(const T A[9], const T a[3], T out[3]) {
+  #pragma GCC unroll 16
+  for (int i = 0; i < 3; ++i) out[i] = A[i * kRow] * a[0] + A[i * kRow + kCol] * a[1] + A[i * kRow + 2 * kCol] * a[2];
+}
+
 // A v for a row-major 3x3 A, as rbjax._math.matvec3.
 template <typename T>
 RBJAX_INLINE void matvec3(const T A[9], const T a[3], T out[3]) {
-  out[0] = A[0] * a[0] + A[1] * a[1] + A[2] * a[2];
-  out[1] = A[3] * a[0] + A[4] * a[1] + A[5] * a[2];
-  out[2] = A[6] * a[0] + A[7] * a[1] + A[8] * a[2];
+  strided_matvec3<3, 1>(A, a, out);
 }
 
 // The matrix of quat_rotate(q, ·) for any q (unit or not, as the stages of RK4 see it):
@@ -58,9 +64,7 @@ RBJAX_INLINE void rotation(const T q[4], T R[9]) {
 // Rᵀ a for a row-major 3x3 R.
 template <typename T>
 RBJAX_INLINE void matvec3_t(const T A[9], const T a[3], T out[3]) {
-  out[0] = A[0] * a[0] + A[3] * a[1] + A[6] * a[2];
-  out[1] = A[1] * a[0] + A[4] * a[1] + A[7] * a[2];
-  out[2] = A[2] * a[0] + A[5] * a[1] + A[8] * a[2];
+  strided_matvec3<1, 3>(A, a, out);
 }
 
 // ω = R I_L⁻¹ Rᵀ L, as rbjax._dynamics.omega_world computes it with two quat_rotates and
@@ -210,6 +214,19 @@ RBJAX_INLINE void derivative(const Consts<T>& k, int j, const T y[13], T d[13]) 
   for (int c = 0; c < 4; ++c) d[6 + c] = T(0.5) * p[c];
 }
 
+// One stage of the classical RK4 tableau over the moving components c of y:
+// acc = b k (the first stage) or acc + b k, and the next stage's point st = y + dt (a k).
+template <typename T, bool kFirst, bool kForces>
+RBJAX_INLINE void rk4_stage(int first, int moving, T b, T a, T dt, const T y[13], const T kk[13], T acc[13], T st[13]) {
+  #pragma GCC unroll 16
+  for (int c = first; c < moving; ++c) {
+    if (kForces || c >= 6) {
+      acc[c] = kFirst ? b * kk[c] : acc[c] + b * kk[c];
+      st[c] = y[c] + dt * (a * kk[c]);
+    }
+  }
+}
+
 // `steps` classical RK4 steps of a block (rbjax/_methods/rk4.py through
 // explicit_rk.py): stage i at y + dt (a_i k_{i-1}), the result y + dt Σ_i b_i k_i
 // summed left to right (accumulated as each stage's k is known, the same sum), then q
@@ -234,29 +251,11 @@ void rk4_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
       #pragma GCC unroll 16
       for (int c = 0; c < 13; ++c) st[c] = y[c];
       derivative<T, kForces, kQuad>(k, j, y, kk);
-      #pragma GCC unroll 16
-      for (int c = first; c < moving; ++c) {
-        if (kForces || c >= 6) {
-          acc[c] = sixth * kk[c];
-          st[c] = y[c] + dt * (half * kk[c]);
-        }
-      }
+      rk4_stage<T, true, kForces>(first, moving, sixth, half, dt, y, kk, acc, st);
       derivative<T, kForces, kQuad>(k, j, st, kk);
-      #pragma GCC unroll 16
-      for (int c = first; c < moving; ++c) {
-        if (kForces || c >= 6) {
-          acc[c] = acc[c] + third * kk[c];
-          st[c] = y[c] + dt * (half * kk[c]);
-        }
-      }
+      rk4_stage<T, false, kForces>(first, moving, third, half, dt, y, kk, acc, st);
       derivative<T, kForces, kQuad>(k, j, st, kk);
-      #pragma GCC unroll 16
-      for (int c = first; c < moving; ++c) {
-        if (kForces || c >= 6) {
-          acc[c] = acc[c] + third * kk[c];
-          st[c] = y[c] + dt * kk[c];
-        }
-      }
+      rk4_stage<T, false, kForces>(first, moving, third, T(1), dt, y, kk, acc, st);
       derivative<T, kForces, kQuad>(k, j, st, kk);
       #pragma GCC unroll 16
       for (int c = first; c < moving; ++c) {

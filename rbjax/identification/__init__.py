@@ -4,7 +4,6 @@ One concept per private module, so the simulator's core stays small:
 
 * :mod:`._checks`: data and option checks, before tracing;
 * :mod:`._linear`: the linear least-squares start and the identifiability check;
-* :mod:`._rotations_np`: NumPy quaternion helpers;
 * :mod:`._problem`: noise levels, segment defaults, recordings packed into segments;
 * :mod:`._sensors`: sensor models (gyro frame, accelerometer lever arm);
 * :mod:`._robust`: robust losses by iteratively reweighted least squares;

@@ -10,9 +10,9 @@ import jax
 import jax.core
 import numpy as np
 
+from .._rotations_np import CONJ, np_qlog, np_qmul
 from .._state import quat_tolerance
 from ._robust import LOSSES
-from ._rotations_np import CONJ, np_qlog, np_qmul
 
 
 def _positive_finite(name: str, value, remedy: str) -> float:

@@ -13,8 +13,8 @@ import numpy as np
 from jax import Array
 from jaxtyping import Float
 
+from .._rotations_np import np_qmat
 from .._typing import ArrayLike
-from ._rotations_np import np_qmat
 
 _ENTRIES = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
 

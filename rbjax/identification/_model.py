@@ -309,6 +309,20 @@ def model_residuals(
     return jnp.concatenate([r_seg.reshape(-1), r_c.reshape(-1)]), J
 
 
+def model_shapes(y, data, *, joins=None, **_):
+    """The shapes of :func:`model_residuals`' ``(r, J)`` as ``jax.ShapeDtypeStruct``, without tracing it.
+
+    ``S`` segments of ``B`` sensor blocks of ``K + 1`` samples give ``3 S B (K+1)``
+    data rows, and each join 6 more; ``J`` has one column per entry of ``y``.
+    The solver sizes its slots from these: ``jax.eval_shape`` of the model
+    would trace the whole flow once more just to learn them.
+    """
+    S, B, K1 = data["seg"]["rw"].shape
+    n_joins = 0 if S == 1 else S - 1 if joins is None else len(joins)
+    m = 3 * S * B * K1 + 6 * n_joins
+    return jax.ShapeDtypeStruct((m,), y.dtype), jax.ShapeDtypeStruct((m, y.shape[0]), y.dtype)
+
+
 def drag_coefficients(y, scale_fixed, layout: Layout):
     """The fitted drag coefficients (``layout``'s ``drag`` block of ``y``) padded to ``(c₁, c₂)``, in reported units.
 
@@ -324,8 +338,7 @@ def drag_coefficients(y, scale_fixed, layout: Layout):
     return c / jnp.trace(_inertia(y[:5], scale_fixed))
 
 
-def normalised_moments(y, scale_fixed):
+def normalised_inertia(y, scale_fixed):
+    """The fitted inertia ``(3, 3)`` of parameter vector ``y``: ``I``, or ``I / tr I`` without torques."""
     I = _inertia(y[: 6 if scale_fixed else 5], scale_fixed)
-    if not scale_fixed:
-        I = I / jnp.trace(I)
-    return I, jnp.linalg.eigvalsh(I)
+    return I if scale_fixed else I / jnp.trace(I)

@@ -16,6 +16,7 @@ import numpy as np
 
 from .. import _methods
 from .._body import Body
+from .._rotations_np import np_increments, np_qmat, rate_estimate
 from .._state import State
 from ._checks import check_inputs, gyro_frame_check
 from ._layout import Layout
@@ -27,7 +28,6 @@ from ._linear import (
     np_params_from_inertia,
     skew,
 )
-from ._rotations_np import np_increments, np_qmat, rate_estimate
 
 
 def _mad_sigma(x: np.ndarray) -> np.ndarray:

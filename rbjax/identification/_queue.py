@@ -6,13 +6,15 @@ stops. On short recordings that is most of the work: measured on 100 random
 mean of 30, but 200 for the slowest (near-symmetric tops creeping along a
 flat valley), so the vmapped solve did 6.7x the necessary steps.
 
-Here ``C`` slots hold ``C`` members at a time. Every round steps all slots
-at most ``K`` times (a slot that is done idles), then retires the slots whose
-member stopped, writes their outputs, and refills the slots from the queue.
-When the queue is empty and few members are left, the survivors are packed
-into a narrower stage (``C / 4``) so that the stragglers are not stepped as
-a wide batch. Everything runs inside one compiled program with static
-shapes: one ``while_loop`` per stage.
+Here ``C`` slots hold ``C`` members at a time. Every round steps the active
+slots at most ``K`` times, ``W`` at a time (the active ones gathered into
+chunks of ``W``; a slot that is done idles until the chunk is), then retires
+the slots whose member stopped, ``R`` at a time, writes their outputs, and
+refills the slots from the queue. A round costs ``⌈active / W⌉`` chunks, so
+the stragglers at the end are not stepped as a wide batch. Everything runs
+inside one compiled program with static shapes, and each of the functions
+below appears in it once: the member's step (the fit's model) is compiled
+once, whatever the batch.
 
 Members are described by four functions of one member (lifted with ``vmap``):
 
@@ -40,14 +42,6 @@ def _select(mask, a, b):
     return jax.tree.map(lambda x, y: jnp.where(mask.reshape(mask.shape + (1,) * (x.ndim - 1)), x, y), a, b)
 
 
-def stage_widths(n: int, first: int = 128, last: int = 4) -> tuple[int, ...]:
-    """Slot counts of the stages: ``min(n, first)``, then a quarter each time, down to ``last``."""
-    widths = [min(n, first)]
-    while widths[-1] // 4 >= last:
-        widths.append(widths[-1] // 4)
-    return tuple(widths)
-
-
 def run_queue(
     n: int,
     start: Callable,
@@ -55,10 +49,19 @@ def run_queue(
     running: Callable,
     retire: Callable,
     *,
-    widths: tuple[int, ...],
+    slots: int,
+    chunk: int,
     steps_per_round: int,
+    retire_chunk: int = 4,
 ):
-    """Outputs of ``n`` members (each leaf with a leading ``n`` axis); see the module docstring."""
+    """Outputs of ``n`` members (each leaf with a leading ``n`` axis); see the module docstring.
+
+    ``slots``: at most ``C`` members in flight; ``chunk``: ``W``, the members stepped
+    together; ``retire_chunk``: ``R``, the members retired together.
+    """
+    W = min(chunk, n, slots)
+    C = W * -(-min(n, slots) // W)  # whole chunks: a chunk never overlaps the next
+    R = max(r for r in range(1, min(retire_chunk, C) + 1) if C % r == 0)
     v_start, v_running, v_retire = jax.vmap(start), jax.vmap(running), jax.vmap(retire)
 
     def k_steps(slot, active):
@@ -67,51 +70,50 @@ def run_queue(
 
         return jax.lax.while_loop(cond, lambda c: (advance(c[0]), c[1] + 1), (slot, 0))[0]
 
-    C = widths[0]
     idx = jnp.arange(C)
-    slots = v_start(jnp.minimum(idx, n - 1))
+    first = v_start(jnp.minimum(idx, n - 1))
     member = jnp.where(idx < n, idx, n)  # n: no member (writes go to a spare row)
-    active = idx < n
-    out_shape = jax.eval_shape(lambda s: retire(s)[2], jax.tree.map(lambda a: a[0], slots))
+    one = jax.tree.map(lambda a: a[0], first)
+    out_shape = jax.eval_shape(lambda s: retire(s)[2], one)
     outputs = jax.tree.map(lambda s: jnp.zeros((n + 1,) + s.shape, s.dtype), out_shape)
-    carry = (slots, member, active, jnp.asarray(min(C, n)), outputs)
+    take = lambda tree, at: jax.tree.map(lambda a: a[at], tree)
+    put = lambda tree, at, sub: jax.tree.map(lambda a, b: a.at[at].set(b), tree, sub)
 
-    for k, C in enumerate(widths):
-        if k:  # pack the survivors into the first C slots (stable: active ones first)
-            slots, member, active, queued, outputs = carry
-            keep = jnp.argsort(~active, stable=True)[:C]
-            slots = jax.tree.map(lambda a: a[keep], slots)  # noqa: B023
-            carry = (slots, member[keep], active[keep], queued, outputs)
-        narrower = widths[k + 1] if k + 1 < len(widths) else 0
+    def step_chunk(k, c):  # the k-th W of the active slots (active ones first)
+        slots, active, order = c
+        at = jax.lax.dynamic_slice_in_dim(order, k * W, W)
+        return put(slots, at, jax.vmap(k_steps)(take(slots, at), active[at])), active, order
 
-        def cond(c, narrower=narrower):
-            _, _, active, queued, _ = c
-            return jnp.any(active) & ((queued < n) | (jnp.sum(active) > narrower))
+    def retire_chunk_(k, c):  # the k-th R of the slots whose member stopped
+        slots, member, active, queued, outputs, order, finished = c
+        pick = jax.lax.dynamic_slice_in_dim(order, k * R, R)
+        picked = finished[pick]
+        sub = take(slots, pick)
+        again, restarted, out = v_retire(sub)
+        done = picked & ~again
+        rows = jnp.where(done, member[pick], n)
+        outputs = jax.tree.map(lambda buf, o: buf.at[rows].set(o), outputs, out)
+        new = queued + jnp.cumsum(done) - 1  # queue positions for the freed slots
+        refill = done & (new < n)
+        sub = _select(picked & again, restarted, sub)
+        sub = _select(refill, v_start(jnp.clip(new, 0, n - 1)), sub)
+        slots = put(slots, pick, sub)
+        member = member.at[pick].set(jnp.where(refill, new, jnp.where(done, n, member[pick])))
+        active = active.at[pick].set((active[pick] & ~done) | refill)
+        queued = jnp.minimum(queued + jnp.sum(done), n)
+        return slots, member, active, queued, outputs, order, finished
 
-        retired = max(C // 4, 1)
+    def body(c):
+        slots, member, active, queued, outputs = c
+        chunks = (jnp.sum(active) + W - 1) // W
+        order = jnp.argsort(~active, stable=True)
+        slots = jax.lax.fori_loop(0, chunks, step_chunk, (slots, active, order))[0]
+        finished = active & ~v_running(slots)
+        order = jnp.argsort(~finished, stable=True)
+        c = (slots, member, active, queued, outputs, order, finished)
+        c = jax.lax.fori_loop(0, (jnp.sum(finished) + R - 1) // R, retire_chunk_, c)
+        return c[:5]
 
-        def body(c, R=retired):
-            slots, member, active, queued, outputs = c
-            slots = jax.vmap(k_steps)(slots, active)
-            finished = active & ~v_running(slots)
-            # up to R stopped slots are retired and refilled per round (any others idle until the
-            # next): retiring and restarting every slot, then selecting, moved the whole batch's
-            # state several times a round, as much as two solver steps at C = 128
-            pick = jnp.argsort(~finished, stable=True)[:R]
-            picked = finished[pick]
-            sub = jax.tree.map(lambda a: a[pick], slots)
-            again, restarted, out = v_retire(sub)
-            done = picked & ~again
-            rows = jnp.where(done, member[pick], n)
-            outputs = jax.tree.map(lambda buf, o: buf.at[rows].set(o), outputs, out)
-            new = queued + jnp.cumsum(done) - 1  # queue positions for the freed slots
-            refill = done & (new < n)
-            sub = _select(picked & again, restarted, sub)
-            sub = _select(refill, v_start(jnp.clip(new, 0, n - 1)), sub)
-            slots = jax.tree.map(lambda a, b: a.at[pick].set(b), slots, sub)
-            member = member.at[pick].set(jnp.where(refill, new, jnp.where(done, n, member[pick])))
-            active = active.at[pick].set((active[pick] & ~done) | refill)
-            return slots, member, active, jnp.minimum(queued + jnp.sum(done), n), outputs
-
-        carry = jax.lax.while_loop(cond, body, carry)
+    carry = (first, member, idx < n, jnp.asarray(min(C, n)), outputs)
+    carry = jax.lax.while_loop(lambda c: jnp.any(c[2]), body, carry)
     return jax.tree.map(lambda a: a[:n], carry[4])

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -11,7 +13,7 @@ from jaxtyping import Bool, Float, Int
 from .._math import quat_exp, quat_multiply
 from .._pytree import field, pytree_dataclass, static_field
 from ._layout import Layout
-from ._model import drag_coefficients, normalised_moments, unpack
+from ._model import drag_coefficients, normalised_inertia, unpack
 from ._solver import solve_small
 from ._tails import chi2_sf, f_sf
 
@@ -286,6 +288,17 @@ def _variances(J, n_rows, n_cont, row_s2, F):
     return jnp.where(unbounded, jnp.inf, var)
 
 
+def _after(done: Any, x: Array) -> Array:
+    """``x``, not to be used before ``done`` is computed: orders the result pass's LAPACK calls.
+
+    Batched over a batch's members, each eigh, SVD or det is a LAPACK call that waits for its
+    batch on XLA's intra-op thread pool; two independent ones may run at once, and on a 2-thread
+    pool two such waits starve each other (a hang, reproduced with two batched solves). Chained
+    through an optimisation barrier, one runs after the other.
+    """
+    return jax.lax.optimization_barrier((done, x))[1]
+
+
 def consistency(stats: dict) -> np.ndarray:
     """The consistency test's p-value ``(*N,)`` (NumPy) from :func:`summarise`'s per-sensor statistics.
 
@@ -344,15 +357,16 @@ def summarise(
     dof_k = n_k - p_eff * n_k / n_eff
     s2_k = chi2_k / dof_k  # residual variance per sensor, in units of its noise level squared
     row_s2 = jnp.broadcast_to(s2_k[None, :, None, None], r_kept.shape).reshape(-1)
-    I, moments = normalised_moments(y, scale_fixed)
+    I = normalised_inertia(y, scale_fixed)
+    moments = jnp.linalg.eigvalsh(I)
     # dλ_k = v_kᵀ dI v_k with the eigenvectors held fixed: finite for equal moments too (eigvalsh's
     # own derivative is not), where it is the first-order change along the returned basis
-    _, V = jnp.linalg.eigh(I)
+    _, V = jnp.linalg.eigh(_after(moments, I))
     V = jax.lax.stop_gradient(V)
-    G = jax.jacfwd(lambda yy: jnp.einsum("ik,ij,jk->k", V, normalised_moments(yy, scale_fixed)[0], V))(y)
+    G = jax.jacfwd(lambda yy: jnp.einsum("ik,ij,jk->k", V, normalised_inertia(yy, scale_fixed), V))(y)
     c_drag = lambda yy: drag_coefficients(yy, scale_fixed, layout)
     G_drag = jax.jacfwd(c_drag)(y)
-    var = _variances(J, n_rows, n_cont, row_s2, jnp.concatenate([G, jnp.eye(p, dtype=y.dtype), G_drag]))
+    var = _variances(_after(V, J), n_rows, n_cont, row_s2, jnp.concatenate([G, jnp.eye(p, dtype=y.dtype), G_drag]))
     var, var_drag = var[:-2], var[-2:]
     # on the edge of the consistent set (I1 + I2 ≈ I3) the log-Cholesky map flattens: J's inertia
     # columns and G both vanish along the flat direction, and a rounding-level cut would read
@@ -361,9 +375,9 @@ def summarise(
     # where the flat direction is a small singular value of J_c with an O(1) G_c: σ finite or inf
     n_I = layout.inertia
     pick = jnp.array([0, 4, 8, 1, 2, 5]) if scale_fixed else jnp.array([0, 4, 1, 2, 5])
-    c_of = lambda th: normalised_moments(jnp.concatenate([th, y[n_I:]]), scale_fixed)[0].reshape(-1)[pick]
+    c_of = lambda th: normalised_inertia(jnp.concatenate([th, y[n_I:]]), scale_fixed).reshape(-1)[pick]
     M = jax.jacfwd(c_of)(y[:n_I])  # (n_I, n_I)
-    J_c = jnp.concatenate([solve_small(M.T, J[:, :n_I].T).T, J[:, n_I:]], 1)
+    J_c = _after(var, jnp.concatenate([solve_small(M.T, J[:, :n_I].T).T, J[:, n_I:]], 1))
 
     def inertia_of_c(c):
         full = jnp.zeros(9, y.dtype).at[pick].set(c).reshape(3, 3)
@@ -376,7 +390,7 @@ def summarise(
     var_c = jnp.where(jnp.isnan(var_c), jnp.inf, var_c)  # ∂c/∂θ singular to rounding
     on_edge = (moments[0] + moments[1] - moments[2]) < _BOUNDARY_RTOL * jnp.sum(moments)
     std, param_std = jnp.sqrt(jnp.where(on_edge, var_c, var[:3])), jnp.sqrt(var[3:])
-    _, axes = jnp.linalg.eigh(I)
+    _, axes = jnp.linalg.eigh(_after(var_c, I))
     axes = axes * jnp.sign(jnp.linalg.det(axes))
     _, P = unpack(y, layout.shared, S)
     P_std = param_std[layout.shared :].reshape(S, 6)

@@ -18,9 +18,9 @@ import numpy as np
 from .._pytree import new_unchecked
 from . import _robust
 from ._checks import check_arrays, check_options
-from ._model import model_residuals
+from ._model import model_residuals, model_shapes
 from ._problem import prepare
-from ._queue import run_queue, stage_widths
+from ._queue import run_queue
 from ._result import CONSISTENCY_ALPHA, FitResult, consistency, summarise
 from ._solver import LMMember
 
@@ -90,8 +90,13 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
     """
     opts = dict(model_opts)
     member = lambda tree, i: jax.tree.map(lambda a: a[i], tree)
-    # one recording keeps J in its slot, so the model is compiled once (see `summary`)
-    lm = LMMember(functools.partial(model_residuals, **opts), rtol, atol, max_steps, keep_jacobian=unbatch)
+    model, shapes = (functools.partial(f, **opts) for f in (model_residuals, model_shapes))
+    _, J = shapes(y0[0], member(data, 0))
+    # every solve keeps J at its accepted point where the batch's J fit in _KEEP_J_BYTES: then the
+    # covariance needs no second model in the program (its compile), see `summary`
+    n, C = y0.shape[0], min(_SLOTS, y0.shape[0])
+    keep = unbatch or (n + 1 + C) * J.size * J.dtype.itemsize <= _KEEP_J_BYTES
+    lm = LMMember(model, rtol, atol, max_steps, keep_jacobian=keep, shapes=shapes)
     kw = {k: opts[k] for k in _SUMMARY_OPTS}
     outlier_weight = _robust.outlier_weight(loss)
     zero = jnp.zeros((), jnp.int32)
@@ -116,11 +121,10 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
     def summary(sol, d):
         """FitResult fields at the solution, with its final weights.
 
-        A batch's slots keep ``JᵀJ``, not ``J`` (:class:`._solver.LMMember`), and
-        the covariance is formed from ``J``'s SVD, so there the model is
-        re-evaluated at the solution. A single solve keeps its ``J``: a second
-        model in the program doubled the first call's compile (4.2 → 6.5 s on
-        4 s @ 1 kHz).
+        From the solve's kept ``J``; without it (a batch whose ``J`` would not
+        fit) the model is evaluated again at the solution, a second copy of it
+        in the program. (The covariance is formed from ``J``'s SVD; ``JᵀJ``
+        would square its condition number.)
         """
         d = {**d, "seg": {**d["seg"], "rw": sol["rw"]}}
         r, J = (sol["r"], sol["J"]) if "J" in sol else lm.model(sol["y"], d)
@@ -129,16 +133,17 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
 
     if not unbatch:
         sols = run_queue(
-            y0.shape[0],
+            n,
             lambda i: start(y0[i], member(data, i)),
             lm.advance,
             lm.running,
             retire,
-            widths=stage_widths(y0.shape[0], first=_SLOTS),
+            slots=_SLOTS,
+            chunk=_CHUNK,
             steps_per_round=_STEPS_PER_ROUND,
         )
-        # in slices of the queue's width: the memory of one model evaluation per slice
-        return jax.lax.map(lambda a: summary(*a), (sols, data), batch_size=min(_SLOTS, y0.shape[0]))
+        # in slices: the memory of one model evaluation (if any) per slice, few LAPACK calls
+        return jax.lax.map(lambda a: summary(*a), (sols, data), batch_size=C)
     # one recording: no queue (and no vmap, whose batching of the solver's loops doubles tracing)
 
     def body(c):
@@ -153,9 +158,12 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
 _SUMMARY_OPTS = ("scale_fixed", "use_rates", "use_orientations", "layout")
 # Levenberg–Marquardt steps per round of the queue between retiring and refilling slots
 _STEPS_PER_ROUND = 4
-# the queue's width: per recording, the model of 64 slots of 1 s @ 200 Hz was 1.25-1.5x cheaper
-# than that of 128 (the flow's working set stays in cache), and narrower ones pay fixed costs
+# the queue's width (members in flight, each slot keeping its J) and the members stepped together:
+# per recording, the model of 1 s @ 200 Hz costs about the same at 4 to 64 at once
 _SLOTS = 64
+_CHUNK = 16
+# the most memory the kept Jacobians of a batch may take (the slots' and the solutions')
+_KEEP_J_BYTES = 256 * 2**20
 
 
 def fit_regular(times, arrays, options) -> FitResult:

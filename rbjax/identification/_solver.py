@@ -41,6 +41,8 @@ fits stopped within 200 steps, with 98–99% of the moments within 3σ
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 
@@ -135,21 +137,24 @@ class LMMember:
     (trial), at ``y`` the residuals ``r``, ``G = JᵀJ`` and ``g = Jᵀr``,
     ``step_size``, ``first``, ``steps``, ``terminate`` and ``ok`` (every
     iterate finite). ``J`` itself is kept only with ``keep_jacobian`` (then
-    as ``J``, at ``y``): the step needs only ``G`` and ``g``, and the slots of
-    a batch are carried through loops and selected every step, where an
-    ``(m, n)`` matrix per member was most of the memory traffic. A single
-    solve keeps it so that its caller can form the covariance without
-    evaluating (and compiling) the model a second time. The loop belongs to
+    as ``J``, at ``y``): the step needs only ``G`` and ``g``, but with ``J``
+    the caller can form the covariance without evaluating (and compiling) the
+    model a second time, at the cost of an ``(m, n)`` matrix per slot carried
+    through the loops. The loop belongs to
     the caller, which may stop, move and restart members one by one.
+    ``shapes(y, data)``: ``model``'s output shapes (``jax.ShapeDtypeStruct``);
+    default ``jax.eval_shape`` of it, which traces the model once more.
     """
 
-    def __init__(self, model, rtol: float, atol: float, max_steps: int, keep_jacobian: bool = False):
+    def __init__(self, model, rtol: float, atol: float, max_steps: int, keep_jacobian: bool = False, shapes=None):
         self.model, self.rtol, self.atol, self.max_steps = model, rtol, atol, max_steps
         self.keep_jacobian = keep_jacobian
+        # (y, data) -> the shapes of model(y, data), if known without tracing the model
+        self.shapes = shapes or functools.partial(jax.eval_shape, model)
 
     def start(self, y, data):
         """A fresh solve from ``y``; ``r``, ``G`` and ``g`` are filled in by the first step."""
-        r, J = jax.eval_shape(self.model, y, data)
+        r, J = self.shapes(y, data)
         n = y.shape[0]
         kept = {"J": jnp.zeros(J.shape, J.dtype)} if self.keep_jacobian else {}
         return dict(

@@ -1,26 +1,21 @@
-"""NumPy quaternion helpers for the identification's data side (before tracing).
+"""NumPy quaternion helpers for host-side code: the identification's data side (before tracing)
+and the animation.
 
-Plain NumPy: eager ``jnp`` calls would compile once per new shape. Quaternions
-``[w, x, y, z]``, body to world.
+Plain NumPy: eager ``jnp`` calls would compile once per new shape. The product and the
+rotation matrix are :mod:`rbjax._math`'s formulas (on components), stacked with NumPy.
+Quaternions ``[w, x, y, z]``, body to world.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from ._math import hamilton, rotation_rows
+
 
 def np_qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    pw, px, py, pz = np.moveaxis(p, -1, 0)
-    qw, qx, qy, qz = np.moveaxis(q, -1, 0)
-    return np.stack(
-        [
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        ],
-        -1,
-    )
+    """``p ⊗ q`` of ``(..., 4)`` arrays (:func:`rbjax._math.hamilton`)."""
+    return np.stack(hamilton(np.moveaxis(p, -1, 0), np.moveaxis(q, -1, 0)), -1)
 
 
 def np_qlog(q: np.ndarray) -> np.ndarray:
@@ -31,15 +26,8 @@ def np_qlog(q: np.ndarray) -> np.ndarray:
 
 
 def np_qmat(q: np.ndarray) -> np.ndarray:
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
+    """``R(q)`` ``(..., 3, 3)`` of unit quaternions ``(..., 4)`` (:func:`rbjax._math.rotation_rows`)."""
+    return np.stack([np.stack(row, -1) for row in rotation_rows(np.moveaxis(q, -1, 0))], -2)
 
 
 CONJ = np.array([1.0, -1.0, -1.0, -1.0])
