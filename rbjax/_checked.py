@@ -22,7 +22,6 @@ without checks.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
 from typing import Any
 
 import equinox as eqx
@@ -31,6 +30,7 @@ import jax.core
 import jax.numpy as jnp
 import numpy as np
 
+from ._methods import Method
 from ._pytree import core_ndim_of
 from ._quantities import kinetic_energy
 from ._state import MatrixState, State, quat_tolerance
@@ -171,18 +171,15 @@ def after_save(rec: dict, state: Any, step: Any, checks: Checks, steps: int) -> 
     return {**rec, "emax": jnp.maximum(emax, energy)}
 
 
-def _advice(method: str | Callable[..., Any]) -> str:
+def _advice(method: Method) -> str:
     """What to try, with the method's measured stability limit where it has one."""
-    from . import _methods
-
-    m = _methods.available().get(method) if isinstance(method, str) else None
-    note = f" ({m.failure_note})" if m is not None and m.failure_note else ""
-    limits = {k: v for k, v in ((m.stable_dt_omega or {}) if m else {}).items() if np.isfinite(v)}
+    note = f" ({method.failure_note})" if method.failure_note else ""
+    limits = {k: v for k, v in (method.stable_dt_omega or {}).items() if np.isfinite(v)}
     if not limits:
-        return f"Method {method!r}{note}: try a smaller dt or a more stable method"
+        return f"Method {method.name!r}{note}: try a smaller dt or a more stable method"
     where = " / ".join(f"{v:g} ({k})" for k, v in limits.items())
     return (
-        f"Method {method!r} diverges beyond dt·|ω| ≈ {where} (measured, 1000 torque-free steps; see "
+        f"Method {method.name!r} diverges beyond dt·|ω| ≈ {where} (measured, 1000 torque-free steps; see "
         'rbjax.methods()): keep dt·|ω| well below that, or use "splitting" (stable at any dt)'
     )
 
@@ -195,7 +192,7 @@ class _Messages:
     hashable (equinox treats it as static) and never materialised.
     """
 
-    method: str | Callable[..., Any]
+    method: Method
     batch_shape: tuple[int, ...]
     steps: int
     step_offset: int
@@ -236,7 +233,7 @@ def raise_on_failure(
     rec: dict,
     checks: Checks,
     *,
-    method: str | Callable[..., Any],
+    method: Method,
     batch_shape: tuple[int, ...],
     steps: int,
     step_offset: int = 0,

@@ -20,7 +20,7 @@ from jaxtyping import Float
 from ._checked import Checks
 from ._chunk_dir import ChunkWriter, chunk_files, fingerprint
 from ._io import load
-from ._methods import DEFAULT_METHOD
+from ._methods import DEFAULT_METHOD, Method, is_registered
 from ._simulate import check_run, is_time_series, run_simulation, start_time
 from ._state import ForceLike, Forces, StateT
 from ._typing import ArrayLike
@@ -49,7 +49,7 @@ def simulate_chunked(
     forces: ForceLike,
     dt: Float[ArrayLike, ""],
     steps: int,
-    method: str = DEFAULT_METHOD,
+    method: str | Method = DEFAULT_METHOD,
     *,
     save_every: int = 1,
     chunk_steps: int | None = None,
@@ -101,7 +101,9 @@ def simulate_chunked(
     above, marked complete after the last chunk), so ``rbjax.load`` refuses an
     interrupted run unless asked (``allow_incomplete=True``).
     """
-    steps, save_every = check_run(state, dt, steps, method, save_every, t0, "simulate_chunked")
+    steps, save_every, method = check_run(state, dt, steps, method, save_every, t0, "simulate_chunked")
+    # a registered method is recorded by name (method="rk4" and rb.methods()["rk4"] resume each other)
+    name = method.name if is_registered(method) else None
     t0 = start_time(state) if t0 is None else t0
     if chunk_steps is None:
         chunk_steps = -(-10_000 // save_every) * save_every
@@ -115,8 +117,8 @@ def simulate_chunked(
     current = state
     done, started = 0, False
     if writer is not None:
-        writer.set_defaults(method=method, dt=dt, save_every=save_every, t0=t0)
-        plan = _plan(state, forces, dt, steps, method, save_every, chunk_steps, t0)
+        writer.set_defaults(method=name, dt=dt, save_every=save_every, t0=t0)
+        plan = _plan(state, forces, dt, steps, name, save_every, chunk_steps, t0)
         if resume:
             done, current, kept = _resume(writer, plan, keep)
             started = current is not None
@@ -172,12 +174,12 @@ def simulate_chunked(
     return jax.tree.map(lambda *a: jnp.concatenate(a), *kept)
 
 
-def _plan(state, forces, dt, steps, method, save_every, chunk_steps, t0) -> dict[str, Any]:
-    """The run record: what a resumed call must repeat exactly."""
+def _plan(state, forces, dt, steps, method: str | None, save_every, chunk_steps, t0) -> dict[str, Any]:
+    """The run record: what a resumed call must repeat exactly (``method``: its name, ``None`` if unregistered)."""
     return {
         "steps": int(steps),
         "dt": float(np.asarray(dt)),
-        "method": method if isinstance(method, str) else None,
+        "method": method,
         "save_every": int(save_every),
         "chunk_steps": int(chunk_steps),
         "chunks_planned": max(1, -(-int(steps) // int(chunk_steps))),

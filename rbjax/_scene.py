@@ -10,14 +10,14 @@ A scene decides, once, from concrete inputs, what its step needs:
 * ``torque_free``: the force model returns ``torque=None`` (found by tracing it
   once with :func:`jax.eval_shape`), so no torque is accumulated or integrated.
 
-These are static fields; ``Body`` is untouched. The specialised kernels
-(:mod:`rbjax._specialise`) exist for ``"euler"`` and ``"rk4"``, and for
-``"splitting"`` on isotropic and axisymmetric bodies (the exact free rotor
-without a principal frame, :func:`rbjax._methods.splitting.free_rotor_of_kind`); another method
-registers its own with :func:`register_kernel` (the hook for ``"splitting"`` and
-other methods of :mod:`rbjax._methods`), and otherwise runs its general step,
-which still skips rotation for particles and torque for torque-free forces
-(``Forces.torque is None`` is structural).
+These are static fields; ``Body`` is untouched. The specialised kernels are the
+method's own (:attr:`rbjax._methods.Method.kernels`): ``"euler"`` and ``"rk4"``
+have them for every rigid kind (:mod:`rbjax._methods.specialised`),
+``"splitting"`` for isotropic and axisymmetric bodies (the exact free rotor
+without a principal frame, :func:`rbjax._methods.splitting.free_rotor_of_kind`);
+another method gets one with :func:`register_kernel`, and otherwise runs its
+general step, which still skips rotation for particles and torque for
+torque-free forces (``Forces.torque is None`` is structural).
 """
 
 from __future__ import annotations
@@ -31,23 +31,19 @@ import jax
 import jax.core
 import jax.numpy as jnp
 import numpy as np
-from jax import Array
 from jaxtyping import Float
 
-from . import _methods, _specialise
+from . import _methods
 from ._body import Body, is_concrete
 from ._force_model import ForceModel, ForceSum
-from ._methods import DEFAULT_METHOD
+from ._methods import DEFAULT_METHOD, KINDS, Method
 from ._pytree import pytree_dataclass, static_field
 from ._simulate import simulate as _simulate_fn
 from ._simulate import step as _step_fn
-from ._state import AnyState, MatrixState, ParticleState, State, StateT
+from ._state import AnyState, ParticleState, StateT
 from ._typing import ArrayLike
 
 __all__ = ["Scene", "body_kind", "register_kernel"]
-
-# (method, kind, state type) -> batch step fn(state, force_fn, t, dt, kind, torque_free)
-_KERNELS: dict[tuple[str, str, type], Callable[..., Any]] = {}
 
 
 def register_kernel(method: str, kind: str, state_type: type, step: Callable[..., Any]) -> None:
@@ -55,24 +51,20 @@ def register_kernel(method: str, kind: str, state_type: type, step: Callable[...
 
     ``step(state, force_fn, t, dt, kind, torque_free) -> state`` must give the
     registered general method's result to round-off for every body of ``kind``
-    (see :mod:`rbjax._specialise` for the algebra each kind allows). A scene
+    (see :mod:`rbjax._methods.specialised` for the algebra each kind allows). A scene
     uses it instead of the general step of ``method``. States keep their usual
     shapes ``(*B, ...)`` and world frame; ``t`` and ``dt`` are in seconds.
+    The registered method is replaced by one that carries the kernel (scenes
+    built afterwards use it); ``ValueError`` for an unknown method or kind.
     """
-    if kind not in _specialise.KINDS:
-        raise ValueError(f"kind must be one of {_specialise.KINDS}, got {kind!r}")
-    _KERNELS[(method, kind, state_type)] = step
-
-
-for _name in ("euler", "rk4"):
-    for _kind in ("isotropic", "axisymmetric", "general"):
-        for _type in (State, MatrixState):
-            register_kernel(_name, _kind, _type, _specialise.explicit_step(_name))
-for _kind in ("isotropic", "axisymmetric"):
-    register_kernel("splitting", _kind, State, _methods.splitting.splitting_of_kind)
-# rbjax's own kernels lift all per-body work, so they run in either batch layout
-# (rbjax._batching.batch_last); a user's kernel is always given batch-first states
-_LAYOUT_AGNOSTIC = frozenset(_KERNELS.values())
+    if kind not in KINDS:
+        raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
+    m = _methods.lookup(method)
+    key = (kind, state_type)
+    # a user's kernel is given batch-first states (rbjax's own lift all per-body work)
+    _methods.register(
+        dataclasses.replace(m, kernels={**m.kernels, key: step}, batch_first_kernels=m.batch_first_kernels | {key})
+    )
 
 
 def body_kind(body: Body) -> str:
@@ -113,26 +105,6 @@ def _kind_flags(I: Any, xp: Any) -> tuple[Any, Any]:
 _kind_flags_jit = jax.jit(functools.partial(_kind_flags, xp=jnp))
 
 
-@dataclasses.dataclass(frozen=True)
-class _Kernel:
-    """The scene's batch step as a hashable static value for ``simulate``'s jit cache."""
-
-    method: str
-    kind: str
-    torque_free: bool
-
-    def layout_agnostic(self, state_type: type) -> bool:
-        """Whether the step for ``state_type`` runs in the batch-last layout too."""
-        fn = _KERNELS.get((self.method, self.kind, state_type))
-        return fn is None or fn in _LAYOUT_AGNOSTIC
-
-    def __call__(self, state: AnyState, force_fn: Any, t: Array, dt: Array) -> AnyState:
-        fn = _KERNELS.get((self.method, self.kind, type(state)))
-        if fn is not None:
-            return fn(state, force_fn, t, dt, self.kind, self.torque_free)
-        return _methods.get(self.method, type(state))(state, force_fn, t, dt)
-
-
 @pytree_dataclass
 class Scene:
     """Bodies under force models, integrated by one method, specialised on their structure.
@@ -142,9 +114,11 @@ class Scene:
             to :meth:`step` / :meth:`simulate` must carry bodies of this kind.
         forces: a :class:`ForceModel` (e.g. ``Gravity() + LinearDrag(0.1)``); its
             arrays are leaves, its composition is static.
-        method: integrator name (static); default ``"splitting"``, the house default
-            (see :func:`rbjax.simulate`). Specialised kernels exist for ``"euler"`` and
-            ``"rk4"``; other methods step through their generic batch step.
+        method: integrator name or a ``Method`` from :func:`rbjax.methods` (static);
+            default ``"splitting"``, the house default (see :func:`rbjax.simulate`).
+            Specialised kernels exist for ``"euler"`` and ``"rk4"`` (every rigid kind) and
+            ``"splitting"`` (isotropic, axisymmetric); other methods step through their
+            generic batch step.
         kind: ``"particles"``, ``"isotropic"``, ``"axisymmetric"`` or ``"general"`` (static).
         torque_free: the forces never produce a torque (static).
 
@@ -153,7 +127,7 @@ class Scene:
 
     body: Body | None
     forces: ForceModel
-    method: str = static_field(default=DEFAULT_METHOD)
+    method: str | Method = static_field(default=DEFAULT_METHOD)
     kind: str = static_field(default="general")
     torque_free: bool = static_field(default=False)
 
@@ -162,7 +136,7 @@ class Scene:
         cls,
         state: AnyState,
         forces: ForceModel | None = None,
-        method: str = DEFAULT_METHOD,
+        method: str | Method = DEFAULT_METHOD,
         *,
         kind: str | None = None,
     ) -> Scene:
@@ -171,15 +145,17 @@ class Scene:
         ``kind`` overrides the detected body kind (``"general"`` forces the
         general path, e.g. to compare; a more special kind than the bodies have
         raises ``ValueError``). Traces ``forces`` once on ``state`` to check
-        its output shapes and learn whether it returns a torque.
+        its output shapes and learn whether it returns a torque. ``method`` is a
+        name or a ``Method`` from :func:`rbjax.methods` (``TypeError`` for anything
+        else, ``ValueError`` for an unknown name or a state form it does not support).
         """
-        _methods.get(method, type(state))
+        _methods.resolve(method, "Scene.build").step(type(state))
         forces = ForceSum(()) if forces is None else forces
         if not isinstance(forces, ForceModel):
             raise TypeError(f"forces must be a ForceModel, e.g. Gravity() + LinearDrag(0.1); got {forces!r}")
         detected = "particles" if isinstance(state, ParticleState) else body_kind(state.body)
         if kind is not None:
-            order = _specialise.KINDS
+            order = KINDS
             if kind not in order or (detected == "particles") != (kind == "particles"):
                 raise ValueError(f"kind {kind!r} does not apply to {type(state).__name__}")
             if order.index(kind) < order.index(detected):
@@ -199,9 +175,14 @@ class Scene:
         return cls(body=body, forces=forces, method=method, kind=detected, torque_free=torque_free)
 
     @property
-    def kernel(self) -> _Kernel:
-        """The hashable batch step ``(state, force_fn, t, dt) -> state`` that this scene compiles."""
-        return _Kernel(self.method, self.kind, self.torque_free)
+    def kernel(self) -> Method:
+        """The batch step ``(state, force_fn, t, dt) -> state`` that this scene compiles.
+
+        A ``Method``: the scene's method with its kernels for this scene's kind
+        in place of its general steps (the same object for equal scenes, so a
+        rerun reuses the compiled program); pass it as ``method=`` or call it.
+        """
+        return _methods.for_kind(_methods.resolve(self.method, "Scene"), self.kind, self.torque_free)
 
     def _check(self, state: AnyState) -> None:
         if (self.kind == "particles") != isinstance(state, ParticleState):
@@ -209,7 +190,7 @@ class Scene:
         if isinstance(state, ParticleState) or self.kind == "general" or state.body is self.body:
             return
         found = body_kind(state.body)
-        rank = _specialise.KINDS.index
+        rank = KINDS.index
         if _has_value(state.body.inertia) and rank(found) > rank(self.kind):
             raise ValueError(f"this scene is specialised for {self.kind!r} bodies; the state's are {found!r}")
 

@@ -36,7 +36,7 @@ from jaxtyping import Float
 from . import _methods
 from ._batching import batch_shape, in_axes_of
 from ._math import quat_conjugate, quat_log, quat_multiply
-from ._methods import DEFAULT_METHOD
+from ._methods import DEFAULT_METHOD, Method
 from ._pytree import replace
 from ._simulate import as_force_fn, simulate, start_time
 from ._state import AnyState, ForceLike, Forces, State, split_constants
@@ -74,7 +74,7 @@ def shoot(
     forces: ForceLike,
     dt: Float[ArrayLike, ""] | Float[ArrayLike, "S steps"],
     steps: int,
-    method: str = DEFAULT_METHOD,
+    method: str | Method = DEFAULT_METHOD,
     *,
     save_every: int | None = None,
     t0: Float[ArrayLike, ""] | Float[ArrayLike, " S"] = 0.0,
@@ -96,7 +96,7 @@ def shoot(
         dt: step (s): a scalar, or ``(S, steps)`` per-segment per-step sizes
             (irregular sampling; ``dt = 0`` steps are no-ops, for padding).
         steps: steps per segment (static).
-        method: integrator name (see :func:`rbjax.methods`); default ``"splitting"``,
+        method: integrator name or ``Method`` (see :func:`rbjax.methods`); default ``"splitting"``,
             the house default (see :func:`rbjax.simulate`; it was ``"rk4"`` before 2026-12-02).
         save_every: keep every ``save_every``-th state (must divide ``steps``);
             default ``steps``: start and end only.
@@ -118,7 +118,7 @@ def shoot(
     if not bshape:
         raise ValueError("shoot: starts need a leading segment axis (batch shape (S, *B))")
     S, nd = bshape[0], len(bshape)
-    step_fn = _methods.get(method, type(starts))
+    step_fn = _methods.resolve(method, "shoot").step(type(starts))
     dtype = starts.dtype
     dt = jnp.asarray(dt, dtype)
     if dt.ndim == 0:
@@ -192,7 +192,7 @@ def simulate_truncated(
     forces: ForceLike,
     dt: Float[ArrayLike, ""],
     steps: int,
-    method: str = DEFAULT_METHOD,
+    method: str | Method = DEFAULT_METHOD,
     *,
     truncate_every: int,
     save_every: int = 1,
@@ -217,8 +217,9 @@ def simulate_truncated(
             :class:`rbjax.Forces` with a leading ``(steps, ...)`` axis.
         dt: step (s), > 0.
         steps: total steps (static), a multiple of ``truncate_every``.
-        method: integrator name; default ``"splitting"``, the house default (see
-            :func:`rbjax.simulate`; it was ``"rk4"`` before 2026-12-02).
+        method: integrator name or ``Method`` (see :func:`rbjax.methods`); default
+            ``"splitting"``, the house default (see :func:`rbjax.simulate`; it was
+            ``"rk4"`` before 2026-12-02).
         truncate_every: chunk length in steps (static); must be a multiple of ``save_every``.
         save_every: keep every ``save_every``-th state.
         t0: start time (s); default ``state.time``.

@@ -17,7 +17,7 @@ from . import _checked, _methods, _native
 from ._batching import batch_last, batch_shape, lift, map_leaves, to_batch_first, to_batch_last
 from ._body import prepare
 from ._force_model import ForceModel, per_body_terms
-from ._methods import DEFAULT_METHOD
+from ._methods import DEFAULT_METHOD, Method
 from ._pytree import replace
 from ._scan import check_checkpoint, checkpointed_scan, frames_as_outputs, frames_in_buffer
 from ._state import AnyState, ForceLike, Forces, ParticleState, StateT, split_constants
@@ -113,7 +113,7 @@ def step(
     state: StateT,
     forces: ForceLike,
     dt: Float[ArrayLike, ""],
-    method: str | Callable[..., Any] = DEFAULT_METHOD,
+    method: str | Method | Callable[..., Any] = DEFAULT_METHOD,
     *,
     t: Float[ArrayLike, ""] | None = None,
 ) -> StateT:
@@ -126,8 +126,8 @@ def step(
             of mass), a callable ``(state, t) -> Forces`` evaluated by the method
             where it needs it, or ``None``.
         dt: step (s), > 0.
-        method: integrator name (static); see :func:`rbjax.methods`. Default
-            ``"splitting"`` (second order, symplectic), as :func:`simulate`.
+        method: integrator name or ``Method`` (static); see :func:`rbjax.methods`
+            and :func:`simulate`. Default ``"splitting"`` (second order, symplectic).
         t: time (s) at the start of the step, passed to a callable ``forces``;
             default ``state.time``.
 
@@ -138,7 +138,7 @@ def step(
     (``step`` has no checked mode: use ``simulate(..., checked=True)``).
     """
     check_state(state, "step")
-    fn = method if callable(method) else _methods.get(method, type(state))
+    fn = _methods.resolve(method, "step").step(type(state))
     check_dt(dt)
     if t is not None:
         check_dt(t, "t", positive=False)
@@ -177,7 +177,7 @@ def simulate(
     forces: ForceLike,
     dt: Float[ArrayLike, ""],
     steps: int,
-    method: str | Callable[..., Any] = DEFAULT_METHOD,
+    method: str | Method | Callable[..., Any] = DEFAULT_METHOD,
     *,
     save_every: int = 1,
     t0: Float[ArrayLike, ""] | None = None,
@@ -202,9 +202,11 @@ def simulate(
             (``TypeError``/``ValueError``); a traced one (under a caller's ``jit``,
             ``grad`` or ``vmap``) only with ``checked``, at run time.
         steps: number of steps (static).
-        method: integrator name (static), or a hashable batch step function
-            ``(state, force_fn, t, dt) -> state`` such as a :class:`rbjax.Scene`'s kernel.
-            Default ``"splitting"``: Strang splitting, second order and symplectic
+        method: integrator name, or a ``Method`` from :func:`rbjax.methods` (the
+            same run: ``method=rb.methods()["rk4"]`` gives ``method="rk4"``'s bits),
+            or a hashable batch step function ``(state, force_fn, t, dt) -> state``
+            such as a :class:`rbjax.Scene`'s kernel; static. Anything else raises
+            ``TypeError``. Default ``"splitting"``: Strang splitting, second order and symplectic
             (energy error bounded, world ``L`` exact, exact for symmetric tops),
             about 2.3x ``"euler"``'s cost per step. Measured 2026-12-02 on the
             README's body (1 kg box 0.1 x 0.2 x 0.4 m, ``ω = (0.01, 5, 0.01)``
@@ -270,7 +272,7 @@ def simulate(
     )
 
 
-def _native_path(native: bool | None, state, forces, method, *, series: bool, checks, checkpoint) -> bool:
+def _native_path(native: bool | None, state, forces, method: Method, *, series: bool, checks, checkpoint) -> bool:
     """Whether this run steps natively (see ``simulate``'s ``native``); ``ValueError`` for ``True`` that cannot."""
     if native is not None and not isinstance(native, bool):
         raise TypeError(f"simulate: native must be None, True or False, got {native!r}")
@@ -281,20 +283,21 @@ def _native_path(native: bool | None, state, forces, method, *, series: bool, ch
     )
     if native and reason:
         raise ValueError(f"simulate(native=True): {reason}; pass native=None to fall back to JAX")
-    if reason and isinstance(method, str) and method in _native.METHODS and type(state).__name__ == "State":
+    if reason and method.native_code is not None and type(state).__name__ == "State":
         _native.say_once_unavailable()
     return not reason
 
 
-def check_run(state, dt, steps, method, save_every, t0, fn: str) -> tuple[int, int]:
+def check_run(state, dt, steps, method, save_every, t0, fn: str) -> tuple[int, int, Method]:
     """``TypeError``/``ValueError`` for a bad argument of a run (``simulate``, ``simulate_chunked``).
 
-    Returns ``(steps, save_every)`` as ints. A concrete ``dt`` and ``t0`` are
-    checked here; traced ones only in checked mode, at run time.
+    Returns ``(steps, save_every)`` as ints and the :class:`Method` that
+    ``method`` names. A concrete ``dt`` and ``t0`` are checked here; traced ones
+    only in checked mode, at run time.
     """
     check_state(state, fn)
-    if not callable(method):  # a callable is a step fn, e.g. a Scene's specialised kernel
-        _methods.get(method, type(state))
+    method = _methods.resolve(method, fn)
+    method.step(type(state))
     steps = check_count("steps", steps, 0)
     save_every = check_count("save_every", save_every, 1)
     if steps % save_every:
@@ -302,7 +305,7 @@ def check_run(state, dt, steps, method, save_every, t0, fn: str) -> tuple[int, i
     check_dt(dt)
     if t0 is not None:
         check_dt(t0, "t0", positive=False)
-    return steps, save_every
+    return steps, save_every, method
 
 
 def run_simulation(
@@ -314,7 +317,7 @@ def run_simulation(
     run): step ``k`` runs at ``t0 + (step_offset + k) dt``, and checked-mode
     errors count from it.
     """
-    steps, save_every = check_run(state, dt, steps, method, save_every, t0, "simulate")
+    steps, save_every, method = check_run(state, dt, steps, method, save_every, t0, "simulate")
     check_checkpoint(checkpoint, steps, save_every)
     force_fn = None
     state = _canonical(state)
@@ -380,18 +383,17 @@ def run_simulation(
     static_argnames=("steps", "method", "save_every", "series", "force_fn", "checks", "checkpoint", "native"),
 )
 def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, force_fn, checks, checkpoint, native):
-    step_fn = method if callable(method) else _methods.get(method, type(state))
+    step_fn = method.step(type(state))
     dtype = state.dtype
     dt, t0 = dt.astype(dtype), t0.astype(dtype)
     n_out = steps // save_every
     # Inside the scan the state is carried batch-last ((3, N) per field: one
     # contiguous row per component), transposed once at each end; the step's
-    # vmapped kernels then compile to one vectorised loop over the batch. Step
-    # functions not known to be layout-agnostic (a user's Scene kernel) and
-    # force callables see the usual batch-first layout.
-    agnostic = getattr(method, "layout_agnostic", None)
+    # vmapped kernels then compile to one vectorised loop over the batch. Steps
+    # that are not layout-agnostic (a user's step or Scene kernel) and force
+    # callables see the usual batch-first layout.
     # the native kernel reads the batch-first layout itself: no transposes at either end
-    soa = not native and (not callable(method) or (agnostic is not None and agnostic(type(state))))
+    soa = not native and method.layout_agnostic
     to_soa = to_batch_last if soa else (lambda x: x)
     to_aos = to_batch_first if soa else (lambda x: x)
 
@@ -487,7 +489,9 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
         def advance_native(carry, xs):
             dyn, rec = carry
             t = t0 + (k0 + xs[0][0]).astype(dtype) * dt
-            return _native.advance(method, save_every, reference, dyn, consts_soa, consts, forces, dt, t), rec
+            return _native.advance(
+                method.native_code, save_every, reference, dyn, consts_soa, consts, forces, dt, t
+            ), rec
 
     advance = advance_native if native else advance_jax
 

@@ -1,6 +1,12 @@
 """Time-stepping methods, one per module, registered by name.
 
-A method is a batch-level function ``step(state, force_fn, t, dt) -> state``:
+Each is a :class:`Method`, the one record of an integrator: its batch-level
+steps per state type, its kernels specialised on a :class:`rbjax.Scene`'s body
+kind (:mod:`.specialised`), whether they run in the batch-last layout, its
+native kernel's number, and what is measured of it (order, cost, stability).
+Every public function's ``method=`` takes a name or a Method (:func:`resolve`).
+
+A step is a batch-level function ``step(state, force_fn, t, dt) -> state``:
 ``force_fn(state, t) -> Forces`` sees the whole batch (so forces may couple
 bodies) and may be called at intermediate stages; the per-body arithmetic
 inside is written for one body and lifted with :func:`rbjax._batching.lift`.
@@ -25,6 +31,32 @@ from . import splitting as splitting
 # isort: split
 # composition builds on registered methods ("splitting"): it must come after them
 from . import composition as composition
-from ._registry import DEFAULT_METHOD, Method, StepFn, available, get, register
+from ._registry import (
+    DEFAULT_METHOD,
+    KINDS,
+    KernelFn,
+    Method,
+    StepFn,
+    available,
+    for_kind,
+    get,
+    is_registered,
+    lookup,
+    register,
+    resolve,
+)
 
-__all__ = ["DEFAULT_METHOD", "Method", "StepFn", "register", "get", "available"]
+__all__ = [
+    "DEFAULT_METHOD",
+    "KINDS",
+    "KernelFn",
+    "Method",
+    "StepFn",
+    "register",
+    "get",
+    "lookup",
+    "available",
+    "resolve",
+    "for_kind",
+    "is_registered",
+]

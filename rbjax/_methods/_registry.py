@@ -6,8 +6,11 @@ Each method module registers itself on import; this module imports none of them.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 from typing import Any
+
+from .._state import MatrixState, ParticleState, State
 
 #: The integrator every public function uses when ``method`` is not given (``step``, ``simulate``,
 #: ``simulate_chunked``, ``Scene.build``, ``shoot``, ``simulate_truncated``): Strang splitting,
@@ -17,16 +20,29 @@ from typing import Any
 #: was 3.09 rad off with +1.3% energy (docs/integrators.md).
 DEFAULT_METHOD = "splitting"
 
+#: The body kinds a :class:`rbjax.Scene` specialises on, from the most special to the most general
+#: (see :mod:`rbjax._methods.specialised` for the algebra each allows).
+KINDS = ("particles", "isotropic", "axisymmetric", "general")
+
+#: A batch-level step ``(state, force_fn, t, dt) -> state``.
 StepFn = Callable[[Any, Callable[[Any, Any], Any], Any, Any], Any]
+#: A batch-level step specialised on a body kind: ``(state, force_fn, t, dt, kind, torque_free) -> state``.
+KernelFn = Callable[..., Any]
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, eq=False, repr=False)
 class Method:
-    """A registered integrator.
+    """An integrator: its steps, the Scene kernels specialised from them, and what is known of it.
+
+    Calling it, ``method(state, force_fn, t, dt)``, takes one step of its step
+    for ``type(state)``: ``force_fn(state, t) -> Forces`` (world frame, N and
+    N m) sees the whole batch, ``t`` and ``dt`` are in s, and the state keeps
+    its type and shapes ``(*B, ...)``. Two Methods are equal only when they are
+    the same object (it is the compiled program's cache key).
 
     Attributes:
         name: the ``method=`` string.
-        order: global order of accuracy.
+        order: global order of accuracy (0: not known, e.g. a user's own step).
         steps: ``{state type: batch-level step function}``.
         conserves: short statement of what it conserves (for docs and tests).
         cost: cost per step relative to ``"euler"`` (measured, approximate).
@@ -43,6 +59,20 @@ class Method:
             see the integrator table in the README.
         failure_note: what a checked-mode failure means for this method, added
             to the error message.
+        kernels: ``{(kind, state type): KernelFn}``: steps specialised on a
+            :class:`rbjax.Scene`'s body kind (one of :data:`KINDS`) and on its
+            forces returning no torque; each gives the general step's result to
+            round-off for every body of that kind. A scene uses the one of its
+            kind instead of ``steps`` (see :func:`for_kind`).
+        layout_agnostic: the steps and kernels lift all per-body work
+            (:func:`rbjax._batching.lift`) and are elementwise elsewhere, so
+            ``simulate`` may run them on its batch-last layout (see
+            :mod:`rbjax._methods`). ``False``: they are always given batch-first states.
+        batch_first_kernels: the keys of ``kernels`` that need batch-first
+            states although ``layout_agnostic`` is true (a user's kernel, added by
+            :func:`rbjax.register_kernel`).
+        native_code: the method's number in the native kernels
+            (``rbjax/_native/kernels.cc``: ``Method``), or ``None`` when it has none.
     """
 
     name: str
@@ -52,6 +82,26 @@ class Method:
     cost: float = 1.0
     stable_dt_omega: dict[str, float] | None = None
     failure_note: str = ""
+    kernels: dict[tuple[str, type], KernelFn] = dataclasses.field(default_factory=dict)
+    layout_agnostic: bool = True
+    batch_first_kernels: frozenset[tuple[str, type]] = frozenset()
+    native_code: int | None = None
+
+    def __repr__(self) -> str:
+        return f"Method({self.name!r}, order={self.order})"
+
+    def step(self, state_type: type) -> StepFn:
+        """The step function for ``state_type``; ``ValueError`` if the method has none."""
+        fn = self.steps.get(state_type)
+        if fn is None:
+            raise ValueError(
+                f"method {self.name!r} does not support {state_type.__name__}; it supports "
+                f"{sorted(t.__name__ for t in self.steps)}"
+            )
+        return fn
+
+    def __call__(self, state: Any, force_fn: Callable[[Any, Any], Any], t: Any, dt: Any) -> Any:
+        return self.step(type(state))(state, force_fn, t, dt)
 
 
 _REGISTRY: dict[str, Method] = {}
@@ -62,19 +112,87 @@ def register(method: Method) -> Method:
     return method
 
 
-def get(name: str, state_type: type) -> StepFn:
-    """The step function of ``name`` for ``state_type``; ``ValueError`` if none."""
+def lookup(name: str) -> Method:
+    """The registered method ``name``; ``ValueError`` naming those there are if none."""
     m = _REGISTRY.get(name)
     if m is None:
         raise ValueError(f"unknown method {name!r}; available: {sorted(_REGISTRY)}")
-    fn = m.steps.get(state_type)
-    if fn is None:
-        raise ValueError(
-            f"method {name!r} does not support {state_type.__name__}; it supports {sorted(t.__name__ for t in m.steps)}"
-        )
-    return fn
+    return m
+
+
+def get(name: str, state_type: type) -> StepFn:
+    """The step function of ``name`` for ``state_type``; ``ValueError`` if none."""
+    return lookup(name).step(state_type)
 
 
 def available(state_type: type | None = None) -> dict[str, Method]:
     """Registered methods, optionally only those supporting ``state_type``."""
     return {k: m for k, m in _REGISTRY.items() if state_type is None or state_type in m.steps}
+
+
+def is_registered(method: Method) -> bool:
+    """Whether ``method`` is the registry's method of its name (not a scene's or a user's variant)."""
+    return _REGISTRY.get(method.name) is method
+
+
+def resolve(method: Any, where: str) -> Method:
+    """The :class:`Method` that ``method=`` names, for the public function ``where``.
+
+    A string is looked up (``ValueError`` for an unknown name); a Method is
+    itself; any other callable is a user's batch step ``(state, force_fn, t, dt)
+    -> state`` and becomes an anonymous Method (the same one for equal
+    callables, so a rerun reuses its compiled program) that runs batch-first.
+    Anything else, or an unhashable callable, raises ``TypeError``.
+    """
+    if isinstance(method, str):
+        return lookup(method)
+    if isinstance(method, Method):
+        return method
+    if callable(method):
+        try:
+            return _anonymous(method)
+        except TypeError:  # unhashable: it could not be a static argument of the compiled run
+            raise TypeError(
+                f"{where}: method must be hashable, as a static argument of the compiled run; got an unhashable "
+                f"{type(method).__name__}. Pass a method name such as 'rk4', a Method from rbjax.methods(), or a "
+                "step function defined once"
+            ) from None
+    raise TypeError(
+        f"{where}: method must be a method name such as 'rk4' (see rbjax.methods()), a Method from "
+        f"rbjax.methods(), or a batch step callable (state, force_fn, t, dt) -> state; got {type(method).__name__}"
+    )
+
+
+@functools.lru_cache(maxsize=1024)
+def _anonymous(fn: StepFn) -> Method:
+    # a user's step is written for the batch-first layout and takes any state form
+    name = getattr(fn, "__qualname__", None) or repr(fn)
+    return Method(
+        name=name, order=0, steps=dict.fromkeys((State, MatrixState, ParticleState), fn), layout_agnostic=False
+    )
+
+
+@functools.cache
+def for_kind(method: Method, kind: str, torque_free: bool) -> Method:
+    """``method`` as a :class:`rbjax.Scene` of ``kind`` bodies runs it (the same object for the same arguments).
+
+    Its kernels for ``kind`` replace its steps, called with ``kind`` and
+    ``torque_free``; ``method`` itself when it has none for ``kind``. The
+    result has no native kernel (a scene steps in JAX) and is batch-first when
+    a kernel it uses is.
+    """
+    own = {T: fn for (k, T), fn in method.kernels.items() if k == kind}
+    if not own:
+        return method
+
+    def bind(fn: KernelFn) -> StepFn:
+        return lambda state, force_fn, t, dt: fn(state, force_fn, t, dt, kind, torque_free)
+
+    return dataclasses.replace(
+        method,
+        steps={**method.steps, **{T: bind(fn) for T, fn in own.items()}},
+        kernels={},
+        layout_agnostic=method.layout_agnostic and not any((kind, T) in method.batch_first_kernels for T in own),
+        batch_first_kernels=frozenset(),
+        native_code=None,
+    )

@@ -23,6 +23,7 @@ from .._dynamics import omega_world
 from .._math import cross, kick3, matmul3, matvec3, orthonormalize_unchecked, pure_quat_multiply, quat_normalize, skew
 from .._pytree import replace
 from .._state import Forces, MatrixState, ParticleState, State
+from . import specialised
 from ._registry import Method, register
 
 
@@ -75,5 +76,7 @@ register(
         cost=1.0,
         # benchmarks/results/stability_limits.json: the L-form keeps |L| and so |ω| bounded
         stable_dt_omega={"State": math.inf, "MatrixState": 0.13, "ParticleState": math.inf},
+        kernels=specialised.kernels(specialised.euler),
+        native_code=0,
     )
 )

@@ -16,8 +16,8 @@ than four stages are materialised (see :func:`rbjax._methods._common.materialise
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import NamedTuple
+from collections.abc import Callable, Sequence
+from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 
@@ -25,9 +25,9 @@ from .._dynamics import derivative
 from .._pytree import replace
 from .._state import MatrixState, ParticleState, State
 from ._common import materialise, project, torque_varies
-from ._registry import Method, StepFn, register
+from ._registry import KernelFn, Method, StepFn, register
 
-__all__ = ["CLASSICAL_RK4", "Tableau", "explicit_rk", "register_tableau"]
+__all__ = ["CLASSICAL_RK4", "Tableau", "explicit_rk", "register_tableau", "tableau_step"]
 
 
 class Tableau(NamedTuple):
@@ -47,20 +47,45 @@ CLASSICAL_RK4 = Tableau(
 
 
 def combine(state, dt, weights: Sequence[float], ks: Sequence):
-    """``state + dt Σ_j w_j k_j`` on the changing fields; zero weights cost nothing."""
+    """``state + dt Σ_j w_j k_j`` on the changing fields; zero weights cost nothing.
+
+    Each ``k_j`` is a rate of the state's type (:func:`rbjax.derivative`) or a
+    ``{field: rate}`` dict in which a field that does not change is missing or
+    ``None`` (:mod:`rbjax._methods.specialised`); those fields are left as they are.
+    """
     terms = [(w, k) for w, k in zip(weights, ks, strict=True) if w != 0.0]
     if not terms:
         return state
     consts = state.constant_fields
     out = {}
     for n in type(state)._rbjax_data_fields:
-        if n in consts:
+        rates: list[tuple[float, Any]] = [(w, k.get(n) if isinstance(k, dict) else getattr(k, n)) for w, k in terms]
+        if n in consts or rates[0][1] is None:
             continue
         x = getattr(state, n)
         # weights cast to the field's dtype: a float32 state stays float32
-        incr = sum(jnp.asarray(w, x.dtype) * getattr(k, n) for w, k in terms)
+        incr = sum(jnp.asarray(w, x.dtype) * r for w, r in rates)
         out[n] = x + dt * incr
     return replace(state, **out)
+
+
+def tableau_step(tableau: Tableau, state, t, dt, rates: Callable, stage: Callable | None = None):
+    """One explicit Runge–Kutta step of tableau ``(a, b, c)`` for the rates ``rates(y, t)``.
+
+    ``k_i = rates(y_i, t + c_i dt)`` with ``y_i = y + dt Σ_j a_ij k_j``
+    (``stage(y_i)`` when given, from the second stage on); returns
+    ``y + dt Σ_i b_i k_i`` with the quaternion normalised (``R``
+    re-orthonormalised; lifted, so it holds in ``simulate``'s batch-last layout
+    too). ``rates`` returns a rate of the state's type or a ``{field: rate}``
+    dict (see :func:`combine`).
+    """
+    a, b, c = tableau
+    ks = []
+    for i in range(len(b)):
+        y = combine(state, dt, a[i], ks[:i])
+        y = stage(y) if stage is not None and i > 0 else y
+        ks.append(rates(y, t + c[i] * dt))
+    return project(combine(state, dt, b, ks))
 
 
 def explicit_rk(a: Sequence[Sequence[float]], b: Sequence[float], c: Sequence[float]) -> StepFn:
@@ -80,9 +105,9 @@ def explicit_rk(a: Sequence[Sequence[float]], b: Sequence[float], c: Sequence[fl
             f"explicit tableau needs len(a[i]) == i and len(a) == len(b) == len(c); got rows "
             f"{[len(r) for r in a]}, {len(b)} weights, {len(c)} nodes"
         )
-    a = tuple(tuple(float(x) for x in row) for row in a)
-    b = tuple(float(x) for x in b)
-    c = tuple(float(x) for x in c)
+    tableau = Tableau(
+        tuple(tuple(float(x) for x in row) for row in a), tuple(float(x) for x in b), tuple(float(x) for x in c)
+    )
 
     # With a torque that varies over the step, every stage feeds the next through L and ω (see
     # materialise). Measured 2026-12-01 (work_precision.py, float64, 1e4 bodies, ns per
@@ -93,14 +118,8 @@ def explicit_rk(a: Sequence[Sequence[float]], b: Sequence[float], c: Sequence[fl
 
     def step(state, force_fn, t, dt):
         varies = many_stages and torque_varies(force_fn, state, t)
-        stage = (lambda y: materialise(y, dt)) if varies else (lambda y: y)
-        ks = []
-        for i in range(s):
-            y = combine(state, dt, a[i], ks[:i])
-            y = stage(y) if i > 0 else y
-            ks.append(derivative(y, force_fn(y, t + c[i] * dt)))
-        # lifted, so it holds in simulate's batch-last layout too
-        return project(combine(state, dt, b, ks))
+        stage = (lambda y: materialise(y, dt)) if varies else None
+        return tableau_step(tableau, state, t, dt, lambda y, tt: derivative(y, force_fn(y, tt)), stage)
 
     return step
 
@@ -114,13 +133,17 @@ def register_tableau(
     *,
     cost: float,
     stable_dt_omega: dict[str, float] | None = None,
+    kernels: dict[tuple[str, type], KernelFn] | None = None,
+    native_code: int | None = None,
 ) -> StepFn:
     """Register ``name`` as the explicit Runge–Kutta method of tableau ``(a, b, c)``; returns its step.
 
     It supports ``State``, ``MatrixState`` and ``ParticleState`` and conserves
     nothing exactly (energy and ``|L|`` drift as ``O(dt^order)`` per unit time).
     ``cost`` is the measured cost per step relative to ``"euler"``;
-    ``stable_dt_omega`` the measured stability limits (see :class:`Method`).
+    ``stable_dt_omega`` the measured stability limits, ``kernels`` its
+    specialised Scene kernels and ``native_code`` its native kernel's number
+    (see :class:`Method`).
     """
     fn = explicit_rk(a, b, c)
     register(
@@ -131,6 +154,8 @@ def register_tableau(
             conserves=f"nothing exactly; energy and |L| drift as O(dt^{order}) per unit time",
             cost=cost,
             stable_dt_omega=stable_dt_omega,
+            kernels=kernels or {},
+            native_code=native_code,
         )
     )
     return fn

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 
+from . import specialised
 from .explicit_rk import CLASSICAL_RK4, register_tableau
 
 rk4 = register_tableau(
@@ -29,4 +30,6 @@ rk4 = register_tableau(
     cost=1.2,
     # benchmarks/results/stability_limits.json
     stable_dt_omega={"State": 7.5, "MatrixState": 1.0, "ParticleState": math.inf},
+    kernels=specialised.kernels(specialised.rk4),
+    native_code=1,
 )

@@ -83,5 +83,6 @@ register(
             "'rk4' on the T-handle); world L drifts at O(dt^4) where 'rk4' keeps it exact torque-free"
         ),
         cost=1.6,
+        native_code=4,
     )
 )

@@ -84,5 +84,6 @@ register(
         cost=1.6,
         # benchmarks/results/stability_limits.json: finite up to dt·|ω| = 1000 in both forms
         stable_dt_omega={"State": math.inf, "MatrixState": math.inf, "ParticleState": math.inf},
+        native_code=3,
     )
 )

@@ -233,5 +233,8 @@ register(
             "(float32: round-off drift ~1e-9 per step)"
         ),
         cost=2.3,  # benchmarks/integrator_cost.py, N = 1e4 float32, 2026-12-01
+        # spheres and cylinders turn without a principal frame (free_rotor_of_kind)
+        kernels={(kind, State): splitting_of_kind for kind in ("isotropic", "axisymmetric")},
+        native_code=2,
     )
 )

@@ -34,19 +34,17 @@ import numpy as np
 
 from .._force_model import ForceSum
 from .._forces import ConstantForce, Gravity, LinearDrag, QuadraticDrag
+from .._methods import Method, available
 from .._methods._common import principal_frame
 from .._pytree import replace
 from .._state import Forces, State
 
 __all__ = ["NativeStatus", "native_status", "native_plan", "advance"]
 
-METHODS = {
-    "euler": 0,
-    "rk4": 1,
-    "splitting": 2,
-    "semi_implicit_euler": 3,
-    "rk4_body": 4,
-}  # the kernel's method codes (kernels.cc: Method)
+# the methods with a kernel and their codes (kernels.cc: Method), as each Method records its own
+METHODS = dict(
+    sorted(((m.name, m.native_code) for m in available().values() if m.native_code is not None), key=lambda p: p[1])
+)
 _TARGET = "rbjax_advance"
 _ISA = ("x86-64 baseline", "AVX2", "AVX-512")
 
@@ -128,13 +126,13 @@ def _terms(forces: Any) -> tuple[Any, ...] | None:
     return None
 
 
-def native_plan(state: Any, forces: Any, method: Any, *, series: bool, checked: bool, checkpoint: Any) -> str:
+def native_plan(state: Any, forces: Any, method: Method, *, series: bool, checked: bool, checkpoint: Any) -> str:
     """``""`` when this run can take the native kernels, else the reason it cannot (for messages)."""
     status = native_status()
     if not status.available:
         return status.reason
-    if not isinstance(method, str) or method not in METHODS:
-        return f"method {method!r} has no native kernel (those with one: {', '.join(METHODS)})"
+    if method.native_code is None:
+        return f"method {method.name!r} has no native kernel (those with one: {', '.join(METHODS)})"
     if type(state) is not State:
         return f"{type(state).__name__} has no native kernel (State has)"
     if state.dtype not in (jnp.float32, jnp.float64):
@@ -228,8 +226,8 @@ def _frames(body: Any, shared: bool, batch: tuple[int, ...], n: int) -> jax.Arra
     return jnp.concatenate([p, 1 / d], axis=1)
 
 
-def _call(method: str, steps: int, dyn: State, body: Any, forces: Any, dt: jax.Array) -> State:
-    """``steps`` steps of the kernel on a batch-first state ``dyn`` (fields ``(*B, c)``)."""
+def _call(code: int, steps: int, dyn: State, body: Any, forces: Any, dt: jax.Array) -> State:
+    """``steps`` steps of the kernel's method ``code`` on a batch-first state ``dyn`` (fields ``(*B, c)``)."""
     batch = tuple(dyn.position.shape[:-1])
     n = int(np.prod(batch, dtype=np.int64))
     dtype = dyn.position.dtype
@@ -241,7 +239,7 @@ def _call(method: str, steps: int, dyn: State, body: Any, forces: Any, dt: jax.A
     inv = body.inverse_inertia
     inv = inv.reshape(1, 9) if shared else jnp.broadcast_to(inv, batch + (3, 3)).reshape(n, 9)
     params, terms = _parameters(forces, batch, dtype)
-    frame = _frames(body, shared, batch, n) if method == "splitting" else jnp.zeros((1, 7), dtype)
+    frame = _frames(body, shared, batch, n) if code == METHODS["splitting"] else jnp.zeros((1, 7), dtype)
     call = jax.ffi.ffi_call(
         _TARGET,
         tuple(jax.ShapeDtypeStruct(a.shape, dtype) for a in flat),
@@ -259,7 +257,7 @@ def _call(method: str, steps: int, dyn: State, body: Any, forces: Any, dt: jax.A
         frame,
         jnp.asarray(dt, dtype),
         steps=np.int64(steps),
-        method=np.int64(METHODS[method]),
+        method=np.int64(code),
         terms=np.int64(terms),
     )
     x, v, q, L = (a.reshape(batch + a.shape[-1:]) for a in out)
@@ -268,7 +266,7 @@ def _call(method: str, steps: int, dyn: State, body: Any, forces: Any, dt: jax.A
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2))
 def advance(
-    method: str,
+    code: int,
     steps: int,
     reference: Callable[..., State],
     dyn: State,
@@ -278,7 +276,8 @@ def advance(
     dt: jax.Array,
     t: jax.Array,
 ) -> State:
-    """``steps`` steps of ``method`` by the kernel, with the values of ``reference`` (same arguments).
+    """``steps`` steps of the method numbered ``code`` (:attr:`rbjax._methods.Method.native_code`) by the kernel,
+    with the values of ``reference`` (same arguments).
 
     ``dyn`` is the stripped, batch-first state (fields ``(*B, c)``: the
     kernel gathers each block of bodies itself, so no transposes);
@@ -290,9 +289,9 @@ def advance(
     of the first step. Differentiated through ``reference``, the JAX steps.
     """
     del reference, consts, t
-    return _call(method, steps, dyn, consts_soa["body"], forces, dt)
+    return _call(code, steps, dyn, consts_soa["body"], forces, dt)
 
 
 @advance.defjvp
-def _advance_jvp(method, steps, reference, primals, tangents):
+def _advance_jvp(code, steps, reference, primals, tangents):
     return jax.jvp(reference, primals, tangents)
