@@ -23,6 +23,7 @@ import sys
 
 import numpy as np
 import pytest
+from conftest import default_xla_env
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 WORKER = os.path.join(HERE, "_multiprocess_worker.py")
@@ -36,8 +37,11 @@ def _free_port() -> int:
 
 
 def _run_all(cmds: list[list[str]]) -> list[str]:
-    flags = os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
-    env = dict(os.environ, JAX_PLATFORMS="cpu", XLA_FLAGS=flags.strip(), PYTHONPATH=os.path.dirname(HERE))
+    # XLA's default flags, not the suite's fast-compile ones: "bit for bit" above is a property of
+    # the programs XLA compiles by default (unoptimised, the sharded and unsharded ones differ by an ulp)
+    base = default_xla_env()
+    flags = base.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
+    env = dict(base, JAX_PLATFORMS="cpu", XLA_FLAGS=flags.strip(), PYTHONPATH=os.path.dirname(HERE))
     procs = [subprocess.Popen(c, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for c in cmds]
     logs = []
     try:
