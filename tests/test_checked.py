@@ -3,15 +3,13 @@
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import default_xla_env
+from conftest import run_with_default_xla
 
 import rbjax as rb
 
@@ -104,17 +102,15 @@ def sound_runs_are_bitwise_unchecked(dtype) -> None:
             assert a.dtype == b.dtype and np.asarray(a).tobytes() == np.asarray(b).tobytes()
 
 
+def sound_runs_are_bitwise_unchecked_in_both_dtypes() -> None:
+    sound_runs_are_bitwise_unchecked(jnp.float32)
+    sound_runs_are_bitwise_unchecked(jnp.float64)
+
+
 def test_sound_runs_pass_and_equal_the_unchecked_result():
     # Bitwise equality is a property of the programs XLA compiles by default, not of the suite's
     # fast-compile flags (tests/conftest.py): checked in a process with XLA's default flags.
-    code = (
-        "import jax, jax.numpy as jnp; jax.config.update('jax_enable_x64', True); "
-        "from test_checked import sound_runs_are_bitwise_unchecked as check; "
-        "check(jnp.float32); check(jnp.float64)"
-    )
-    env = dict(default_xla_env(), PYTHONPATH=os.pathsep.join([HERE, ROOT]))
-    res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
-    assert res.returncode == 0, res.stderr[-3000:]
+    run_with_default_xla("test_checked", "sound_runs_are_bitwise_unchecked_in_both_dtypes")
     # a particle dropped from exact rest: E = 0 initially is not above the floor, then grows ∝ t²
     p = rb.ParticleState.create(jnp.ones(3))
     rb.simulate(p, rb.Forces.gravity(p), DT, 40, "euler", checked=True)

@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import run_with_default_xla
 from reference import reference_rotation
 
 import rbjax
@@ -104,18 +105,22 @@ def test_translation_and_conservation():
     np.testing.assert_allclose(jnp.linalg.norm(out.orientation, axis=-1), 1.0, atol=1e-15)
 
 
-def test_flow_property_long_horizon():
-    # φ_{t2}(φ_{t1}(s)) = φ_{t1+t2}(s): exact for the true solution; tolerance 2e-12 rad at t up
-    # to 2000 s: each side's phase rounds to ~eps·|ω|·t ≈ 5e-13, and the two sides' roundings
-    # differ with the compiler's association (1.07e-12 measured unoptimised), both sides of the
-    # separatrix
+def flow_property_holds_to_round_off() -> None:
+    # φ_{t2}(φ_{t1}(s)) = φ_{t1+t2}(s): exact for the true solution; tolerance 1e-12 rad
+    # at t up to 2000 s (phase rounding ~ eps·|ω|·t ≈ 5e-13), both sides of the separatrix
     for wb in ([0.3, 0.2, 1.0], [1.0, 0.2, 0.3]):
         s = _state(NONDIAG, wb)
         t = np.linspace(0.0, 2000.0, 31)
         direct = rbjax.torque_free(s, t)
         mid = rbjax.torque_free(s, 1234.5)
         composed = rbjax.torque_free(mid, t - 1234.5)
-        assert float(jnp.max(rbjax.quat_angle(direct.orientation, composed.orientation))) < 2e-12
+        assert float(jnp.max(rbjax.quat_angle(direct.orientation, composed.orientation))) < 1e-12
+
+
+def test_flow_property_long_horizon():
+    # the round-off bound holds for XLA's default (optimised) programs; unoptimised, as the suite
+    # compiles (tests/conftest.py), the two sides round differently (1.07e-12 measured)
+    run_with_default_xla("test_torque_free", "flow_property_holds_to_round_off")
 
 
 def _final(inertia, w_world, t):
