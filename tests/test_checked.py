@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import run_with_default_xla
+from conftest import failure_under_default_xla
 
 import rbjax as rb
 
@@ -110,7 +110,8 @@ def sound_runs_are_bitwise_unchecked_in_both_dtypes() -> None:
 def test_sound_runs_pass_and_equal_the_unchecked_result():
     # Bitwise equality is a property of the programs XLA compiles by default, not of the suite's
     # fast-compile flags (tests/conftest.py): checked in a process with XLA's default flags.
-    run_with_default_xla("test_checked", "sound_runs_are_bitwise_unchecked_in_both_dtypes")
+    failure = failure_under_default_xla("test_checked", "sound_runs_are_bitwise_unchecked_in_both_dtypes")
+    assert failure is None, failure
     # a particle dropped from exact rest: E = 0 initially is not above the floor, then grows ∝ t²
     p = rb.ParticleState.create(jnp.ones(3))
     rb.simulate(p, rb.Forces.gravity(p), DT, 40, "euler", checked=True)
