@@ -243,9 +243,10 @@ def prepare(body: Body) -> Body:
 def _inverse_symmetric(S: Array) -> Array:
     """``S⁻¹`` of symmetric ``(..., 3, 3)`` matrices from their six entries, by components.
 
-    The adjugate written out: one fused pass under ``vmap`` (``inverse_3x3``'s
-    row slices and crosses cost ~30 ms per call for 10⁶ bodies on CPU, four
-    Euler steps' worth). Reads the upper triangle only; callers symmetrise.
+    The adjugate written out: one fused pass under ``vmap``, where
+    ``inverse_3x3``'s row slices and crosses run as several passes over the
+    batch (docs/performance.md, "Measured reasons behind the code"). Reads the
+    upper triangle only; callers symmetrise.
     """
     a00, a01, a02 = S[..., 0, 0], S[..., 0, 1], S[..., 0, 2]
     a11, a12, a22 = S[..., 1, 1], S[..., 1, 2], S[..., 2, 2]

@@ -182,16 +182,16 @@ def materialise(tree, dt):
     component. In a Runge–Kutta step with a torque that varies over the step
     (a body-fixed thruster, a driven torque) each stage's ``L`` feeds ``ω``,
     ``ω`` the next stage's ``q``, and the recomputation compounds over the
-    stages: float64, 1e4 bodies, rk8 ran at 3.8 µs per body-step with a
-    thruster and 2.0 µs with a driven torque, 20–40x its torque-free cost;
-    through this function 0.34 and 0.21 µs. With a constant torque the stages
-    are cheap to recompute and materialising costs more than it saves (rk8
-    1.9x slower), hence :func:`torque_varies`. Since ``rbjax.derivative``
+    stages: rk8 with a thruster or a driven torque runs 20–40x its torque-free
+    cost without this function and about 10x faster through it. With a
+    constant torque the stages are cheap to recompute and materialising costs
+    more than it saves, hence :func:`torque_varies` (figures: docs/performance.md,
+    "Measured reasons behind the code"). Since ``rbjax.derivative``
     materialises ``ω`` under a torque, four-stage methods (``"rk4"``,
     ``"rk4_body"``) are faster without this (see :mod:`.explicit_rk`).
 
     ``lax.optimization_barrier`` on the stage state does not stop this fusion
-    (measured again 2026-12-01: no gain for rk4 or rk8), although one on ``ω``
+    (no gain for rk4 or rk8), although one on ``ω``
     does stop the scalar outlining that :mod:`rbjax._dynamics` avoids; a conditional's operands and
     results are always materialised, so the stage goes through one. Its
     predicate ``dt == dt`` is true unless ``dt`` is NaN (the step's result is

@@ -114,15 +114,12 @@ def compose(base_step: StepFn, gammas: Sequence[float]) -> StepFn:
 
     The sub-steps are a ``lax.scan``: one copy of the base step in the compiled
     program, so compile time does not grow with ``s``. The scan carries the
-    current ``(γ_i, c_i)`` and reads the next pair as its input. Read directly
-    from the scan's input, ``γ_i`` became a ``dynamic-slice`` of the table
-    inside every fused kernel of the sub-step, and XLA:CPU then ran a sub-step
-    at 4.4x the cost of a plain ``"splitting"`` step. Measured 2026-12-01 on
-    the quiet 2-core machine, 10⁴ float32 bodies, ms per step, table read →
-    carried: ``"splitting4"`` 4.05 → 0.75, ``"splitting6"`` 7.35 → 1.33,
-    ``"splitting8"`` 13.6 → 2.44, against 0.18 for a plain step. Compile time
-    stayed under 1 s. (Unrolling the sub-steps instead gave 0.78, 1.40 and 5.3
-    ms, but compiled in 1.9, 3.5 and 7.1 s.) The body (the fields no method
+    current ``(γ_i, c_i)`` and reads the next pair as its input: read directly
+    from the scan's input, ``γ_i`` becomes a ``dynamic-slice`` of the table
+    inside every fused kernel of the sub-step, several times the cost of a
+    plain ``"splitting"`` step; unrolling the sub-steps runs as fast as the
+    carried pair but compiles several times longer (docs/performance.md,
+    "Measured reasons behind the code"). The body (the fields no method
     changes) is closed over rather than carried, so its per-body set-up (the
     principal frame's ``eigh``) stays loop-invariant and XLA hoists it out of
     both loops.

@@ -110,10 +110,8 @@ def explicit_rk(a: Sequence[Sequence[float]], b: Sequence[float], c: Sequence[fl
     )
 
     # With a torque that varies over the step, every stage feeds the next through L and ω (see
-    # materialise). Measured 2026-12-01 (work_precision.py, float64, 1e4 bodies, ns per
-    # body-step, with ω materialised in `derivative` either way): rk8 on the thruster 1376 -> 317
-    # and on the driven torque 660 -> 163 with its stages materialised, but rk4 48 -> 98 and
-    # 24 -> 45: four stages are cheaper to recompute than to store.
+    # materialise): eight or more stages are cheaper to store than to recompute, four are
+    # cheaper to recompute (docs/performance.md, "Measured reasons behind the code").
     many_stages = s > 4
 
     def step(state, force_fn, t, dt):

@@ -69,9 +69,8 @@ def omega_of(s: State, kind: str) -> Any:
         return s.body.inverse_inertia[0, 0] * s.angular_momentum
     if kind == "axisymmetric":
         return _axisym_inv(s.body, _axis_from_quat(s.orientation), s.angular_momentum)
-    # q̂ materialised: fused into its uses, its 1/‖q‖ was recomputed in every component of both
-    # rotations and of q̇, and the general kernel ran 30-60x slower than rbjax.simulate's rk4
-    # (N = 1e4, float32, measured roughly on a loaded 2-core machine: 0.5 -> 33 Mbody-steps/s)
+    # q̂ materialised: fused into its uses, its 1/‖q‖ is recomputed in every component of both
+    # rotations and of q̇, many times the cost of the step (docs/performance.md, "Measured reasons")
     q_hat = jax.lax.optimization_barrier(quat_normalize(s.orientation))
     return omega_world(replace(s, orientation=q_hat))
 

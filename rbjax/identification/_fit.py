@@ -122,11 +122,10 @@ def fit_inertia(
         continuity_weight: weight of segment joins relative to data residuals
             (a join gap of ``σ / continuity_weight`` costs as much as one
             ``σ`` data residual). Soft joins let segments drift apart and lose
-            information; measured on 4 s @ 1 kHz with 1e-3 rad + 0.01 rad/s noise
-            (5 draws, ``benchmarks/fit_weight.py``): mean error 1.7e-4 / 5.4e-5 /
-            4.5e-5 / 4.5e-5 at weights 10 / 100 / 1000 / 10 000, reported σ
-            calibrated (rms z ≈ 1) from 1000 on, 4 Levenberg–Marquardt steps
-            up to 1000 and 4-8 at 10 000 (stiff); hence the default 1000.
+            information (larger error and σ); from about 1000 on the joins act
+            as constraints and σ is calibrated, while much stiffer joins slow
+            the solver: hence the default 1000 (docs/fitting.md's table of
+            ``benchmarks/fit_weight.py``).
         excitation_tol: relative singular value below which a direction of the
             linearised problem counts as unidentifiable (``ValueError``).
         rtol, atol, max_steps: Levenberg–Marquardt tolerances and step limit.

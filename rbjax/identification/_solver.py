@@ -13,11 +13,10 @@ predicts, ``−(½‖J δ + r‖² − ½‖r‖²)``; ``s`` grows 3.5x when the
 above ``_EXPAND_RATIO`` and shrinks 4x on a rejection.
 
 This is the map of optimistix's ``LevenbergMarquardt`` with
-``ClassicalTrustRegion`` (the previous implementation here). Written out, a
-step costs one ``JᵀJ`` and an ``n x n`` Cholesky factorisation: through
-lineax's linear operators the Jacobian was re-materialised from its
-linearisation and stacked with ``√λ I`` before every solve, and on the
-model of 64 recordings (1 s at 200 Hz) that was ~40% of a step.
+``ClassicalTrustRegion``, written out so that a step costs one ``JᵀJ`` and an
+``n x n`` Cholesky factorisation: through lineax's linear operators the
+Jacobian is re-materialised from its linearisation and stacked with ``√λ I``
+before every solve, a large share of a step (docs/fitting.md, Speed).
 
 Stopping, on top of the accepted-step test (``|Δy| ≤ atol + rtol·|y|`` and
 ``|Δr| ≤ atol + rtol·|r|``, max-norm): MINPACK's relative-reduction test
