@@ -97,7 +97,7 @@ def shoot(
             (irregular sampling; ``dt = 0`` steps are no-ops, for padding).
         steps: steps per segment (static).
         method: integrator name or ``Method`` (see :func:`rbjax.methods`); default ``"splitting"``,
-            the house default (see :func:`rbjax.simulate`; it was ``"rk4"`` before 2026-12-02).
+            the house default (see :func:`rbjax.simulate`).
         save_every: keep every ``save_every``-th state (must divide ``steps``);
             default ``steps``: start and end only.
         t0: scalar start time of segment 0, the segments tiling
@@ -218,8 +218,7 @@ def simulate_truncated(
         dt: step (s), > 0.
         steps: total steps (static), a multiple of ``truncate_every``.
         method: integrator name or ``Method`` (see :func:`rbjax.methods`); default
-            ``"splitting"``, the house default (see :func:`rbjax.simulate`; it was
-            ``"rk4"`` before 2026-12-02).
+            ``"splitting"``, the house default (see :func:`rbjax.simulate`).
         truncate_every: chunk length in steps (static); must be a multiple of ``save_every``.
         save_every: keep every ``save_every``-th state.
         t0: start time (s); default ``state.time``.
