@@ -15,7 +15,12 @@ fits all draws in one batched call. Beside the achieved error it puts
 * ``cal``: the RMS of ``(fitted - true) / sigma``: about 1 when the reported σ
   is calibrated;
 * ``in2σ``: the fraction of moments within 2 reported σ of the truth (~0.95
-  when σ is calibrated), over the draws that report ``converged``.
+  when σ is calibrated), over the draws that report ``converged``;
+* ``cov_cal``: the inertia error's squared Mahalanobis distance under
+  ``FitResult.inertia_covariance`` per degree of freedom (5 with ``tr I = 1``),
+  mean over converged draws: ~1 when the 6x6 covariance is right;
+* ``axes_cal``: the RMS of the principal frame's rotation error over
+  ``FitResult.principal_axes_std``: ~1 when calibrated.
 
 The ``calibration`` sweep fits gyro-only and orientation+gyro recordings, short
 (0.5 s @ 100 Hz, a 10 rad/s throw) and long (2 s @ 200 Hz), in float64 and
@@ -316,6 +321,28 @@ def _statistics(case, draws, got, sig, conv, crb, t_fit, t_crb) -> dict:
     )
 
 
+def _covariance_calibration(res) -> dict:
+    """``cov_cal``: the mean over converged draws of the inertia error's Mahalanobis distance²
+    under ``inertia_covariance``, per degree of freedom (5 with ``tr I = 1``): ~1 when the 6x6
+    covariance is right; ``axes_cal``: the RMS of the principal frame's rotation error over
+    ``principal_axes_std`` (~1 when calibrated)."""
+    conv = np.asarray(res.converged)
+    if not conv.any():
+        return dict(cov_cal=float("nan"), axes_cal=float("nan"))
+    six = lambda M: np.asarray(M, np.float64)[..., [0, 1, 2, 0, 0, 1], [0, 1, 2, 1, 2, 2]]
+    truth = INERTIA / np.trace(INERTIA)
+    C = np.asarray(res.inertia_covariance, np.float64)[conv]
+    e = six(res.inertia)[conv] - six(truth)
+    d2 = np.einsum("na,nab,nb->n", e, np.linalg.pinv(C, rcond=1e-6, hermitian=True), e)
+    _, V_true = np.linalg.eigh(truth)
+    z = []
+    for V, sd in zip(np.asarray(res.principal_axes, np.float64)[conv], np.asarray(res.principal_axes_std)[conv]):
+        V = V * np.sign(np.sum(V * V_true, 0))
+        R = V_true.T @ V
+        z.append(np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / 2 / sd)
+    return dict(cov_cal=float(np.mean(d2) / 5), axes_cal=float(np.sqrt(np.mean(np.square(z)))))
+
+
 def run(case: Case, draws: int, rng: np.random.Generator) -> dict:
     if case.mode != "batch":
         return run_several(case, draws, rng)
@@ -330,6 +357,7 @@ def run(case: Case, draws: int, rng: np.random.Generator) -> dict:
     t_fit = time.perf_counter() - t0
     got, sig = np.asarray(res.principal_moments, np.float64), np.asarray(res.moment_std, np.float64)
     out = _statistics(case, draws, got, sig, np.asarray(res.converged), crb, t_fit, t_crb)
+    out.update(_covariance_calibration(res))
     if case.drag:
         c1, c1_std = np.asarray(res.drag, np.float64)[:, 0], np.asarray(res.drag_std, np.float64)[:, 0]
         out["drag_error_median"] = float(np.median(np.abs(c1 - case.drag)))
@@ -354,7 +382,7 @@ def main() -> None:
     head = (
         f"{'sweep':>10} {'sensors':>17} {'T s':>4} {'Hz':>5} {'σ_q':>7} {'σ_ω':>6} {'exc':>9} "
         f"{'conv':>5} {'err med':>8} {'err max':>8} {'σ rep':>8} {'CRB':>8} {'z_rms':>6} {'cal':>5} "
-        f"{'in2σ':>5} {'dtype':>7} {'fit s':>6}"
+        f"{'in2σ':>5} {'cov_cal':>7} {'axes_cal':>8} {'dtype':>7} {'fit s':>6}"
     )
     print(head)
     for case in cases(args.quick):
@@ -367,7 +395,8 @@ def main() -> None:
             f"{r['sweep']:>10} {r['sensors']:>17} {seconds:>4g} {r['rate']:>5g} {r['orientation_std']:>7.0e} "
             f"{r['rate_std']:>6.0e} {r['excitation']:>9} {r['converged']:>5.2f} {r['error_median']:>8.1e} "
             f"{r['error_max']:>8.1e} {r['sigma_rel']:>8.1e} {r['crb_rel']:>8.1e} {r['z_rms']:>6.2f} {r['cal']:>5.2f} "
-            f"{r['within_2sigma']:>5.2f} {r['dtype']:>7} {r['fit_s']:>6.1f}"
+            f"{r['within_2sigma']:>5.2f} {r.get('cov_cal', float('nan')):>7.2f} {r.get('axes_cal', float('nan')):>8.2f} "
+            f"{r['dtype']:>7} {r['fit_s']:>6.1f}"
             + (f"  lever arm {r['lever_arm_error_mm']:.2f} mm" if "lever_arm_error_mm" in r else "")
             + (f"  drag c1/trI err {r['drag_error_median']:.1e} cal {r['drag_z_rms']:.2f}" if "drag_z_rms" in r else "")
             + (f"  {r['mode']} {len(r['throws'])} recordings {r['throws']} s" if r["mode"] != "batch" else ""),

@@ -41,6 +41,22 @@ class FitResult:
             taken along the returned eigenvectors (first order; the sorted
             pair's estimates repel each other, measured RMS z 1.2-1.4 on a
             symmetric body).
+        inertia_covariance: ``(6, 6)`` covariance of the entries of ``inertia``
+            in the order ``(I_xx, I_yy, I_zz, I_xy, I_xz, I_yz)`` (body frame,
+            units of ``inertia`` squared), the same linearised sandwich as
+            ``moment_std`` taken in the inertia's own coordinates. Without
+            torques (``tr I = 1``) it has rank 5: ``I_zz = 1 - I_xx - I_yy``. A
+            combination the data do not determine has variance ``inf`` and NaN
+            covariances. The variance of any linear function ``a · c`` of the
+            entries is ``aᵀ C a``; e.g. of moment ``k``, ``a`` holds ``v_x²,
+            v_y², v_z², 2 v_x v_y, 2 v_x v_z, 2 v_y v_z`` of its axis ``v``.
+        principal_axes_std: ``(3,)`` one-sigma uncertainty (rad) of the small
+            rotation of the principal frame about each principal axis (first
+            order: ``δ_i = v_jᵀ δI v_k / (λ_j - λ_k)``, ``(i, j, k)`` cyclic);
+            axis ``k`` tilts by ``sqrt(σ_i² + σ_j²)``. ``inf`` about an axis
+            whose two other moments are equal within 3σ of their difference
+            (a symmetric body: any pair of axes in that plane is principal,
+            so the data do not determine them).
         initial_angular_velocity: ``(3,)`` fitted body-frame ``ω`` at ``times[0]`` (rad/s).
         initial_orientation: ``(4,)`` fitted orientation at ``times[0]``.
         residuals: ``(n,)`` final weighted residual vector (dimensionless).
@@ -222,6 +238,8 @@ class FitResult:
     failed: Bool[Array, "*N"] = field(core_ndim=0)
     drag: Float[Array, "*N 2"] = field(core_ndim=1, default=(float("nan"),) * 2)
     drag_std: Float[Array, "*N 2"] = field(core_ndim=1, default=(float("nan"),) * 2)
+    inertia_covariance: Float[Array, "*N 6 6"] = field(core_ndim=2, default=((float("nan"),) * 6,) * 6)
+    principal_axes_std: Float[Array, "*N 3"] = field(core_ndim=1, default=(float("nan"),) * 3)
     member_initial_orientation: Float[Array, "*N M 4"] = field(core_ndim=2, default=((float("nan"),) * 4,))
     member_initial_orientation_std: Float[Array, "*N M 3"] = field(core_ndim=2, default=((float("nan"),) * 3,))
     member_initial_angular_velocity: Float[Array, "*N M 3"] = field(core_ndim=2, default=((float("nan"),) * 3,))
@@ -236,6 +254,7 @@ class FitResult:
     member_pvalue: tuple = static_field(default=())
 
 
+_EQUAL_MOMENTS_Z = 3.0  # two moments closer than this many σ of their difference: equal within noise
 _BOUNDARY_RTOL = 1e-3  # (I1 + I2 - I3) / tr I below this: on the edge of the consistent set
 # significance level of the consistency test (model_consistent): a correct model and noise level
 # fail it in 1 fit of 1000
@@ -244,27 +263,28 @@ CONSISTENCY_ALPHA = 1e-3
 _SIGMA_MAX_REL = 0.1
 
 
-def _variances(J, n_rows, n_cont, row_s2, F):
-    """Variances ``(f,)`` of the linear functionals ``F (f, p)`` of the fitted parameters; ``inf`` where unbounded.
+def _along_singular_directions(J, n_rows, n_cont, row_s2, F):
+    """The pieces of :func:`_variances` and :func:`_covariance`: ``(FBs, M, unbounded)``.
 
     Least squares with the ``n_cont`` join rows of ``J`` (after its ``n_rows``
     data rows) taken as the constraints they stand for: with ``Z`` a basis of
     their null space and ``D`` the inverse column norms of ``J``, the data
     Jacobian in the constrained, scaled coordinates is ``A = J_d D Z = U S Vᵀ``
-    and the covariance of the estimate is the sandwich
+    and the covariance of the functionals ``F (f, p)`` of the estimate is the
+    sandwich
 
-        C = D Z V S⁻¹ (Uᵀ Σ U) S⁻¹ Vᵀ Zᵀ D,   Σ = diag(row_s2),
+        F C Fᵀ = FBs M FBsᵀ,   FBs = F D Z V S⁻¹,   M = Uᵀ Σ U,   Σ = diag(row_s2),
 
     ``row_s2`` the residual variance of each data row in units of its noise
     level squared (1 when the noise levels are right; per sensor otherwise).
-    With one noise scale ``s²`` this is ``s² (AᵀA)⁻¹``. Eliminating the joins
-    instead of weighting them by ``continuity_weight`` keeps the singular
+    With one noise scale ``s²`` this is ``s² F (AᵀA)⁻¹ Fᵀ``. Eliminating the
+    joins instead of weighting them by ``continuity_weight`` keeps the singular
     values on the data's scale, and the column scaling removes the parameters'
     units, so a relative cut at rounding level drops only what float32 (or
     float64) cannot resolve. A dropped direction is one the data do not
-    determine: a functional that depends on it has variance ``inf``, never 0
-    (a pseudo-inverse would give 0 and a σ ~100x too small in float32).
-    Exactly zero columns (parameters pinned by the model) are left out.
+    determine: a functional that depends on it is ``unbounded`` (variance
+    ``inf``, never 0: a pseudo-inverse would give 0 and a σ ~100x too small in
+    float32). Exactly zero columns (parameters pinned by the model) are left out.
     """
     dtype = J.dtype
     eps = jnp.finfo(dtype).eps
@@ -281,11 +301,53 @@ def _variances(J, n_rows, n_cont, row_s2, F):
     FB = F @ (D[:, None] * (Z @ Vt.T))  # (f, k): the functionals along the singular directions
     FBs = FB * jnp.where(good, 1 / jnp.where(good, sv, 1), 0)
     M = U.T @ (row_s2[:, None] * U)
-    var = jnp.einsum("fi,ij,fj->f", FBs, M, FBs)
     # a functional that moves along an undetermined direction (beyond rounding of the basis)
     scale = jnp.linalg.norm(F * D, axis=1, keepdims=True)
     unbounded = jnp.any(~good & (jnp.abs(FB) > jnp.sqrt(eps) * scale), axis=1)
-    return jnp.where(unbounded, jnp.inf, var)
+    return FBs, M, unbounded
+
+
+def _variances(J, n_rows, n_cont, row_s2, F):
+    """Variances ``(f,)`` of the linear functionals ``F (f, p)`` of the fitted parameters; ``inf`` where
+    unbounded (see :func:`_along_singular_directions`)."""
+    FBs, M, unbounded = _along_singular_directions(J, n_rows, n_cont, row_s2, F)
+    return jnp.where(unbounded, jnp.inf, jnp.einsum("fi,ij,fj->f", FBs, M, FBs))
+
+
+def _covariance(J, n_rows, n_cont, row_s2, F):
+    """Covariance ``(f, f)`` of the functionals ``F (f, p)``: an unbounded one has variance ``inf`` and
+    NaN covariances with the others (see :func:`_along_singular_directions`)."""
+    FBs, M, unbounded = _along_singular_directions(J, n_rows, n_cont, row_s2, F)
+    C = FBs @ M @ FBs.T
+    C = jnp.where(unbounded[:, None] | unbounded[None, :], jnp.nan, C)
+    return jnp.where(jnp.diag(unbounded), jnp.inf, C)
+
+
+def _axis_rotations(V: Array, moments: Array) -> Array:
+    """``(3, 6)``: the small rotation ``δ_i`` of the principal frame about its axis ``i`` (rad) per change
+    of the inertia's six entries ``(xx, yy, zz, xy, xz, yz)``.
+
+    First-order eigenvector perturbation, ``δv_k = Σ_{j≠k} v_j (v_jᵀ δI v_k) / (λ_k - λ_j)``; with
+    ``(i, j, k)`` cyclic and ``δv_k = δ × v_k``, ``δ_i = v_jᵀ δI v_k / (λ_j - λ_k)``. Rows of equal
+    moments are ``inf`` (those axes are not determined: any pair in their plane is principal).
+    """
+    rows = []
+    for i in range(3):
+        j, k = (i + 1) % 3, (i + 2) % 3
+        a, b = V[:, j], V[:, k]
+        coupling = jnp.stack(
+            [
+                a[0] * b[0],
+                a[1] * b[1],
+                a[2] * b[2],
+                a[0] * b[1] + a[1] * b[0],
+                a[0] * b[2] + a[2] * b[0],
+                a[1] * b[2] + a[2] * b[1],
+            ]
+        )
+        gap = moments[j] - moments[k]
+        rows.append(coupling / jnp.where(gap != 0, gap, 1))
+    return jnp.stack(rows)
 
 
 def _after(done: Any, x: Array) -> Array:
@@ -385,12 +447,24 @@ def summarise(
         return full if scale_fixed else full.at[2, 2].set(1 - c[0] - c[1])
 
     G_c = jax.jacfwd(lambda c: jnp.einsum("ik,ij,jk->k", V, inertia_of_c(c), V))(I.reshape(-1)[pick])
-    G_c = jnp.concatenate([G_c, jnp.zeros((3, p - n_I), y.dtype)], 1)
-    var_c = _variances(J_c, n_rows, n_cont, row_s2, G_c)
+    # in the same coordinates, the inertia's six entries (xx, yy, zz, xy, xz, yz) and the principal
+    # frame's small rotation about each of its axes: linear in c, so one covariance serves all
+    E = jax.jacfwd(lambda c: inertia_of_c(c).reshape(-1)[jnp.array([0, 4, 8, 1, 2, 5])])(I.reshape(-1)[pick])
+    F_c = jnp.concatenate([G_c, E, _axis_rotations(V, moments) @ E])
+    C = _covariance(J_c, n_rows, n_cont, row_s2, jnp.concatenate([F_c, jnp.zeros((12, p - n_I), y.dtype)], 1))
+    var_c = jnp.diagonal(C)[:3]
     var_c = jnp.where(jnp.isnan(var_c), jnp.inf, var_c)  # ∂c/∂θ singular to rounding
     on_edge = (moments[0] + moments[1] - moments[2]) < _BOUNDARY_RTOL * jnp.sum(moments)
     std, param_std = jnp.sqrt(jnp.where(on_edge, var_c, var[:3])), jnp.sqrt(var[3:])
-    _, axes = jnp.linalg.eigh(_after(var_c, I))
+    inertia_cov = C[3:9, 3:9]
+    # about axis i, the pair (j, k) of the other two: where their moments are equal within
+    # _EQUAL_MOMENTS_Z σ of their difference, the axes in that plane are not determined (the
+    # linearised σ, coupling / gap, would read as a finite answer with a gap that is noise)
+    j, k = jnp.array([1, 2, 0]), jnp.array([2, 0, 1])
+    gaps = jnp.abs(moments[j] - moments[k])
+    gap_std = jnp.sqrt(C[j, j] + C[k, k] - 2 * C[j, k])
+    axes_std = jnp.where(gaps > _EQUAL_MOMENTS_Z * gap_std, jnp.sqrt(jnp.diagonal(C)[9:]), jnp.inf)
+    _, axes = jnp.linalg.eigh(_after(C, I))
     axes = axes * jnp.sign(jnp.linalg.det(axes))
     _, P = unpack(y, layout.shared, S)
     P_std = param_std[layout.shared :].reshape(S, 6)
@@ -446,6 +520,8 @@ def summarise(
         principal_moments=moments,
         principal_axes=axes,
         moment_std=std,
+        inertia_covariance=inertia_cov,
+        principal_axes_std=axes_std,
         initial_angular_velocity=P[0, 3:],
         initial_orientation=quat_multiply(seg["q_start"][0], quat_exp(P[0, :3])),
         residuals=r,
