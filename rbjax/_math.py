@@ -353,12 +353,17 @@ def quat_log(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 3"]:
     q = array_arg("quat_log", "q", q, (4,))
     q = jnp.where(q[..., :1] < 0, -q, q)
     w, u = q[..., :1], q[..., 1:]
-    s = safe_norm(u, keepdims=True)
-    small = s < jnp.sqrt(_eps(q))
-    s_safe = jnp.where(small, 1.0, s)
-    # θ/s with θ = 2 atan2(s, w); near s = 0 its series (2/w)(1 - s²/(3w²)) avoids 0/0
-    scale = jnp.where(small, 2 / w * (1 - s * s / (3 * w * w)), 2 * jnp.arctan2(s_safe, w) / s_safe)
-    return scale * u
+    return log_scale(w, safe_norm(u, keepdims=True), _eps(q), jnp) * u
+
+
+def log_scale(w: Any, s: Any, eps: Any, xp: Any) -> Any:
+    """``θ / s`` for a unit quaternion ``(w, s n)`` with ``w ≥ 0``, ``θ = 2 atan2(s, w)``: the factor
+    taking its vector part to the rotation vector, for :func:`quat_log` and the NumPy twin of the
+    host-side code (``xp`` is ``jnp`` or ``numpy``). Below ``s < √eps`` its series
+    ``(2/w)(1 - s²/(3w²))`` avoids ``0/0``."""
+    small = s < xp.sqrt(eps)
+    s_safe, w_safe = xp.where(small, 1.0, s), xp.where(small, w, 1.0)  # w = 0 (θ = π) only where not small
+    return xp.where(small, 2 / w_safe * (1 - s * s / (3 * w_safe * w_safe)), 2 * xp.arctan2(s_safe, w) / s_safe)
 
 
 def quat_angle(p: Float[ArrayLike, "... 4"], q: Float[ArrayLike, "... 4"]) -> Float[Array, " ..."]:

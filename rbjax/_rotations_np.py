@@ -1,8 +1,8 @@
 """NumPy quaternion helpers for host-side code: the identification's data side (before tracing)
 and the animation.
 
-Plain NumPy: eager ``jnp`` calls would compile once per new shape. The product and the
-rotation matrix are :mod:`rbjax._math`'s formulas (on components), stacked with NumPy.
+Plain NumPy: eager ``jnp`` calls would compile once per new shape. The product, the
+rotation matrix and the logarithm's scale are :mod:`rbjax._math`'s formulas (on components), stacked with NumPy.
 Quaternions ``[w, x, y, z]``, body to world.
 """
 
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._math import hamilton, rotation_rows
+from ._math import hamilton, log_scale, rotation_rows
 
 
 def np_qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -19,10 +19,10 @@ def np_qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
 
 
 def np_qlog(q: np.ndarray) -> np.ndarray:
+    """Rotation vectors ``θ n`` ``(..., 3)``, ``θ ∈ [0, π]``, of unit quaternions ``(..., 4)`` (``quat_log``)."""
     q = np.where(q[..., :1] < 0, -q, q)
     s = np.linalg.norm(q[..., 1:], axis=-1, keepdims=True)
-    scale = np.where(s > 1e-12, 2 * np.arctan2(s, q[..., :1]) / np.maximum(s, 1e-300), 2 / q[..., :1])
-    return scale * q[..., 1:]
+    return log_scale(q[..., :1], s, np.finfo(q.dtype).eps, np) * q[..., 1:]
 
 
 def np_qmat(q: np.ndarray) -> np.ndarray:
