@@ -181,7 +181,7 @@ def test_model_jacobian_matches_autodiff(segments, gyro_bias, gyro_rotation, mon
     model = jax.jit(lambda y, d: _model.model_residuals(y, d, **prob.static))
     data = jax.tree.map(lambda a: a[0], prob.data)
     y = prob.y0[0] + np.random.default_rng(4).normal(0, 0.05, prob.y0.shape[1])  # off the optimum
-    assert data["seg"]["mask"].min() == 0  # 61 intervals / 3 segments: padding exercised
+    assert data["seg"].mask.min() == 0  # 61 intervals / 3 segments: padding exercised
     r, J = model(y, data)
     monkeypatch.setattr(_model, "_FLOW_METHODS", frozenset())  # the model on rbjax.step
     generic = jax.jit(lambda y, d: _model.model_residuals(y, d, **prob.static)[0])

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -43,11 +44,10 @@ def _pad_segments(prob: Problem, total: int) -> Problem:
     pad = total - prob.segments
     if pad <= 0:
         return prob
-    seg = dict(prob.data["seg"])
-    blank = {k: np.repeat(v[:, -1:], pad, axis=1) for k, v in seg.items()}
-    for k in ("first", "mask", "dt"):
-        blank[k] = np.zeros_like(blank[k])
-    seg = {k: np.concatenate([seg[k], blank[k]], 1) for k in seg}
+    seg = prob.data["seg"]
+    blank = jax.tree.map(lambda v: np.repeat(v[:, -1:], pad, axis=1), seg)
+    blank = replace(blank, first=np.zeros_like(blank.first), mask=np.zeros_like(blank.mask), dt=np.zeros_like(blank.dt))
+    seg = jax.tree.map(lambda a, b: np.concatenate([a, b], 1), seg, blank)
     y0 = np.concatenate([prob.y0, np.repeat(prob.y0[:, -SEGMENT_PARAMS:], pad, axis=1)], 1)
     data = dict(prob.data, seg=seg, n_unused=prob.data["n_unused"] + SEGMENT_PARAMS * pad)
     rows = lambda a, fill: np.concatenate([a, np.full((pad,) + a.shape[1:], fill, a.dtype)])
@@ -68,7 +68,7 @@ def fit_joint(members, options) -> FitResult:
     the joins inside a recording are static).
     """
     probs, errors, good = check_members(members, options)
-    K = max(probs[i].data["seg"]["dt"].shape[-1] for i in good)
+    K = max(probs[i].data["seg"].dt.shape[-1] for i in good)
     substeps = max(probs[i].static["substeps"] for i in good)  # more steps only add accuracy
     packed = [
         pack(members[i][0], members[i][1], options, segments=probs[i].segments, substeps=substeps, pad_intervals=K)
@@ -78,10 +78,10 @@ def fit_joint(members, options) -> FitResult:
     res, starts = solve_with_starts(prob, options)
     # per member: its segments' data rows (segment-major, as the model lays them out)
     seg = prob.data["seg"]
-    S, K1 = seg["rw"].shape[1], seg["rw"].shape[-1]
+    S, K1 = seg.rw.shape[1], seg.rw.shape[-1]
     blocks = len(prob.sensors)
     r = np.asarray(res.residuals)[: S * blocks * K1 * 3].reshape(S, blocks, K1, 3)
-    valid = np.concatenate([seg["first"][0][:, None], seg["mask"][0]], 1)  # (S, K+1)
+    valid = np.concatenate([seg.first[0][:, None], seg.mask[0]], 1)  # (S, K+1)
     n_all = 3 * blocks * valid.sum()
     n_shared = prob.static["layout"].shared
     s2 = float(res.residual_ratio) ** 2

@@ -138,7 +138,7 @@ def _fit_padded(members, probs, options) -> dict:
         groups.setdefault(prob.segments, []).append(i)
     out = {}
     for S, idx in groups.items():
-        K = max(probs[i].data["seg"]["dt"].shape[-1] for i in idx)
+        K = max(probs[i].data["seg"].dt.shape[-1] for i in idx)
         substeps = max(probs[i].static["substeps"] for i in idx)  # more steps only add accuracy
         packed = {
             i: pack(members[i][0], members[i][1], options, segments=S, substeps=substeps, pad_intervals=K) for i in idx

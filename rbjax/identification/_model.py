@@ -46,8 +46,8 @@ def _start(x, d, *, n_theta, scale_fixed):
     """Start state of one segment from ``x = (θ, δ_s, ω_s)``: ``q = q_start ⊗ exp(δ_s)``, ``L = R I ω_s``."""
     I = _inertia(x[:n_theta], scale_fixed)
     # delta_free = 0 pins segment 0's rotation where no orientation data fix the world frame
-    delta, w0 = d["delta_free"] * x[n_theta : n_theta + 3], x[n_theta + 3 :]
-    q0 = quat_multiply(d["q_start"], quat_exp(delta))
+    delta, w0 = d.delta_free * x[n_theta : n_theta + 3], x[n_theta + 3 :]
+    q0 = quat_multiply(d.q_start, quat_exp(delta))
     one = jnp.ones((), I.dtype)
     body = new_unchecked(Body, mass=one, inertia=I, _inverse=inverse_3x3(I))
     zero = jnp.zeros(3, I.dtype)
@@ -101,11 +101,11 @@ def _segments(X, seg, *, layout: Layout, scale_fixed, method, substeps, use_rate
     s0, ds0 = jax.vmap(lambda x, d: _pushforward(lambda x: start(x, d), x, basis))(X, seg)
 
     def forces(d):
-        if "tau" in d:  # world frame
-            ts, tau = d["t_samples"], d["tau"]
+        if d.tau is not None:  # world frame
+            ts, tau = d.t_samples, d.tau
             return lambda st, t: Forces(torque=jnp.stack([jnp.interp(t, ts, tau[:, i]) for i in range(3)]))
-        if "tau_b" in d:  # body frame: turned into the world by the simulated attitude
-            ts, tau_b = d["t_samples"], d["tau_b"]
+        if d.tau_b is not None:  # body frame: turned into the world by the simulated attitude
+            ts, tau_b = d.t_samples, d.tau_b
 
             def body(st, t):
                 tb = jnp.stack([jnp.interp(t, ts, tau_b[:, i]) for i in range(3)])
@@ -145,8 +145,8 @@ def _segments(X, seg, *, layout: Layout, scale_fixed, method, substeps, use_rate
     r0 = (s0.orientation, s0.angular_momentum)
     dr0 = (ds0.orientation, ds0.angular_momentum)
     inv, dinv = body.inverse_inertia, dbody.inverse_inertia
-    const = dict(wq=seg["wq"], ww=seg["ww"])
-    obs = dict(q_meas=seg["q_meas"], w_meas=seg["w_meas"], weight=seg["mask"])  # samples 1..K
+    const = dict(wq=seg.wq, ww=seg.ww)
+    obs = dict(q_meas=seg.q_meas, w_meas=seg.w_meas, weight=seg.mask)  # samples 1..K
 
     def observe(r, dr, obs):  # every segment's observations of one sample, tangents (S, n, ...)
         def one(r, dr, inv, dinv, obs, c):
@@ -156,10 +156,10 @@ def _segments(X, seg, *, layout: Layout, scale_fixed, method, substeps, use_rate
         return jax.vmap(one)(r, dr, inv, dinv, obs, const)
 
     if method in _FLOW_METHODS:  # structure of arrays; a batch's recordings folded into the body axis
-        frame = "world" if "tau" in seg else "body" if "tau_b" in seg else None
-        args = dict(q=r0[0], L=r0[1], inv=inv, dq=dr0[0], dL=dr0[1], dinv=dinv, dt=seg["dt"], obs=obs, const=const)
+        frame = "world" if seg.tau is not None else "body" if seg.tau_b is not None else None
+        args = dict(q=r0[0], L=r0[1], inv=inv, dq=dr0[0], dL=dr0[1], dinv=dinv, dt=seg.dt, obs=obs, const=const)
         if frame is not None:
-            args["tau"] = seg["tau" if frame == "world" else "tau_b"]
+            args["tau"] = seg.tau if frame == "world" else seg.tau_b
         drag, at = layout.drag, layout.span("drag")
         if drag:  # the coefficients (c₁, c₂); "linear" fits c₁ alone
             k = jnp.zeros((X.shape[0], 2), X.dtype).at[:, :drag].set(X[:, at])
@@ -168,15 +168,15 @@ def _segments(X, seg, *, layout: Layout, scale_fixed, method, substeps, use_rate
             args.update(drag=k, ddrag=dk)
         (q_end, dq_end), y, dy = flow(substeps, frame, _observe, bool(drag))(args)
     else:
-        K = seg["dt"].shape[1]
-        dts = jnp.broadcast_to((seg["dt"] / substeps).T[:, None], (K, substeps, X.shape[0]))
-        (r_end, dr_end, _), (r_k, dr_k) = jax.lax.scan(row, (r0, dr0, seg["t0"]), dts)
+        K = seg.dt.shape[1]
+        dts = jnp.broadcast_to((seg.dt / substeps).T[:, None], (K, substeps, X.shape[0]))
+        (r_end, dr_end, _), (r_k, dr_k) = jax.lax.scan(row, (r0, dr0, seg.t0), dts)
         q_end, dq_end = r_end[0], dr_end[0]
         over_samples = jax.vmap(observe, in_axes=(0, 0, jax.tree.map(lambda _: 1, obs)), out_axes=(1, 2))
         y, dy = over_samples(r_k, dr_k, obs)
 
     # samples 0..K of every segment: the first sample, then those after each interval
-    first = dict(q_meas=seg["q_first"], w_meas=seg["w_first"], weight=seg["first"])
+    first = dict(q_meas=seg.q_first, w_meas=seg.w_first, weight=seg.first)
     y0, dy0 = observe(r0, dr0, first)
     (r_q, r_w, w), (dr_q, dr_w, dw) = jax.tree.map(
         lambda a0, a, axis: jnp.concatenate([jnp.expand_dims(a0, axis), a], axis),
@@ -184,12 +184,12 @@ def _segments(X, seg, *, layout: Layout, scale_fixed, method, substeps, use_rate
         (y, dy),
         ((1,) * 3, (2,) * 3),
     )
-    w_meas = jnp.concatenate([seg["w_first"][:, None], seg["w_meas"]], 1)
-    weight = jnp.concatenate([seg["first"][:, None], seg["mask"]], 1)
+    w_meas = jnp.concatenate([seg.w_first[:, None], seg.w_meas], 1)
+    weight = jnp.concatenate([seg.first[:, None], seg.mask], 1)
     S, n = X.shape
     if layout.gyro_rotation:  # gyro = R_gᵀ ω (+ b): R_g = exp(ρ) maps gyro-frame vectors to body-frame ones
         at = layout.span("gyro_rotation")
-        g = weight[:, :, None] * seg["ww"][:, None, None]  # (S, K+1, 1)
+        g = weight[:, :, None] * seg.ww[:, None, None]  # (S, K+1, 1)
         rho = X[0, at]
 
         wg = jax.vmap(jax.vmap(lambda w: gyro_reading(rho, w)))(w)
@@ -200,14 +200,14 @@ def _segments(X, seg, *, layout: Layout, scale_fixed, method, substeps, use_rate
         dr_w = dr_w.at[:, at].add(jnp.moveaxis(g[..., None] * Fr, -1, 1))
     if layout.gyro_bias:  # gyro = ω + b (body frame, constant): b enters the rate rows linearly
         at = layout.span("gyro_bias")
-        g = weight[:, :, None] * seg["ww"][:, None, None]  # (S, K+1, 1)
+        g = weight[:, :, None] * seg.ww[:, None, None]  # (S, K+1, 1)
         r_w = r_w + g * X[:, None, at]
         eye = jnp.eye(3, dtype=X.dtype)
         dr_w = dr_w.at[:, at].add(jnp.einsum("skc,bc->sbkc", g * jnp.ones(3, X.dtype), eye))
     use_accel = bool(layout.accelerometer)
     if use_accel:  # free flight: a = ω̇ × r + ω × (ω × r) + b_a (body frame), ω̇ = -I⁻¹ (ω × I ω)
         n_I, n_A = layout.inertia, layout.span("accelerometer").start
-        g = weight[:, :, None] * seg["wa"][:, None, None]  # (S, K+1, 1)
+        g = weight[:, :, None] * seg.wa[:, None, None]  # (S, K+1, 1)
         th, ra, ba = X[0, :n_I], X[0, n_A : n_A + 3], X[0, n_A + 3 : n_A + 6]
 
         def accel(th, w, ra, ba):
@@ -216,7 +216,7 @@ def _segments(X, seg, *, layout: Layout, scale_fixed, method, substeps, use_rate
         each = lambda f: jax.vmap(jax.vmap(f))(w)
         a_pred = each(lambda w: accel(th, w, ra, ba))
         Fth, Fw, Fr, Fb = each(lambda w: jax.jacfwd(accel, argnums=(0, 1, 2, 3))(th, w, ra, ba))
-        a_meas = jnp.concatenate([seg["a_first"][:, None], seg["a_meas"]], 1)
+        a_meas = jnp.concatenate([seg.a_first[:, None], seg.a_meas], 1)
         r_a = g * (a_pred - a_meas)
         dr_a = g[:, None] * jnp.einsum("skij,snkj->snki", Fw, dw)
         dr_a = dr_a.at[:, :n_I].add(jnp.moveaxis(g[..., None] * Fth, -1, 1))
@@ -244,9 +244,9 @@ def _segments(X, seg, *, layout: Layout, scale_fixed, method, substeps, use_rate
 
 def _continuity(end, p_next, d_next, continuity_weight):
     """Join residuals (6,): orientation gap (rad) and rate gap, weighted."""
-    q_next = quat_multiply(d_next["q_start"], quat_exp(p_next[:3]))
+    q_next = quat_multiply(d_next.q_start, quat_exp(p_next[:3]))
     gap = quat_log(quat_multiply(quat_conjugate(end[:4]), q_next))
-    return continuity_weight * jnp.concatenate([d_next["wcq"] * gap, d_next["wc"] * (end[4:] - p_next[3:])])
+    return continuity_weight * jnp.concatenate([d_next.wcq * gap, d_next.wc * (end[4:] - p_next[3:])])
 
 
 def model_residuals(
@@ -269,7 +269,7 @@ def model_residuals(
     (a static tuple); ``None``: every one (one recording).
     """
     seg = data["seg"]
-    S = seg["dt"].shape[0]
+    S = seg.dt.shape[0]
     n_theta = layout.shared
     theta, P = unpack(y, n_theta, S)
     X = jnp.concatenate([jnp.broadcast_to(theta, (S, n_theta)), P], -1)  # x_s = (θ, p_s)
@@ -285,7 +285,7 @@ def model_residuals(
     )
     m = r_seg.shape[1]
     # robust (IRLS) weights per sample and sensor block, rw (S, blocks, K+1): rows scaled by √w
-    sw = jnp.sqrt(seg["rw"])
+    sw = jnp.sqrt(seg.rw)
     B, K1 = sw.shape[1:]
     r_seg = (r_seg.reshape(S, B, K1, 3) * sw[..., None]).reshape(S, m)
     J_seg = (J_seg.reshape(S, B, K1, 3, -1) * sw[..., None, None]).reshape(S, m, -1)
@@ -317,7 +317,7 @@ def model_shapes(y, data, *, joins=None, **_):
     The solver sizes its slots from these: ``jax.eval_shape`` of the model
     would trace the whole flow once more just to learn them.
     """
-    S, B, K1 = data["seg"]["rw"].shape
+    S, B, K1 = data["seg"].rw.shape
     n_joins = 0 if S == 1 else S - 1 if joins is None else len(joins)
     m = 3 * S * B * K1 + 6 * n_joins
     return jax.ShapeDtypeStruct((m,), y.dtype), jax.ShapeDtypeStruct((m, y.shape[0]), y.dtype)

@@ -16,6 +16,7 @@ import numpy as np
 
 from .. import _methods
 from .._body import Body
+from .._pytree import replace
 from .._rotations_np import np_increments, np_qmat, rate_estimate
 from .._state import State
 from ._checks import check_inputs, gyro_frame_check
@@ -28,6 +29,7 @@ from ._linear import (
     np_params_from_inertia,
     skew,
 )
+from ._segments import Segments
 
 
 def _mad_sigma(x: np.ndarray) -> np.ndarray:
@@ -322,7 +324,7 @@ def prepare(
             # no orientation data: the joins' orientation gaps only chain the segments (they matter
             # with body torques); a gap g weighs like a rate error g / segment duration
             wq, wcq = ones, ones / (sw[n] * seg_dur)
-        seg = dict(
+        seg = Segments(
             q_start=q[n][starts],
             q_first=np.broadcast_to(q[n][0], (S, 4)),
             w_first=np.broadcast_to(rates[n][0], (S, 3)),
@@ -345,13 +347,12 @@ def prepare(
             sa = (
                 acceleration_std if acceleration_std is not None else max(_mad_sigma(np.diff(acc[n], 2, axis=0)), 1e-12)
             )
-            seg["a_first"] = np.broadcast_to(acc[n][0], (S, 3))
-            seg["a_meas"] = acc[n][idx_c + 1]
-            seg["wa"] = ones / float(sa)
+            a_first = np.broadcast_to(acc[n][0], (S, 3))
+            seg = replace(seg, a_first=a_first, a_meas=acc[n][idx_c + 1], wa=ones / float(sa))
         if tau_n is not None:
-            seg["t_samples"], seg["tau"] = t[samp] - t[0], tau_n[samp]
+            seg = replace(seg, t_samples=t[samp] - t[0], tau=tau_n[samp])
         if taub_n is not None:
-            seg["t_samples"], seg["tau_b"] = t[samp] - t[0], taub_n[samp]
+            seg = replace(seg, t_samples=t[samp] - t[0], tau_b=taub_n[samp])
         # without orientations segment 0's rotation δ_0 is pinned (delta_free = 0): 3 parameters
         # with a zero Jacobian column, not degrees of freedom of the fit
         n_unused = 0.0 if use_q else 3.0
@@ -424,13 +425,17 @@ def join_problems(problems: list[Problem]) -> Problem:
     for p in problems:
         # one sensor, one noise level: every recording weighted by the median of their levels
         f_q, f_w, f_a = np.where(np.isfinite(noise), p.data["noise_std"][0] / noise, 1.0)
-        seg = dict(p.data["seg"])
-        seg["wq"], seg["ww"] = seg["wq"] * (f_q if use_q else 1.0), seg["ww"] * (f_w if use_rates else 1.0)
-        seg["wc"] = seg["wc"] * (f_w if use_rates else f_q)  # the rate join in the gyro's (or attitude's) units
-        seg["wcq"] = seg["wcq"] * (f_q if use_q else f_w)
-        if "wa" in seg:
-            seg["wa"] = seg["wa"] * f_a
-        segs.append(seg)
+        seg = p.data["seg"]
+        segs.append(
+            replace(
+                seg,
+                wq=seg.wq * (f_q if use_q else 1.0),
+                ww=seg.ww * (f_w if use_rates else 1.0),
+                wc=seg.wc * (f_w if use_rates else f_q),  # the rate join in the gyro's (or attitude's) units
+                wcq=seg.wcq * (f_q if use_q else f_w),
+                wa=None if seg.wa is None else seg.wa * f_a,
+            )
+        )
     seg = jax.tree.map(lambda *a: np.concatenate(a, 1), *segs)
     data = dict(
         first.data,

@@ -397,7 +397,7 @@ def summarise(
     the principal moments; then the honest-failure diagnostics.
     """
     seg = data["seg"]
-    S, K = seg["dt"].shape
+    S, K = seg.dt.shape
     p = y.shape[0]
     use_accel = bool(layout.accelerometer)
     n_blocks = int(use_orientations) + int(use_rates) + int(use_accel)
@@ -407,15 +407,15 @@ def summarise(
     # residual variance from the samples the robust loss kept (all of them for squared loss):
     # a glitch's w r² = c |r| would otherwise inflate s² with what the loss set aside.
     # Data count: 3 rows per kept sample and sensor, times its robust weight
-    valid = jnp.concatenate([seg["first"][:, None], seg["mask"]], 1)  # (S, K+1): real samples
-    kept = jnp.where(seg["rw"] >= outlier_weight, valid[:, None, :], 0)
-    n_eff = 3 * jnp.sum(seg["rw"] * kept)
+    valid = jnp.concatenate([seg.first[:, None], seg.mask], 1)  # (S, K+1): real samples
+    kept = jnp.where(seg.rw >= outlier_weight, valid[:, None, :], 0)
+    n_eff = 3 * jnp.sum(seg.rw * kept)
     r_kept = r[:n_rows].reshape(kept.shape + (3,)) * kept[..., None]
     p_eff = p - n_cont - data["n_unused"]  # free parameters: the joins are constraints
     s2 = jnp.sum(r_kept**2) / (n_eff - p_eff)
     # per sensor block: whitened sum of squares, residual count and its share of the dof
     chi2_k = jnp.sum(r_kept**2, (0, 2, 3))
-    n_k = 3 * jnp.sum(seg["rw"] * kept, (0, 2))
+    n_k = 3 * jnp.sum(seg.rw * kept, (0, 2))
     dof_k = n_k - p_eff * n_k / n_eff
     s2_k = chi2_k / dof_k  # residual variance per sensor, in units of its noise level squared
     row_s2 = jnp.broadcast_to(s2_k[None, :, None, None], r_kept.shape).reshape(-1)
@@ -470,8 +470,8 @@ def summarise(
     P_std = param_std[layout.shared :].reshape(S, 6)
     # each segment's start: q_start ⊗ exp(δ_s) and ω_s, with σ; δ_s pinned (delta_free = 0, no
     # orientation data) has no σ
-    seg_q = jax.vmap(lambda q, d: quat_multiply(q, quat_exp(d)))(seg["q_start"], P[:, :3])
-    seg_q_std = jnp.where(seg["delta_free"][:, None] > 0, P_std[:, :3], jnp.nan)
+    seg_q = jax.vmap(lambda q, d: quat_multiply(q, quat_exp(d)))(seg.q_start, P[:, :3])
+    seg_q_std = jnp.where(seg.delta_free[:, None] > 0, P_std[:, :3], jnp.nan)
     nan2 = jnp.full(2, jnp.nan, y.dtype)
     drag = layout.drag
     drag_value = c_drag(y) if drag else nan2
@@ -495,9 +495,9 @@ def summarise(
     n_kept = 3 * jnp.sum(kept, (0, 2))  # per sensor block
     # undo √w and each segment's inverse noise level (recordings fitted jointly have their own): sensor units
     inv_noise = jnp.stack(
-        [seg[k] for k, on in (("wq", use_orientations), ("ww", use_rates), ("wa", use_accel)) if on], 1
+        [w for w, on in ((seg.wq, use_orientations), (seg.ww, use_rates), (seg.wa, use_accel)) if on], 1
     )
-    r_units = r_kept / (jnp.sqrt(seg["rw"]) * inv_noise[..., None])[..., None]
+    r_units = r_kept / (jnp.sqrt(seg.rw) * inv_noise[..., None])[..., None]
     rms = jnp.sqrt(jnp.sum(r_units**2, (0, 2, 3)) / n_kept)
     nan = jnp.full((), jnp.nan, r.dtype)
     q_rms = rms[0] if use_orientations else nan
@@ -523,7 +523,7 @@ def summarise(
         inertia_covariance=inertia_cov,
         principal_axes_std=axes_std,
         initial_angular_velocity=P[0, 3:],
-        initial_orientation=quat_multiply(seg["q_start"][0], quat_exp(P[0, :3])),
+        initial_orientation=quat_multiply(seg.q_start[0], quat_exp(P[0, :3])),
         residuals=r,
         orientation_rms=q_rms,
         rate_rms=w_rms,

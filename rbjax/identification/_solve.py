@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._pytree import new_unchecked
+from .._pytree import new_unchecked, replace
 from . import _robust
 from ._checks import check_arrays, check_options
 from ._model import model_residuals, model_shapes
@@ -69,7 +69,7 @@ def compiled_programs() -> int:
 def is_small(prob) -> bool:
     """Whether ``prob``'s solve is cheap next to its compile: one recording, or one joint problem,
     of at most ``_SMALL_INTERVALS`` sample intervals in all (segments x padded intervals)."""
-    S, K = prob.data["seg"]["dt"].shape[-2:]
+    S, K = prob.data["seg"].dt.shape[-2:]
     return not prob.batched and S * K <= _SMALL_INTERVALS
 
 
@@ -107,7 +107,7 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
     def retire(slot):
         """``(again, next round's slot, solution)`` of a stopped solve."""
         d, y, total = slot["data"], slot["y"], slot["total"] + slot["steps"]
-        rw = d["seg"]["rw"]
+        rw = d["seg"].rw
         out = dict(y=y, converged=lm.converged(slot), iterations=total, rw=rw)
         if lm.keep_jacobian:
             out.update(r=slot["r"], J=slot["J"])
@@ -115,7 +115,7 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
             return jnp.array(False), slot, out
         rw_new = _robust.weights(slot["r"], rw, loss, d["loss_scale"])
         again = _robust.another_round(rw, rw_new, slot["round"])
-        restarted = start(y, {**d, "seg": {**d["seg"], "rw": rw_new}}, slot["round"] + 1, total)
+        restarted = start(y, {**d, "seg": replace(d["seg"], rw=rw_new)}, slot["round"] + 1, total)
         return again, restarted, out
 
     def summary(sol, d):
@@ -126,7 +126,7 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
         in the program. (The covariance is formed from ``J``'s SVD; ``JᵀJ``
         would square its condition number.)
         """
-        d = {**d, "seg": {**d["seg"], "rw": sol["rw"]}}
+        d = {**d, "seg": replace(d["seg"], rw=sol["rw"])}
         r, J = (sol["r"], sol["J"]) if "J" in sol else lm.model(sol["y"], d)
         out = summarise(sol["y"], r, J, d, sol["converged"], sol["iterations"], **kw, outlier_weight=outlier_weight)
         return dict(out, robust_weights=sol["rw"])
