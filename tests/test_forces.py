@@ -246,8 +246,9 @@ def test_bad_inputs_raise_value_error():
 # against the same model as an opaque callable, which simulate evaluates on the whole batch-first
 # batch between transposes: the same formulas, so equal to round-off (measured at most 0.6 eps per
 # step of each field's scale; the bound allows 8, as tests/test_native.py does for its two paths)
+# (the three methods with the heaviest steps to compile run in the whole suite only)
 _PER_BODY_CASES = [
-    (m, d)
+    pytest.param(m, d, marks=[pytest.mark.slow] if m in ("rk4_body", "rk8", "implicit_midpoint") else [])
     for m in ["euler", "rk4", "splitting", "semi_implicit_euler", "rk4_body", "rk8", "implicit_midpoint"]
     for d in ([jnp.float32, jnp.float64] if m in ("euler", "rk4", "splitting") else [jnp.float64])
 ]

@@ -35,6 +35,7 @@ def _pyright() -> list[str]:
     return [exe]
 
 
+@pytest.mark.slow  # ~20 s on one core: the whole suite (CI) runs it
 def test_pyright_is_clean():
     # settings in [tool.pyright] of pyproject.toml; --pythonpath points pyright at the interpreter
     # running the tests, so it resolves jax, equinox, ... from this environment whatever venv it is

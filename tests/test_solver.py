@@ -145,6 +145,7 @@ def _unordered_lapack_pairs(jaxpr, where="top"):
     return bad
 
 
+@pytest.mark.slow  # compiles a batched fit to read its program; the whole suite (CI) runs it
 def test_a_batched_fit_runs_its_lapack_calls_one_after_another(monkeypatch):
     # Batched over a fit's members, each LAPACK call (eigh, SVD, det) waits for its batch on
     # XLA's intra-op thread pool; two at once can starve each other on a 2-core machine and hang
