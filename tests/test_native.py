@@ -178,8 +178,8 @@ def test_native_true_says_why_it_cannot():
     state = _state((3,), jnp.float64)
     cases = [
         (dict(method="rk8"), "no native kernel"),
-        (dict(forces=rb.Spring.between([0], [1], 1.0)), "not evaluated natively"),
-        (dict(forces=lambda s, t: rb.Forces(torque=jnp.ones(3) * t)), "not evaluated natively"),
+        (dict(forces=rb.Spring.between([0], [1], 1.0)), "needs the forces at intermediate states"),
+        (dict(forces=lambda s, t: rb.Forces(torque=jnp.ones(3) * t)), "needs the forces at intermediate states"),
         (dict(checked=True), "checked mode"),
         (dict(state=rb.to_matrix_state(state)), "MatrixState has no native kernel"),
     ]
@@ -241,3 +241,125 @@ def test_native_semi_implicit_turns_through_every_quadrant(dtype):
     exact = np.stack([np.cos(n * half), np.sin(n * half), 0 * n * half, 0 * n * half], axis=-1)
     eps = float(jnp.finfo(dtype).eps)
     np.testing.assert_allclose(np.asarray(nat.orientation, np.float64), exact, rtol=0, atol=8 * STEPS * eps)
+
+
+def _series(batch, dtype, steps=STEPS, torque=True, shared_force=False, seed=4):
+    # per-body forces (or shared ones) and a torque shared by the batch (shape (steps, 1, ..., 3)),
+    # both varying per step
+    rng = np.random.default_rng(seed)
+    shared = (steps,) + (1,) * len(batch) + (3,)
+    force = jnp.asarray(rng.normal(size=shared if shared_force else (steps,) + batch + (3,)), dtype)
+    return rb.Forces(force=force, torque=jnp.asarray(rng.normal(size=shared), dtype) if torque else None)
+
+
+@needs_kernels
+@pytest.mark.parametrize("method", sorted(_native.METHODS))
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_native_time_series_matches_jax(method, dtype):
+    # one slice per step, held over the step's stages, all the steps of a frame in one kernel call
+    state = _state((7,), dtype)
+    nat, ref = _both(state, _series((7,), dtype), method)
+    _assert_close(nat, ref, STEPS, dtype)
+
+
+@needs_kernels
+@pytest.mark.parametrize("method", sorted(_native.METHODS))
+@pytest.mark.parametrize(("batch", "shared_body"), SHAPES)
+def test_native_time_series_over_batch_shapes_and_shared_bodies(method, batch, shared_body):
+    state = _state(batch, jnp.float64, shared_body)
+    # a force series alone (no torque), and force and torque shared by the whole batch
+    for forces in (_series(batch, jnp.float64, torque=False), _series(batch, jnp.float64, shared_force=True)):
+        nat, ref = _both(state, forces, method)
+        _assert_close(nat, ref, STEPS, jnp.float64)
+
+
+@needs_kernels
+def test_native_time_series_under_jit_vmap_chunked_runs_and_grad():
+    state = _state((4,), jnp.float64)
+    forces = _series((4,), jnp.float64)
+    run = lambda s, f, native: rb.simulate(s, f, 1e-2, STEPS, "splitting", save_every=SAVE, native=native)
+    ref = run(state, forces, False)
+    _assert_close(jax.jit(run, static_argnums=2)(state, forces, True), ref, STEPS, jnp.float64)
+    # vmap over a stack of series: the kernel sees (V, steps, n, 3)
+    stack = jax.tree.map(lambda a: jnp.stack([a * 0.5, a]), forces)
+    both = jax.vmap(lambda f: run(state, f, True))(stack)
+    _assert_close(jax.tree.map(lambda a: a[1], both), ref, STEPS, jnp.float64)
+    _assert_close(
+        jax.tree.map(lambda a: a[0], both), run(state, jax.tree.map(lambda a: a[0], stack), False), STEPS, jnp.float64
+    )
+    # a chunked run slices the series per chunk
+    chunked = rb.simulate_chunked(
+        state, forces, 1e-2, STEPS, "splitting", save_every=SAVE, chunk_steps=12, progress=False
+    )
+    _assert_close(chunked, ref, STEPS, jnp.float64)
+
+    # the derivative with respect to the series comes from the JAX steps (custom_jvp)
+    def loss(f, native):
+        return jnp.sum(run(state, f, native).angular_momentum[-1] ** 2)
+
+    g_nat = jax.grad(loss)(forces, True)
+    g_ref = jax.grad(loss)(forces, False)
+    for a, b in zip(jax.tree.leaves(g_nat), jax.tree.leaves(g_ref), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
+
+
+def _callable(dtype):
+    # depends on the time, the velocity, the momentum and the body: a change of any input shows
+    def forces(s, t):
+        force = s.body.mass[..., None] * jnp.asarray([0.0, 0.0, -9.81], dtype) - 0.3 * s.velocity
+        return rb.Forces(force=force + jnp.sin(3 * t), torque=-0.1 * s.angular_momentum + 0.2 * jnp.cos(t))
+
+    return forces
+
+
+@needs_kernels
+@pytest.mark.parametrize("method", _native.AT_STEP_START)
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+@pytest.mark.parametrize("kind", ["callable", "spring", "thruster"])
+def test_native_forces_evaluated_by_xla_match_jax(method, dtype, kind):
+    # XLA evaluates the forces at each step's start, the kernel takes them: one call per step
+    state = _state((7,), dtype)
+    if kind == "callable":
+        forces = _callable(dtype)
+    elif kind == "spring":
+        forces = rb.Spring.between([0, 2], [1, 5], 3.0, damping=0.2) + rb.Gravity()
+    else:
+        d = jnp.asarray([[0.0, 0.0, 1.0], [0.6, 0.8, 0.0]], dtype)
+        forces = rb.Thruster(
+            [1, 4], d, jnp.asarray([2.0, -1.0], dtype), point=jnp.asarray([[0.1, 0, 0], [0, 0.2, 0]], dtype)
+        )
+    t0 = 0.37  # the steps' times enter a time-dependent callable
+    nat = rb.simulate(state, forces, 1e-2, STEPS, method, save_every=SAVE, t0=t0, native=True)
+    ref = rb.simulate(state, forces, 1e-2, STEPS, method, save_every=SAVE, t0=t0, native=False)
+    _assert_close(nat, ref, STEPS, dtype)
+    # without native=True such forces stay on the JAX path: the same bits as native=False
+    default = rb.simulate(state, forces, 1e-2, STEPS, method, save_every=SAVE, t0=t0)
+    for a, b in zip(jax.tree.leaves(default), jax.tree.leaves(ref), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+@needs_kernels
+@pytest.mark.parametrize(("batch", "shared_body"), SHAPES)
+def test_native_callable_over_batch_shapes_and_shared_bodies(batch, shared_body):
+    state = _state(batch, jnp.float64, shared_body)
+    for method in _native.AT_STEP_START:
+        nat = rb.simulate(state, _callable(jnp.float64), 1e-2, STEPS, method, save_every=SAVE, native=True)
+        ref = rb.simulate(state, _callable(jnp.float64), 1e-2, STEPS, method, save_every=SAVE, native=False)
+        _assert_close(nat, ref, STEPS, jnp.float64)
+
+
+@needs_kernels
+def test_native_callable_under_jit_vmap_chunked_runs_and_grad():
+    state = _state((4,), jnp.float64)
+    forces = _callable(jnp.float64)
+    run = lambda s, dt, native: rb.simulate(s, forces, dt, STEPS, "euler", save_every=SAVE, native=native)
+    ref = run(state, 1e-2, False)
+    _assert_close(jax.jit(run, static_argnums=2)(state, 1e-2, True), ref, STEPS, jnp.float64)
+    stack = jax.tree.map(lambda a: jnp.stack([a, a * 1.0]), state)
+    both = jax.vmap(lambda s: run(s, 1e-2, True))(stack)
+    _assert_close(jax.tree.map(lambda a: a[1], both), ref, STEPS, jnp.float64)
+
+    def loss(dt, native):
+        return jnp.sum(run(state, dt, native).orientation[-1] * jnp.asarray([0.3, -1.0, 0.5, 2.0]))
+
+    np.testing.assert_allclose(jax.grad(loss)(0.01, True), jax.grad(loss)(0.01, False), rtol=1e-12, atol=1e-12)

@@ -38,6 +38,7 @@ from .._methods import Method, available
 from .._methods._common import principal_frame
 from .._pytree import replace
 from .._state import Forces, State
+from .._validate import checked_force_fn
 
 __all__ = ["NativeStatus", "native_status", "native_plan", "advance"]
 
@@ -112,6 +113,17 @@ def native_status() -> NativeStatus:
 
 _SIMPLE = (Gravity, LinearDrag, QuadraticDrag, ConstantForce)
 
+# The methods whose steps evaluate the forces once, at the step's start state and time (euler.py:
+# euler_state, semi_implicit_euler.py: semi_implicit_state, whose kick sees the old state): with a
+# force law the kernel does not know, XLA evaluates it there and the kernel takes the result,
+# one call per step. The others need forces at intermediate states (the stages of rk4 and
+# rk4_body, splitting's kick after the drift), where a kernel call per stage would cost at
+# least four per-step calls. A kernel call per step reads and writes the whole state once,
+# as a fused JAX step does: roughly measured (shared 2-core machine, 1e5 bodies, float32),
+# euler and semi_implicit_euler with a callable were no faster natively than on JAX, so
+# native=None keeps such runs on JAX and native=True takes this path.
+AT_STEP_START = ("euler", "semi_implicit_euler")
+
 
 def _terms(forces: Any) -> tuple[Any, ...] | None:
     """The terms of ``forces`` the kernel evaluates itself, or ``None`` when it cannot."""
@@ -126,8 +138,17 @@ def _terms(forces: Any) -> tuple[Any, ...] | None:
     return None
 
 
-def native_plan(state: Any, forces: Any, method: Method, *, series: bool, checked: bool, checkpoint: Any) -> str:
-    """``""`` when this run can take the native kernels, else the reason it cannot (for messages)."""
+def native_plan(
+    state: Any, forces: Any, method: Method, *, series: bool, checked: bool, checkpoint: Any, default: bool = False
+) -> str:
+    """``""`` when this run can take the native kernels, else the reason it cannot (for messages).
+
+    ``forces`` is what the steps see: ``None``, a :class:`Forces` (a time series
+    when ``series``), a force model, or a force callable. ``default``: the plan for
+    ``native=None``, which keeps forces evaluated by XLA (callables, force models
+    other than the kernel's laws) on the JAX path: there a kernel call per step
+    was measured no faster than the JAX steps (see ``AT_STEP_START``).
+    """
     status = native_status()
     if not status.available:
         return status.reason
@@ -137,11 +158,15 @@ def native_plan(state: Any, forces: Any, method: Method, *, series: bool, checke
         return f"{type(state).__name__} has no native kernel (State has)"
     if state.dtype not in (jnp.float32, jnp.float64):
         return f"dtype {state.dtype} has no native kernel (float32 and float64 have)"
-    if series or _terms(forces) is None:
+    if not series and _terms(forces) is None and method.name not in AT_STEP_START:
         return (
-            "these forces are not evaluated natively (none, constant Forces, Gravity, LinearDrag, "
-            "QuadraticDrag, ConstantForce and their sums are)"
+            f"method {method.name!r} needs the forces at intermediate states, and these are evaluated by XLA "
+            "(the kernel evaluates none, constant or time-series Forces, Gravity, LinearDrag, QuadraticDrag, "
+            "ConstantForce and their sums itself; other force models and callables run natively with "
+            f"{' and '.join(AT_STEP_START)}, which evaluate the forces once per step, at its start)"
         )
+    if default and not series and _terms(forces) is None:
+        return "forces evaluated by XLA take the JAX path unless native=True"
     if checked:
         return "checked mode tests every step in JAX"
     if checkpoint is not None:
@@ -226,8 +251,29 @@ def _frames(body: Any, shared: bool, batch: tuple[int, ...], n: int) -> jax.Arra
     return jnp.concatenate([p, 1 / d], axis=1)
 
 
-def _call(code: int, steps: int, dyn: State, body: Any, forces: Any, dt: jax.Array) -> State:
-    """``steps`` steps of the kernel's method ``code`` on a batch-first state ``dyn`` (fields ``(*B, c)``)."""
+def _series_parameters(forces: Forces, steps: int, batch: tuple[int, ...], dtype: Any) -> dict[str, jax.Array]:
+    """A time series' ``F, tau`` as the kernel takes them, ``(steps, n, 3)`` (``n`` = 1 when shared):
+    ``forces``' fields are ``(steps, *B', 3)`` with ``B'`` broadcastable to ``batch``, or ``None``."""
+    n = int(np.prod(batch, dtype=np.int64))
+
+    def rows(a: Any) -> jax.Array:
+        if a is None:
+            return jnp.zeros((steps, 1, 3), dtype)
+        a = jnp.asarray(a, dtype)
+        if int(np.prod(a.shape[1:-1], dtype=np.int64)) == 1:
+            return a.reshape(steps, 1, 3)
+        return jnp.broadcast_to(a, (steps,) + batch + (3,)).reshape(steps, n, 3)
+
+    return {"F": rows(forces.force), "tau": rows(forces.torque)}
+
+
+def _call(code: int, steps: int, dyn: State, body: Any, forces: Any, dt: jax.Array, series: bool = False) -> State:
+    """``steps`` steps of the kernel's method ``code`` on a batch-first state ``dyn`` (fields ``(*B, c)``).
+
+    ``forces``: ``None``, a constant :class:`Forces`, a sum of the laws of
+    ``_SIMPLE``, or with ``series`` a :class:`Forces` of fields ``(steps, *B', 3)``,
+    one slice per step.
+    """
     batch = tuple(dyn.position.shape[:-1])
     n = int(np.prod(batch, dtype=np.int64))
     dtype = dyn.position.dtype
@@ -238,7 +284,12 @@ def _call(code: int, steps: int, dyn: State, body: Any, forces: Any, dt: jax.Arr
     m = body.mass.reshape(1, 1) if shared else jnp.broadcast_to(body.mass, batch).reshape(n, 1)
     inv = body.inverse_inertia
     inv = inv.reshape(1, 9) if shared else jnp.broadcast_to(inv, batch + (3, 3)).reshape(n, 9)
-    params, terms = _parameters(forces, batch, dtype)
+    if series:
+        zero3 = jnp.zeros((1, 3), dtype)
+        params = _series_parameters(forces, steps, batch, dtype) | {"g": zero3, "drag": jnp.zeros((1, 4), dtype)}
+        terms = 1
+    else:
+        params, terms = _parameters(forces, batch, dtype)
     frame = _frames(body, shared, batch, n) if code == METHODS["splitting"] else jnp.zeros((1, 7), dtype)
     call = jax.ffi.ffi_call(
         _TARGET,
@@ -259,39 +310,61 @@ def _call(code: int, steps: int, dyn: State, body: Any, forces: Any, dt: jax.Arr
         steps=np.int64(steps),
         method=np.int64(code),
         terms=np.int64(terms),
+        series=np.int64(steps if series else 0),
     )
     x, v, q, L = (a.reshape(batch + a.shape[-1:]) for a in out)
     return replace(dyn, position=x, velocity=v, orientation=q, angular_momentum=L)
 
 
-@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2))
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2, 3, 4))
 def advance(
     code: int,
     steps: int,
     reference: Callable[..., State],
+    series: bool,
+    force_fn: Callable[[Any, jax.Array], Forces] | None,
     dyn: State,
     consts_soa: dict[str, Any],
     consts: dict[str, Any],
     forces: Any,
     dt: jax.Array,
-    t: jax.Array,
+    ts: jax.Array,
 ) -> State:
     """``steps`` steps of the method numbered ``code`` (:attr:`rbjax._methods.Method.native_code`) by the kernel,
-    with the values of ``reference`` (same arguments).
+    with the values of ``reference`` (same arguments, less the first five).
 
     ``dyn`` is the stripped, batch-first state (fields ``(*B, c)``: the
     kernel gathers each block of bodies itself, so no transposes);
     ``consts_soa`` its constant fields with the prepared body (``mass``
     ``(*B)`` or ``()``, ``inverse_inertia`` ``(*B, 3, 3)`` or ``(3, 3)``), and
-    ``consts`` the unprepared ones (the force models see those); ``forces``
-    is what ``simulate`` was given (``None``, a constant batch-first
-    :class:`Forces` or a force model), ``dt`` the step (s) and ``t`` the time
-    of the first step. Differentiated through ``reference``, the JAX steps.
+    ``consts`` the unprepared ones (the force models see those); ``dt`` the
+    step (s) and ``ts`` ``(steps,)`` each step's start time (s). The forces:
+
+    * ``force_fn`` ``None`` and ``forces`` ``None``, a constant batch-first
+      :class:`Forces` or a sum of the laws the kernel knows: all ``steps`` in one call;
+    * ``series``: ``forces`` a :class:`Forces` of fields ``(steps, *B', 3)``,
+      step ``k``'s slice held over its stages: all ``steps`` in one call;
+    * else (a method of ``AT_STEP_START`` only) ``force_fn`` ``(state, t) ->
+      Forces`` (checked and cast, a user's callable) or, when it is ``None``,
+      the force model ``forces``, evaluated by XLA at each step's start state
+      (batch-first, with ``consts``, ``time = t``) and start time ``ts[k]``, then
+      one kernel call per step with that constant :class:`Forces`.
+
+    Differentiated through ``reference``, the JAX steps.
     """
-    del reference, consts, t
-    return _call(code, steps, dyn, consts_soa["body"], forces, dt)
+    del reference
+    body = consts_soa["body"]
+    if series or (force_fn is None and _terms(forces) is not None):
+        return _call(code, steps, dyn, body, forces, dt, series)
+    fn = force_fn if force_fn is not None else checked_force_fn(forces)
+
+    def one(d: State, t: jax.Array) -> tuple[State, None]:
+        f = fn(replace(d, **{**consts, "time": t}), t)
+        return _call(code, 1, d, body, f, dt), None
+
+    return jax.lax.scan(one, dyn, ts)[0]
 
 
 @advance.defjvp
-def _advance_jvp(code, steps, reference, primals, tangents):
+def _advance_jvp(code, steps, reference, series, force_fn, primals, tangents):
     return jax.jvp(reference, primals, tangents)

@@ -16,6 +16,8 @@
 //
 // The `terms` attribute: bit 0, some force or torque acts (else v and L stay);
 // bit 1, quadratic drag is among them (two square roots per evaluation).
+// The `series` attribute: 0, or `steps` when F and τ are a time series (V, steps, n, 3),
+// one slice per step (rbjax.simulate's forces of shape (steps, *B, 3)), held over its stages.
 
 #include <algorithm>
 #include <atomic>
@@ -104,8 +106,9 @@ template <typename T>
 struct Param {
   const T* p = nullptr;
   int64_t n = 1;
-  void load(int64_t vb, int64_t i0, int count, int comps, T (*dst)[kBlock]) const {
-    const T* base = p + vb * comps * n;
+  int64_t rows = 1;  // slices per batch V: the steps of a time series (V, steps, n, comps), else 1
+  void load(int64_t vb, int64_t i0, int count, int comps, T (*dst)[kBlock], int64_t row = 0) const {
+    const T* base = p + (vb * rows + row) * comps * n;
     for (int c = 0; c < comps; ++c)
       for (int j = 0; j < count; ++j) dst[c][j] = base[(n == 1 ? 0 : i0 + j) * comps + c];
   }
@@ -116,11 +119,12 @@ template <typename T>
 struct Problem {
   T *x, *v, *q, *L;                  // outputs, (V, N, c)
   const T *x0, *v0, *q0, *L0;        // inputs, (V, N, c)
-  Param<T> m, inv, F, tau, g, drag;  // (V, n, c): mass 1, inverse 9, F/τ/g 3, drag 4 (b, b_r, c, c_r)
+  Param<T> m, inv, F, tau, g, drag;  // (V, n, c): mass 1, inverse 9, F/τ/g 3, drag 4 (b, b_r, c, c_r);
+                                     // F and τ (V, steps, n, 3) when `series`
   Param<T> frame;                    // (V, n, 7): the principal frame's quaternion and inverse moments
   const T* dt;                       // (V,)
   int64_t V, N, steps, method;
-  bool forces, quad;
+  bool forces, quad, series;  // series: F and τ hold one slice per step, held over the step's stages
 };
 
 template <typename T>
@@ -151,7 +155,19 @@ void run_block(const Problem<T>& P, int64_t vb, int64_t i0, int n) {
     k.c[j] = drag[2][j];
     k.cr[j] = drag[3][j];
   }
-  block_steps(B, k, frame, n, P.dt[vb], P.steps, P.method, P.forces, P.quad);
+  if (!P.series) {
+    block_steps(B, k, frame, n, P.dt[vb], P.steps, P.method, P.forces, P.quad);
+  } else {
+    // a time series: each step's F and τ into the block's constants, then that one step (the
+    // block stays in L1 between the steps, as in the loop over steps of block_steps)
+    for (int64_t s = 0; s < P.steps; ++s) {
+      if (s > 0) {
+        P.F.load(vb, i0, n, 3, k.F, s);
+        P.tau.load(vb, i0, n, 3, k.tau, s);
+      }
+      block_steps(B, k, frame, n, P.dt[vb], 1, P.method, P.forces, P.quad);
+    }
+  }
   for (int f = 0; f < 4; ++f)
     for (int c = 0; c < comps[f]; ++c)
       for (int j = 0; j < n; ++j) out[f][(vb * N + i0 + j) * comps[f] + c] = blk[f][c][j];
@@ -189,7 +205,7 @@ ffi::Error advance_typed(ffi::ThreadPool& pool, ffi::AnyBuffer x, ffi::AnyBuffer
                          ffi::AnyBuffer tau, ffi::AnyBuffer g, ffi::AnyBuffer drag, ffi::AnyBuffer frame,
                          ffi::AnyBuffer dt, ffi::Result<ffi::AnyBuffer> xo, ffi::Result<ffi::AnyBuffer> vo,
                          ffi::Result<ffi::AnyBuffer> qo, ffi::Result<ffi::AnyBuffer> Lo, int64_t steps,
-                         int64_t method, int64_t terms) {
+                         int64_t method, int64_t terms, int64_t series) {
   auto dims = x.dimensions();
   if (dims.size() < 2 || dims[dims.size() - 1] != 3) return ffi::Error::InvalidArgument("x must be (..., N, 3)");
   if (method < kEuler || method > kRk4Body) {
@@ -202,6 +218,8 @@ ffi::Error advance_typed(ffi::ThreadPool& pool, ffi::AnyBuffer x, ffi::AnyBuffer
   P.method = method;
   P.forces = (terms & 1) != 0;
   P.quad = (terms & 2) != 0;
+  P.series = series != 0;
+  if (P.series && series != steps) return ffi::Error::InvalidArgument("a time series needs one slice per step");
   P.x0 = x.typed_data<T>();
   P.v0 = v.typed_data<T>();
   P.q0 = q.typed_data<T>();
@@ -223,6 +241,15 @@ ffi::Error advance_typed(ffi::ThreadPool& pool, ffi::AnyBuffer x, ffi::AnyBuffer
   bind(g, P.g);
   bind(drag, P.drag);
   bind(frame, P.frame);
+  if (P.series) {
+    P.F.rows = P.tau.rows = steps;
+    for (const ffi::AnyBuffer* b : {&F, &tau}) {
+      auto d = b->dimensions();
+      if (d.size() < 3 || d[d.size() - 3] != steps) {
+        return ffi::Error::InvalidArgument("time-series F and tau must be (..., steps, n, 3)");
+      }
+    }
+  }
   if (P.V > 0) run(P, pool);
   return ffi::Error::Success();
 }
@@ -231,14 +258,14 @@ ffi::Error advance(ffi::ThreadPool pool, ffi::AnyBuffer x, ffi::AnyBuffer v, ffi
                    ffi::AnyBuffer m, ffi::AnyBuffer inv, ffi::AnyBuffer F, ffi::AnyBuffer tau, ffi::AnyBuffer g,
                    ffi::AnyBuffer drag, ffi::AnyBuffer frame, ffi::AnyBuffer dt, ffi::Result<ffi::AnyBuffer> xo,
                    ffi::Result<ffi::AnyBuffer> vo, ffi::Result<ffi::AnyBuffer> qo, ffi::Result<ffi::AnyBuffer> Lo,
-                   int64_t steps, int64_t method, int64_t terms) {
+                   int64_t steps, int64_t method, int64_t terms, int64_t series) {
   switch (x.element_type()) {
     case ffi::DataType::F32:
       return advance_typed<float>(pool, x, v, q, L, m, inv, F, tau, g, drag, frame, dt, xo, vo, qo, Lo, steps,
-                                  method, terms);
+                                  method, terms, series);
     case ffi::DataType::F64:
       return advance_typed<double>(pool, x, v, q, L, m, inv, F, tau, g, drag, frame, dt, xo, vo, qo, Lo, steps,
-                                   method, terms);
+                                   method, terms, series);
     default:
       return ffi::Error::InvalidArgument("rbjax native kernels take float32 or float64 states");
   }
@@ -273,4 +300,5 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(RbjaxAdvance, rbjax_native::advance,
                                   .Ret<ffi::AnyBuffer>()
                                   .Attr<int64_t>("steps")
                                   .Attr<int64_t>("method")
-                                  .Attr<int64_t>("terms"));
+                                  .Attr<int64_t>("terms")
+                                  .Attr<int64_t>("series"));
