@@ -233,10 +233,14 @@ def simulate(
             gradients are unchanged (to round-off). See :func:`rbjax._scan.checkpointed_scan`.
         native: which implementation steps the bodies. ``None`` (default): the
             native CPU kernel where one applies (``"euler"``, ``"rk4"``, ``"splitting"``,
-            ``"semi_implicit_euler"``, ``"rk4_body"`` on :class:`State` batches, float32/float64, no force or constant,
-            gravity, drag forces; see :func:`rbjax.native_status`), else JAX.
+            ``"semi_implicit_euler"``, ``"rk4_body"`` on :class:`State` batches, float32/float64, no force,
+            constant or time-series :class:`Forces`, or sums of ``Gravity``, ``LinearDrag``,
+            ``QuadraticDrag``, ``ConstantForce``; see :func:`rbjax.native_status`), else JAX.
             ``False``: always JAX. ``True``: the kernel, or ``ValueError`` saying
-            why it does not apply. Both give the same values to round-off;
+            why it does not apply; with ``True``, ``"euler"`` and ``"semi_implicit_euler"``
+            also take any other force model or callable, evaluated by XLA at each step's
+            start and handed to the kernel (one call per step; ``None`` keeps these on
+            JAX, which was no slower). Both give the same values to round-off;
             derivatives always come from the JAX steps.
 
     Returns:

@@ -7,8 +7,14 @@ in one call: the methods of ``METHODS`` (``"euler"``, ``"rk4"``, ``"splitting"``
 laws that are per body evaluated inside the kernel (none, constant
 :class:`rbjax.Forces`, and sums of :class:`rbjax.Gravity`,
 :class:`rbjax.LinearDrag`, :class:`rbjax.QuadraticDrag` and
-:class:`rbjax.ConstantForce`). Anything else runs the JAX implementation, which
-stays the reference: the kernel mirrors it to round-off (tests/test_native.py)
+:class:`rbjax.ConstantForce`). A time series of :class:`rbjax.Forces`
+(``(steps, *B, 3)``, world frame, N and N·m) goes in by the frame's slice,
+``(save_every, n, 3)``, one row per step, held over the step's stages. With
+``native=True``, ``"euler"`` and ``"semi_implicit_euler"`` (``AT_STEP_START``:
+forces once per step, at its start) also take any other force model or
+callable ``(state, t) -> Forces``: XLA evaluates it at each step's start and the
+kernel takes the result, one call per step. Anything else runs the JAX
+implementation, which stays the reference: the kernel mirrors it to round-off (tests/test_native.py)
 and supplies nothing but values. Derivatives come from the JAX step through a
 ``custom_jvp``, so ``grad`` and ``jvp`` see exactly the JAX path.
 
