@@ -235,7 +235,7 @@ def simulate(
             native CPU kernel where one applies (``"euler"``, ``"rk4"``, ``"splitting"``,
             ``"semi_implicit_euler"``, ``"rk4_body"`` on :class:`State` batches, float32/float64, no force,
             constant or time-series :class:`Forces`, or sums of ``Gravity``, ``LinearDrag``,
-            ``QuadraticDrag``, ``ConstantForce``; see :func:`rbjax.native_status`), else JAX.
+            ``QuadraticDrag``, ``ConstantForce``, ``Thruster``; see :func:`rbjax.native_status`), else JAX.
             ``False``: always JAX. ``True``: the kernel, or ``ValueError`` saying
             why it does not apply; with ``True``, ``"euler"`` and ``"semi_implicit_euler"``
             also take any other force model or callable, evaluated by XLA at each step's

@@ -6,8 +6,9 @@ in one call: the methods of ``METHODS`` (``"euler"``, ``"rk4"``, ``"splitting"``
 ``"semi_implicit_euler"``, ``"rk4_body"``), float32 and float64, with the force
 laws that are per body evaluated inside the kernel (none, constant
 :class:`rbjax.Forces`, and sums of :class:`rbjax.Gravity`,
-:class:`rbjax.LinearDrag`, :class:`rbjax.QuadraticDrag` and
-:class:`rbjax.ConstantForce`). A time series of :class:`rbjax.Forces`
+:class:`rbjax.LinearDrag`, :class:`rbjax.QuadraticDrag`,
+:class:`rbjax.ConstantForce` and :class:`rbjax.Thruster`, whose body-frame
+sums per body the kernel turns by the attitude at each evaluation). A time series of :class:`rbjax.Forces`
 (``(steps, *B, 3)``, world frame, N and N·m) goes in by the frame's slice,
 ``(save_every, n, 3)``, one row per step, held over the step's stages. With
 ``native=True``, ``"euler"`` and ``"semi_implicit_euler"`` (``AT_STEP_START``:
@@ -38,6 +39,7 @@ import jax.core
 import jax.numpy as jnp
 import numpy as np
 
+from .._attached import Thruster
 from .._force_model import ForceSum
 from .._forces import ConstantForce, Gravity, LinearDrag, QuadraticDrag
 from .._methods import Method, available
@@ -117,7 +119,7 @@ def native_status() -> NativeStatus:
 
 # --- which runs the kernels take -------------------------------------------------------------
 
-_SIMPLE = (Gravity, LinearDrag, QuadraticDrag, ConstantForce)
+_SIMPLE = (Gravity, LinearDrag, QuadraticDrag, ConstantForce, Thruster)
 
 # The methods whose steps evaluate the forces once, at the step's start state and time (euler.py:
 # euler_state, semi_implicit_euler.py: semi_implicit_state, whose kick sees the old state): with a
@@ -168,7 +170,7 @@ def native_plan(
         return (
             f"method {method.name!r} needs the forces at intermediate states, and these are evaluated by XLA "
             "(the kernel evaluates none, constant or time-series Forces, Gravity, LinearDrag, QuadraticDrag, "
-            "ConstantForce and their sums itself; other force models and callables run natively with "
+            "ConstantForce, Thruster and their sums itself; other force models and callables run natively with "
             f"{' and '.join(AT_STEP_START)}, which evaluate the forces once per step, at its start)"
         )
     if default and not series and _terms(forces) is None:
@@ -208,8 +210,13 @@ def say_once_unavailable() -> None:
 
 
 def _parameters(forces: Any, batch: tuple[int, ...], dtype: Any) -> tuple[dict[str, jax.Array], int]:
-    """The kernel's force parameters ``F, tau, g (n, 3)``, ``drag (n, 4)`` (``n`` = 1 when shared)
-    and its ``terms`` bits."""
+    """The kernel's force parameters ``F, tau, g (n, 3)``, ``drag (n, 4)``, ``thrust (n, 6)`` (``n`` = 1
+    when shared) and its ``terms`` bits.
+
+    ``thrust`` holds the thrusters' body-frame sums per body, ``f_b = Σ T_s d_s`` (N) and
+    ``τ_b = Σ p_s × T_s d_s`` (N·m) over the thrusters ``s`` on the body (zero rows for the
+    others), which the kernel turns by ``R(q)`` at each evaluation (steps.h: ``forces``).
+    """
     n = int(np.prod(batch, dtype=np.int64))
 
     def per_body(a: Any, comps: int) -> jax.Array:
@@ -221,12 +228,13 @@ def _parameters(forces: Any, batch: tuple[int, ...], dtype: Any) -> tuple[dict[s
 
     zero3, zero = jnp.zeros((1, 3), dtype), jnp.zeros((1, 1), dtype)
     acc: dict[str, Any] = {"F": zero3, "tau": zero3, "g": zero3, "b": zero, "br": zero, "c": zero, "cr": zero}
+    acc["thrust"] = jnp.zeros((1, 6), dtype)
     used: set[str] = set()
 
     def add(key: str, a: Any, comps: int) -> None:
         if a is None:
             return
-        p = per_body(a, comps)
+        p = a if key == "thrust" else per_body(a, comps)
         acc[key] = p if key not in used else acc[key] + p
         used.add(key)
 
@@ -242,10 +250,25 @@ def _parameters(forces: Any, batch: tuple[int, ...], dtype: Any) -> tuple[dict[s
         elif isinstance(term, QuadraticDrag):
             add("c", term.linear, 1)
             add("cr", term.angular, 1)
+        elif isinstance(term, Thruster):
+            add("thrust", _thrust_sums(term, n, dtype), 6)
     rows = max(acc[k].shape[0] for k in ("b", "br", "c", "cr"))
     drag = jnp.concatenate([jnp.broadcast_to(acc[k], (rows, 1)) for k in ("b", "br", "c", "cr")], axis=1)
-    terms = (1 if used else 0) | (2 if used & {"c", "cr"} else 0)
-    return {"F": acc["F"], "tau": acc["tau"], "g": acc["g"], "drag": drag}, terms
+    terms = (1 if used else 0) | (2 if used & {"c", "cr"} else 0) | (4 if "thrust" in used else 0)
+    return {"F": acc["F"], "tau": acc["tau"], "g": acc["g"], "drag": drag, "thrust": acc["thrust"]}, terms
+
+
+def _thrust_sums(thruster: Thruster, n: int, dtype: Any) -> jax.Array:
+    """``(n, 6)``: per body the body-frame sums ``f_b = Σ T_s d_s`` and ``τ_b = Σ p_s × T_s d_s``
+    over its thrusters (``body[s]`` = the body; ``Thruster`` needs a 1-D batch of ``n`` bodies)."""
+    s = thruster.body.shape[0]
+    d = jnp.broadcast_to(jnp.asarray(thruster.direction, dtype), (s, 3))
+    f = jnp.broadcast_to(jnp.asarray(thruster.thrust, dtype), (s,))[:, None] * d
+    fb = jnp.zeros((n, 3), dtype).at[thruster.body].add(f)
+    if thruster.point is None:
+        return jnp.concatenate([fb, jnp.zeros((n, 3), dtype)], axis=1)
+    p = jnp.broadcast_to(jnp.asarray(thruster.point, dtype), (s, 3))
+    return jnp.concatenate([fb, jnp.zeros((n, 3), dtype).at[thruster.body].add(jnp.cross(p, f))], axis=1)
 
 
 def _frames(body: Any, shared: bool, batch: tuple[int, ...], n: int) -> jax.Array:
@@ -292,7 +315,11 @@ def _call(code: int, steps: int, dyn: State, body: Any, forces: Any, dt: jax.Arr
     inv = inv.reshape(1, 9) if shared else jnp.broadcast_to(inv, batch + (3, 3)).reshape(n, 9)
     if series:
         zero3 = jnp.zeros((1, 3), dtype)
-        params = _series_parameters(forces, steps, batch, dtype) | {"g": zero3, "drag": jnp.zeros((1, 4), dtype)}
+        params = _series_parameters(forces, steps, batch, dtype) | {
+            "g": zero3,
+            "drag": jnp.zeros((1, 4), dtype),
+            "thrust": jnp.zeros((1, 6), dtype),
+        }
         terms = 1
     else:
         params, terms = _parameters(forces, batch, dtype)
@@ -312,6 +339,7 @@ def _call(code: int, steps: int, dyn: State, body: Any, forces: Any, dt: jax.Arr
         params["g"],
         params["drag"],
         frame,
+        params["thrust"],
         jnp.asarray(dt, dtype),
         steps=np.int64(steps),
         method=np.int64(code),
