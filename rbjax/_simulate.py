@@ -240,7 +240,8 @@ def simulate(
             why it does not apply; with ``True``, ``"euler"`` and ``"semi_implicit_euler"``
             also take any other force model or callable, evaluated by XLA at each step's
             start and handed to the kernel (one call per step; ``None`` keeps these on
-            JAX, which was no slower). Both give the same values to round-off;
+            JAX, which was no slower). A batch sharded over devices runs the kernel on
+            each device's bodies (1-D batches, no time series). Both give the same values to round-off;
             derivatives always come from the JAX steps.
 
     Returns:
@@ -367,6 +368,7 @@ def run_simulation(
         checks=checks,
         checkpoint=None if checkpoint is None else int(checkpoint),
         native=native,
+        sharded=bool(native and _native.sharded(state)),
     )
     if checks is None:
         return out
@@ -384,9 +386,21 @@ def run_simulation(
 
 @functools.partial(
     jax.jit,
-    static_argnames=("steps", "method", "save_every", "series", "force_fn", "checks", "checkpoint", "native"),
+    static_argnames=(
+        "steps",
+        "method",
+        "save_every",
+        "series",
+        "force_fn",
+        "checks",
+        "checkpoint",
+        "native",
+        "sharded",
+    ),
 )
-def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, force_fn, checks, checkpoint, native):
+def _simulate(
+    state, forces, dt, t0, k0, *, steps, method, save_every, series, force_fn, checks, checkpoint, native, sharded=False
+):
     step_fn = method.step(type(state))
     dtype = state.dtype
     dt, t0 = dt.astype(dtype), t0.astype(dtype)
@@ -504,6 +518,7 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
                 reference,
                 series,
                 user_fn if force_fn is not None else None,
+                sharded,
                 dyn,
                 consts_soa,
                 consts,

@@ -7,17 +7,20 @@ in one call: the methods of ``METHODS`` (``"euler"``, ``"rk4"``, ``"splitting"``
 laws that are per body evaluated inside the kernel (none, constant
 :class:`rbjax.Forces`, and sums of :class:`rbjax.Gravity`,
 :class:`rbjax.LinearDrag`, :class:`rbjax.QuadraticDrag`,
-:class:`rbjax.ConstantForce` and :class:`rbjax.Thruster`, whose body-frame
-sums per body the kernel turns by the attitude at each evaluation). A time series of :class:`rbjax.Forces`
-(``(steps, *B, 3)``, world frame, N and N·m) goes in by the frame's slice,
-``(save_every, n, 3)``, one row per step, held over the step's stages. With
-``native=True``, ``"euler"`` and ``"semi_implicit_euler"`` (``AT_STEP_START``:
-forces once per step, at its start) also take any other force model or
-callable ``(state, t) -> Forces``: XLA evaluates it at each step's start and the
-kernel takes the result, one call per step. Anything else runs the JAX
-implementation, which stays the reference: the kernel mirrors it to round-off (tests/test_native.py)
-and supplies nothing but values. Derivatives come from the JAX step through a
-``custom_jvp``, so ``grad`` and ``jvp`` see exactly the JAX path.
+:class:`rbjax.ConstantForce` and :class:`rbjax.Thruster`, whose body-frame sums
+per body the kernel turns by the attitude at each evaluation). A time series
+of :class:`rbjax.Forces` (``(steps, *B, 3)``, world frame, N and N·m) goes in by
+the frame's slice, ``(save_every, n, 3)``, one row per step, held over the
+step's stages. With ``native=True``, ``"euler"`` and ``"semi_implicit_euler"``
+(``AT_STEP_START``: forces once per step, at its start) also take any other
+force model or callable ``(state, t) -> Forces``: XLA evaluates it at each
+step's start and the kernel takes the result, one call per step. A batch
+sharded over devices (1-D, no series) is split: the call is
+batch-partitionable, each device runs the kernel on its bodies. Anything else
+runs the JAX implementation, which stays the reference: the kernel mirrors it
+to round-off (tests/test_native.py) and supplies nothing but values.
+Derivatives come from the JAX step through a ``custom_jvp``, so ``grad`` and
+``jvp`` see exactly the JAX path.
 
 :func:`native_status` says whether the kernels were built and loaded, and why
 not; ``simulate(..., native=...)`` forces either path.
@@ -38,6 +41,7 @@ import jax
 import jax.core
 import jax.numpy as jnp
 import numpy as np
+from jax.experimental.xla_metadata import set_xla_metadata
 
 from .._attached import Thruster
 from .._force_model import ForceSum
@@ -111,6 +115,9 @@ def native_status() -> NativeStatus:
     try:
         lib = ctypes.CDLL(str(path))
         jax.ffi.register_ffi_target(_TARGET, jax.ffi.pycapsule(lib.RbjaxAdvance), platform="cpu")
+        # a call marked num_batch_dims = 1 (only `_call` with sharded=True, whose operands are all
+        # (N, c)) is split over the devices of its batch; unmarked calls are not partitioned
+        jax.ffi.register_ffi_target_as_batch_partitionable(_TARGET)
         isa = _ISA[min(int(lib.rbjax_native_isa()), 2)]
     except (OSError, AttributeError, ValueError, RuntimeError) as e:
         return NativeStatus(False, str(path), None, f"{path.name} could not be loaded: {e}")
@@ -181,9 +188,18 @@ def native_plan(
         return "gradient checkpointing segments the JAX scan"
     if jax.default_backend() != "cpu":
         return f"the default backend is {jax.default_backend()}, the kernels are for the CPU"
-    if any(_sharded(a) for a in jax.tree.leaves(state)):
-        return "the batch is sharded (the kernel has no partitioning rule)"
+    if sharded(state):
+        if series:
+            return "a sharded batch with time-series forces (the series' leading axis is time, not the batch)"
+        if len(state.batch_shape) != 1:
+            return f"a sharded batch of shape {state.batch_shape} (the kernel splits 1-D batches (N,))"
     return ""
+
+
+def sharded(state: Any) -> bool:
+    """Whether some field of ``state`` is laid out over a mesh (see :func:`_sharded`): the kernel call
+    is then split over the batch's devices (``_call``'s ``sharded``)."""
+    return any(_sharded(a) for a in jax.tree.leaves(state))
 
 
 def _sharded(a: Any) -> bool:
@@ -296,12 +312,25 @@ def _series_parameters(forces: Forces, steps: int, batch: tuple[int, ...], dtype
     return {"F": rows(forces.force), "tau": rows(forces.torque)}
 
 
-def _call(code: int, steps: int, dyn: State, body: Any, forces: Any, dt: jax.Array, series: bool = False) -> State:
+def _call(
+    code: int,
+    steps: int,
+    dyn: State,
+    body: Any,
+    forces: Any,
+    dt: jax.Array,
+    series: bool = False,
+    sharded: bool = False,
+) -> State:
     """``steps`` steps of the kernel's method ``code`` on a batch-first state ``dyn`` (fields ``(*B, c)``).
 
     ``forces``: ``None``, a constant :class:`Forces`, a sum of the laws of
     ``_SIMPLE``, or with ``series`` a :class:`Forces` of fields ``(steps, *B', 3)``,
-    one slice per step.
+    one slice per step. ``sharded`` (a 1-D batch, no series): every operand is
+    made ``(N, c)`` (shared rows broadcast) and the call is marked with
+    ``num_batch_dims = 1``, so XLA's batch partitioner splits it over the
+    devices of the batch (each runs the kernel on its bodies; a shared ``(1, c)``
+    row would be split as if it were bodies, hence the broadcast).
     """
     batch = tuple(dyn.position.shape[:-1])
     n = int(np.prod(batch, dtype=np.int64))
@@ -324,39 +353,35 @@ def _call(code: int, steps: int, dyn: State, body: Any, forces: Any, dt: jax.Arr
     else:
         params, terms = _parameters(forces, batch, dtype)
     frame = _frames(body, shared, batch, n) if code == METHODS["splitting"] else jnp.zeros((1, 7), dtype)
+    operands = [m, inv, params["F"], params["tau"], params["g"], params["drag"], frame, params["thrust"]]
+    if sharded:
+        operands = [jnp.broadcast_to(a, (n, a.shape[-1])) for a in operands]
+    results = tuple(
+        jax.ShapeDtypeStruct(a.shape, dtype, sharding=jax.typeof(a).sharding if sharded else None) for a in flat
+    )
     call = jax.ffi.ffi_call(
-        _TARGET,
-        tuple(jax.ShapeDtypeStruct(a.shape, dtype) for a in flat),
-        vmap_method="broadcast_all",
-        input_output_aliases={0: 0, 1: 1, 2: 2, 3: 3},
+        _TARGET, results, vmap_method="broadcast_all", input_output_aliases={0: 0, 1: 1, 2: 2, 3: 3}
     )
-    out = call(
-        *flat,
-        m,
-        inv,
-        params["F"],
-        params["tau"],
-        params["g"],
-        params["drag"],
-        frame,
-        params["thrust"],
-        jnp.asarray(dt, dtype),
-        steps=np.int64(steps),
-        method=np.int64(code),
-        terms=np.int64(terms),
-        series=np.int64(steps if series else 0),
+    attrs = dict(
+        steps=np.int64(steps), method=np.int64(code), terms=np.int64(terms), series=np.int64(steps if series else 0)
     )
+    if sharded:
+        with set_xla_metadata(num_batch_dims="1"):
+            out = call(*flat, *operands, jnp.asarray(dt, dtype), **attrs)
+    else:
+        out = call(*flat, *operands, jnp.asarray(dt, dtype), **attrs)
     x, v, q, L = (a.reshape(batch + a.shape[-1:]) for a in out)
     return replace(dyn, position=x, velocity=v, orientation=q, angular_momentum=L)
 
 
-@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2, 3, 4))
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2, 3, 4, 5))
 def advance(
     code: int,
     steps: int,
     reference: Callable[..., State],
     series: bool,
     force_fn: Callable[[Any, jax.Array], Forces] | None,
+    sharded: bool,
     dyn: State,
     consts_soa: dict[str, Any],
     consts: dict[str, Any],
@@ -365,7 +390,8 @@ def advance(
     ts: jax.Array,
 ) -> State:
     """``steps`` steps of the method numbered ``code`` (:attr:`rbjax._methods.Method.native_code`) by the kernel,
-    with the values of ``reference`` (same arguments, less the first five).
+    with the values of ``reference`` (same arguments, less the first six); ``sharded``: the batch
+    is laid out over devices, and each call is split over them (see ``_call``).
 
     ``dyn`` is the stripped, batch-first state (fields ``(*B, c)``: the
     kernel gathers each block of bodies itself, so no transposes);
@@ -389,16 +415,16 @@ def advance(
     del reference
     body = consts_soa["body"]
     if series or (force_fn is None and _terms(forces) is not None):
-        return _call(code, steps, dyn, body, forces, dt, series)
+        return _call(code, steps, dyn, body, forces, dt, series, sharded)
     fn = force_fn if force_fn is not None else checked_force_fn(forces)
 
     def one(d: State, t: jax.Array) -> tuple[State, None]:
         f = fn(replace(d, **{**consts, "time": t}), t)
-        return _call(code, 1, d, body, f, dt), None
+        return _call(code, 1, d, body, f, dt, sharded=sharded), None
 
     return jax.lax.scan(one, dyn, ts)[0]
 
 
 @advance.defjvp
-def _advance_jvp(code, steps, reference, series, force_fn, primals, tangents):
+def _advance_jvp(code, steps, reference, series, force_fn, sharded, primals, tangents):
     return jax.jvp(reference, primals, tangents)
