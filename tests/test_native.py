@@ -453,6 +453,15 @@ SHARDED_CHECK = textwrap.dedent(
     calls = [line for line in hlo.splitlines() if "custom-call(" in line]
     assert calls and all("[65,3]" in line for line in calls), calls
     assert not any(op in hlo for op in ("all-gather(", "all-to-all(", "collective-permute(")), "a collective"
+    # under vmap the marked call has a leading vmap axis (num_batch_dims counts it): still right
+    for mesh in (explicit, auto):
+        st = jax.device_put(per_body, rb.batch_sharding(per_body, mesh))
+        run = lambda dt: rb.simulate(st, laws, dt, 20, "rk4", save_every=5, native=True)
+        both = jax.vmap(run)(jnp.asarray([0.01, 0.02]))
+        assert both.position.sharding.spec[2] == "bodies", both.position.sharding
+        ref = rb.simulate(per_body, laws, 0.02, 20, "rk4", save_every=5, native=True)
+        for a, b in zip(jax.tree.leaves(both), jax.tree.leaves(ref)):
+            worst = max(worst, float(jnp.max(jnp.abs(a[1] - b))))
     # inside a caller's jit an auto-sharded batch is not seen as sharded: the call is not marked,
     # not split, and still right
     st = jax.device_put(per_body, rb.batch_sharding(per_body, auto))
