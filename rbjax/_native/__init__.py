@@ -59,6 +59,7 @@ METHODS = dict(
     sorted(((m.name, m.native_code) for m in available().values() if m.native_code is not None), key=lambda p: p[1])
 )
 _TARGET = "rbjax_advance"
+_ABI = 2  # kernels.cc: rbjax_native_abi, the version of the call's operands and attributes
 _ISA = ("x86-64 baseline", "AVX2", "AVX-512")
 
 
@@ -114,6 +115,15 @@ def native_status() -> NativeStatus:
         return NativeStatus(False, None, None, "the library was not built at install (no C++ compiler?)")
     try:
         lib = ctypes.CDLL(str(path))
+        abi = int(lib.rbjax_native_abi()) if hasattr(lib, "rbjax_native_abi") else 1
+        if abi != _ABI:
+            return NativeStatus(
+                False,
+                str(path),
+                None,
+                f"{path.name} was built from another kernels.cc (call version {abi}, this rbjax needs {_ABI}): "
+                "rebuild it (pip install -e ., or python setup.py build_ext --inplace)",
+            )
         jax.ffi.register_ffi_target(_TARGET, jax.ffi.pycapsule(lib.RbjaxAdvance), platform="cpu")
         # a call marked num_batch_dims = 1 (only `_call` with sharded=True, whose operands are all
         # (N, c)) is split over the devices of its batch; unmarked calls are not partitioned

@@ -289,8 +289,13 @@ ffi::Error advance(ffi::ThreadPool pool, ffi::AnyBuffer x, ffi::AnyBuffer v, ffi
 
 }  // namespace rbjax_native
 
-// The library's two exported symbols (everything else is hidden: -fvisibility=hidden).
+// The library's exported symbols (everything else is hidden: -fvisibility=hidden).
 extern "C" __attribute__((visibility("default"))) XLA_FFI_Error* RbjaxAdvance(XLA_FFI_CallFrame* call_frame);
+
+// The version of the call's operands and attributes, which rbjax/_native/__init__.py checks on
+// load (_ABI there): a library built from an older kernels.cc is refused, not called wrongly.
+// 2: the thrusters' operand and the `series` attribute. (A library without this symbol is older.)
+extern "C" __attribute__((visibility("default"))) int rbjax_native_abi() { return 2; }
 
 // The instruction set the steps run with here: 0 x86-64 baseline (or not x86), 1 AVX2, 2 AVX-512.
 extern "C" __attribute__((visibility("default"))) int rbjax_native_isa() { return rbjax_native::isa(); }
