@@ -233,10 +233,15 @@ def simulate(
             gradients are unchanged (to round-off). See :func:`rbjax._scan.checkpointed_scan`.
         native: which implementation steps the bodies. ``None`` (default): the
             native CPU kernel where one applies (``"euler"``, ``"rk4"``, ``"splitting"``,
-            ``"semi_implicit_euler"``, ``"rk4_body"`` on :class:`State` batches, float32/float64, no force or constant,
-            gravity, drag forces; see :func:`rbjax.native_status`), else JAX.
+            ``"semi_implicit_euler"``, ``"rk4_body"`` on :class:`State` batches, float32/float64, no force,
+            constant or time-series :class:`Forces`, or sums of ``Gravity``, ``LinearDrag``,
+            ``QuadraticDrag``, ``ConstantForce``, ``Thruster``; see :func:`rbjax.native_status`), else JAX.
             ``False``: always JAX. ``True``: the kernel, or ``ValueError`` saying
-            why it does not apply. Both give the same values to round-off;
+            why it does not apply; with ``True``, ``"euler"`` and ``"semi_implicit_euler"``
+            also take any other force model or callable, evaluated by XLA at each step's
+            start and handed to the kernel (one call per step; ``None`` keeps these on
+            JAX, which was no slower). A batch sharded over devices runs the kernel on
+            each device's bodies (1-D batches, no time series). Both give the same values to round-off;
             derivatives always come from the JAX steps.
 
     Returns:
@@ -279,7 +284,7 @@ def _native_path(native: bool | None, state, forces, method: Method, *, series: 
     if native is False:
         return False
     reason = _native.native_plan(
-        state, forces, method, series=series, checked=checks is not None, checkpoint=checkpoint
+        state, forces, method, series=series, checked=checks is not None, checkpoint=checkpoint, default=native is None
     )
     if native and reason:
         raise ValueError(f"simulate(native=True): {reason}; pass native=None to fall back to JAX")
@@ -363,6 +368,7 @@ def run_simulation(
         checks=checks,
         checkpoint=None if checkpoint is None else int(checkpoint),
         native=native,
+        sharded=bool(native and _native.sharded(state)),
     )
     if checks is None:
         return out
@@ -380,9 +386,21 @@ def run_simulation(
 
 @functools.partial(
     jax.jit,
-    static_argnames=("steps", "method", "save_every", "series", "force_fn", "checks", "checkpoint", "native"),
+    static_argnames=(
+        "steps",
+        "method",
+        "save_every",
+        "series",
+        "force_fn",
+        "checks",
+        "checkpoint",
+        "native",
+        "sharded",
+    ),
 )
-def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, force_fn, checks, checkpoint, native):
+def _simulate(
+    state, forces, dt, t0, k0, *, steps, method, save_every, series, force_fn, checks, checkpoint, native, sharded=False
+):
     step_fn = method.step(type(state))
     dtype = state.dtype
     dt, t0 = dt.astype(dtype), t0.astype(dtype)
@@ -474,24 +492,41 @@ def _simulate(state, forces, dt, t0, k0, *, steps, method, save_every, series, f
         return dyn, rec
 
     if native:
-        # the steps between two saved frames in one kernel call; derivatives from these JAX steps
-        def reference(dyn, cs_soa, cs, frc, h, t):
-            frc_fn = checked_force_fn(as_force_fn(frc))
+        # the steps between two saved frames in one kernel call (a force law the kernel does not know:
+        # XLA evaluates it at each step's start, one call per step); derivatives from these JAX steps
+        def reference(dyn, cs_soa, cs, frc, h, ts):
+            # frc: None, constant Forces, a force model, or a time series' chunk (save_every, *B, 3)
+            frc_fn = user_fn if force_fn is not None else checked_force_fn(as_force_fn(None if series else frc))
 
-            def fn(s, tt):
-                return frc_fn(replace(split_constants(s)[0], **{**cs, "time": tt}), tt)
+            def one_step(d, t_and_f):  # batch-first, as the kernel's state
+                tt, f = t_and_f
+                if series:
+                    fn = lambda s, _: f
+                else:
+                    fn = lambda s, t: frc_fn(replace(split_constants(s)[0], **{**cs, "time": t}), t)
+                return split_constants(step_fn(replace(d, **cs_soa), fn, tt, h))[0], None
 
-            def one_step(d, j):  # batch-first, as the kernel's state
-                return split_constants(step_fn(replace(d, **cs_soa), fn, t + j.astype(dtype) * h, h))[0], None
-
-            return jax.lax.scan(one_step, dyn, jnp.arange(save_every))[0]
+            return jax.lax.scan(one_step, dyn, (ts, frc if series else None))[0]
 
         def advance_native(carry, xs):
             dyn, rec = carry
-            t = t0 + (k0 + xs[0][0]).astype(dtype) * dt
-            return _native.advance(
-                method.native_code, save_every, reference, dyn, consts_soa, consts, forces, dt, t
-            ), rec
+            ks, fs = xs
+            ts = t0 + (k0 + ks).astype(dtype) * dt  # each step's start time, as advance_jax's steps see it
+            new = _native.advance(
+                method.native_code,
+                save_every,
+                reference,
+                series,
+                user_fn if force_fn is not None else None,
+                sharded,
+                dyn,
+                consts_soa,
+                consts,
+                fs if series else forces,
+                dt,
+                ts,
+            )
+            return new, rec
 
     advance = advance_native if native else advance_jax
 

@@ -12,7 +12,11 @@ and which an error in any formula (a wrong sign, a missed term, a transposed
 inertia) exceeds by orders of magnitude.
 """
 
+import os
 import shutil
+import subprocess
+import sys
+import textwrap
 import warnings
 from pathlib import Path
 
@@ -178,8 +182,8 @@ def test_native_true_says_why_it_cannot():
     state = _state((3,), jnp.float64)
     cases = [
         (dict(method="rk8"), "no native kernel"),
-        (dict(forces=rb.Spring.between([0], [1], 1.0)), "not evaluated natively"),
-        (dict(forces=lambda s, t: rb.Forces(torque=jnp.ones(3) * t)), "not evaluated natively"),
+        (dict(forces=rb.Spring.between([0], [1], 1.0)), "needs the forces at intermediate states"),
+        (dict(forces=lambda s, t: rb.Forces(torque=jnp.ones(3) * t)), "needs the forces at intermediate states"),
         (dict(checked=True), "checked mode"),
         (dict(state=rb.to_matrix_state(state)), "MatrixState has no native kernel"),
     ]
@@ -241,3 +245,256 @@ def test_native_semi_implicit_turns_through_every_quadrant(dtype):
     exact = np.stack([np.cos(n * half), np.sin(n * half), 0 * n * half, 0 * n * half], axis=-1)
     eps = float(jnp.finfo(dtype).eps)
     np.testing.assert_allclose(np.asarray(nat.orientation, np.float64), exact, rtol=0, atol=8 * STEPS * eps)
+
+
+def _series(batch, dtype, steps=STEPS, torque=True, shared_force=False, seed=4):
+    # per-body forces (or shared ones) and a torque shared by the batch (shape (steps, 1, ..., 3)),
+    # both varying per step
+    rng = np.random.default_rng(seed)
+    shared = (steps,) + (1,) * len(batch) + (3,)
+    force = jnp.asarray(rng.normal(size=shared if shared_force else (steps,) + batch + (3,)), dtype)
+    return rb.Forces(force=force, torque=jnp.asarray(rng.normal(size=shared), dtype) if torque else None)
+
+
+@needs_kernels
+@pytest.mark.parametrize("method", sorted(_native.METHODS))
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_native_time_series_matches_jax(method, dtype):
+    # one slice per step, held over the step's stages, all the steps of a frame in one kernel call
+    state = _state((7,), dtype)
+    nat, ref = _both(state, _series((7,), dtype), method)
+    _assert_close(nat, ref, STEPS, dtype)
+
+
+@needs_kernels
+@pytest.mark.parametrize("method", sorted(_native.METHODS))
+@pytest.mark.parametrize(("batch", "shared_body"), SHAPES)
+def test_native_time_series_over_batch_shapes_and_shared_bodies(method, batch, shared_body):
+    state = _state(batch, jnp.float64, shared_body)
+    # a force series alone (no torque), and force and torque shared by the whole batch
+    for forces in (_series(batch, jnp.float64, torque=False), _series(batch, jnp.float64, shared_force=True)):
+        nat, ref = _both(state, forces, method)
+        _assert_close(nat, ref, STEPS, jnp.float64)
+
+
+@needs_kernels
+def test_native_time_series_under_jit_vmap_chunked_runs_and_grad():
+    state = _state((4,), jnp.float64)
+    forces = _series((4,), jnp.float64)
+    run = lambda s, f, native: rb.simulate(s, f, 1e-2, STEPS, "splitting", save_every=SAVE, native=native)
+    ref = run(state, forces, False)
+    _assert_close(jax.jit(run, static_argnums=2)(state, forces, True), ref, STEPS, jnp.float64)
+    # vmap over a stack of series: the kernel sees (V, steps, n, 3)
+    stack = jax.tree.map(lambda a: jnp.stack([a * 0.5, a]), forces)
+    both = jax.vmap(lambda f: run(state, f, True))(stack)
+    _assert_close(jax.tree.map(lambda a: a[1], both), ref, STEPS, jnp.float64)
+    _assert_close(
+        jax.tree.map(lambda a: a[0], both), run(state, jax.tree.map(lambda a: a[0], stack), False), STEPS, jnp.float64
+    )
+    # a chunked run slices the series per chunk
+    chunked = rb.simulate_chunked(
+        state, forces, 1e-2, STEPS, "splitting", save_every=SAVE, chunk_steps=12, progress=False
+    )
+    _assert_close(chunked, ref, STEPS, jnp.float64)
+
+    # the derivative with respect to the series comes from the JAX steps (custom_jvp)
+    def loss(f, native):
+        return jnp.sum(run(state, f, native).angular_momentum[-1] ** 2)
+
+    g_nat = jax.grad(loss)(forces, True)
+    g_ref = jax.grad(loss)(forces, False)
+    for a, b in zip(jax.tree.leaves(g_nat), jax.tree.leaves(g_ref), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
+
+
+def _callable(dtype):
+    # depends on the time, the velocity, the momentum and the body: a change of any input shows
+    def forces(s, t):
+        force = s.body.mass[..., None] * jnp.asarray([0.0, 0.0, -9.81], dtype) - 0.3 * s.velocity
+        return rb.Forces(force=force + jnp.sin(3 * t), torque=-0.1 * s.angular_momentum + 0.2 * jnp.cos(t))
+
+    return forces
+
+
+@needs_kernels
+@pytest.mark.parametrize("method", _native.AT_STEP_START)
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+@pytest.mark.parametrize("kind", ["callable", "spring"])
+def test_native_forces_evaluated_by_xla_match_jax(method, dtype, kind):
+    # XLA evaluates the forces at each step's start, the kernel takes them: one call per step
+    state = _state((7,), dtype)
+    if kind == "callable":
+        forces = _callable(dtype)
+    else:
+        forces = rb.Spring.between([0, 2], [1, 5], 3.0, damping=0.2) + rb.Gravity()
+    t0 = 0.37  # the steps' times enter a time-dependent callable
+    nat = rb.simulate(state, forces, 1e-2, STEPS, method, save_every=SAVE, t0=t0, native=True)
+    ref = rb.simulate(state, forces, 1e-2, STEPS, method, save_every=SAVE, t0=t0, native=False)
+    _assert_close(nat, ref, STEPS, dtype)
+    # without native=True such forces stay on the JAX path: the same bits as native=False
+    default = rb.simulate(state, forces, 1e-2, STEPS, method, save_every=SAVE, t0=t0)
+    for a, b in zip(jax.tree.leaves(default), jax.tree.leaves(ref), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+@needs_kernels
+@pytest.mark.parametrize(("batch", "shared_body"), SHAPES)
+def test_native_callable_over_batch_shapes_and_shared_bodies(batch, shared_body):
+    state = _state(batch, jnp.float64, shared_body)
+    for method in _native.AT_STEP_START:
+        nat = rb.simulate(state, _callable(jnp.float64), 1e-2, STEPS, method, save_every=SAVE, native=True)
+        ref = rb.simulate(state, _callable(jnp.float64), 1e-2, STEPS, method, save_every=SAVE, native=False)
+        _assert_close(nat, ref, STEPS, jnp.float64)
+
+
+@needs_kernels
+def test_native_callable_under_jit_vmap_chunked_runs_and_grad():
+    state = _state((4,), jnp.float64)
+    forces = _callable(jnp.float64)
+    run = lambda s, dt, native: rb.simulate(s, forces, dt, STEPS, "euler", save_every=SAVE, native=native)
+    ref = run(state, 1e-2, False)
+    _assert_close(jax.jit(run, static_argnums=2)(state, 1e-2, True), ref, STEPS, jnp.float64)
+    stack = jax.tree.map(lambda a: jnp.stack([a, a * 1.0]), state)
+    both = jax.vmap(lambda s: run(s, 1e-2, True))(stack)
+    _assert_close(jax.tree.map(lambda a: a[1], both), ref, STEPS, jnp.float64)
+
+    def loss(dt, native):
+        return jnp.sum(run(state, dt, native).orientation[-1] * jnp.asarray([0.3, -1.0, 0.5, 2.0]))
+
+    np.testing.assert_allclose(jax.grad(loss)(0.01, True), jax.grad(loss)(0.01, False), rtol=1e-12, atol=1e-12)
+
+
+def _thrusters(dtype):
+    # two thrusters on body 1 (their torques sum in the body frame), one on body 4, off-centre
+    d = jnp.asarray([[0.0, 0.0, 1.0], [0.6, 0.8, 0.0], [0.0, 1.0, 0.0]], dtype)
+    point = jnp.asarray([[0.1, 0.0, 0.0], [0.0, 0.2, 0.0], [0.3, -0.1, 0.2]], dtype)
+    return rb.Thruster([1, 4, 1], d, jnp.asarray([2.0, -1.0, 0.5], dtype), point=point)
+
+
+@needs_kernels
+@pytest.mark.parametrize("method", sorted(_native.METHODS))
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_native_thrusters_match_jax(method, dtype):
+    # in the kernel: the body-frame sums turned by R(q) at each evaluation, the torque by cof(R),
+    # which is (R p) × (R f) also at RK4's stages, where |q| ≠ 1 and R is no rotation
+    state = _state((7,), dtype)
+    for forces in (
+        _thrusters(dtype),
+        rb.Gravity() + _thrusters(dtype) + rb.QuadraticDrag(0.05, 0.01),
+        rb.Thruster([2], jnp.asarray([[0.0, 1.0, 0.0]], dtype), 3.0),  # at the centre of mass: no torque
+    ):
+        nat, ref = _both(state, forces, method)
+        _assert_close(nat, ref, STEPS, dtype)
+
+
+@needs_kernels
+@pytest.mark.parametrize("shared_body", [False, pytest.param(True, marks=pytest.mark.slow)])
+def test_native_thrusters_over_blocks_under_vmap_and_grad(shared_body):
+    # 130 bodies (three blocks), thrusters in the first and last; vmap over thrust; grad from JAX
+    # (euler: the cheapest gradient to compile; every method meets thrusters above)
+    state = _state((130,), jnp.float64, shared_body)
+    d = jnp.asarray([[0.0, 0.0, 1.0], [0.6, 0.8, 0.0]], jnp.float64)
+
+    def run(thrust, native):
+        forces = rb.Thruster([3, 129], d, thrust, point=jnp.asarray([0.1, -0.2, 0.05])) + rb.LinearDrag(0.1, 0.02)
+        return rb.simulate(state, forces, 1e-2, STEPS, "euler", save_every=SAVE, native=native)
+
+    thrust = jnp.asarray([2.0, -1.5])
+    _assert_close(run(thrust, True), run(thrust, False), STEPS, jnp.float64)
+    both = jax.vmap(lambda T: run(T, True))(jnp.stack([thrust, 2 * thrust]))
+    _assert_close(jax.tree.map(lambda a: a[1], both), run(2 * thrust, False), STEPS, jnp.float64)
+    loss = lambda T, native: jnp.sum(run(T, native).angular_momentum[-1] ** 2)
+    np.testing.assert_allclose(jax.grad(loss)(thrust, True), jax.grad(loss)(thrust, False), rtol=1e-12, atol=1e-12)
+
+
+SHARDED_CHECK = textwrap.dedent(
+    """
+    import jax, jax.numpy as jnp, numpy as np
+    jax.config.update("jax_enable_x64", True)
+    import rbjax as rb
+    assert len(jax.devices()) == 2
+    n = 130  # 65 bodies a device: a full block and a partial one each
+    rng = np.random.default_rng(0)
+    per_body = rb.State.create(rb.box(rng.uniform(1, 2, n), rng.uniform(0.5, 1.5, (n, 3))),
+                               velocity=rng.normal(size=(n, 3)), angular_velocity=rng.normal(size=(n, 3)))
+    shared = rb.State.create(rb.box(1.0, [0.1, 0.2, 0.4]), angular_velocity=rng.normal(size=(n, 3)))
+    laws = rb.Gravity() + rb.LinearDrag(0.1, angular=0.05) + rb.QuadraticDrag(0.02, 0.01)
+    thrusters = rb.Thruster([3, 129], jnp.asarray([[0.0, 0, 1], [1.0, 0, 0]]), 2.0, point=jnp.asarray([0.1, 0, 0]))
+    callable_forces = lambda s, t: rb.Forces(force=-0.3 * s.velocity, torque=-0.1 * s.angular_momentum)
+    explicit = jax.make_mesh((2,), ("bodies",))  # jax's default: explicit axis types
+    auto = jax.sharding.Mesh(np.array(jax.devices()), ("bodies",))  # GSPMD propagation
+    cases = [(m, f) for m in ("euler", "rk4", "splitting", "semi_implicit_euler", "rk4_body") for f in (laws, None)]
+    cases += [("rk4", thrusters), ("euler", callable_forces)]
+    worst = 0.0
+    for mesh in (explicit, auto):
+        for s in (per_body, shared):
+            st = jax.device_put(s, rb.batch_sharding(s, mesh))
+            for method, f in cases:
+                traj = rb.simulate(st, f, 0.01, 20, method, save_every=5, native=True)
+                ref = rb.simulate(s, f, 0.01, 20, method, save_every=5, native=True)
+                for path, leaf in jax.tree_util.tree_leaves_with_path(traj):
+                    key = jax.tree_util.keystr(path)
+                    if key.startswith(".body") and s is shared or mesh is auto and key == ".time":
+                        continue  # a shared body stays replicated; GSPMD replicates the times it builds
+                    assert leaf.sharding.spec[1] == "bodies", (key, leaf.sharding)
+                for a, b in zip(jax.tree.leaves(traj), jax.tree.leaves(ref)):
+                    worst = max(worst, float(jnp.max(jnp.abs(a - b))))
+    # split, not gathered: the kernel runs on 65 bodies a device, with no collective in the program
+    import rbjax._simulate as sim
+    lowered = {}
+    run = sim._simulate
+    def spy(*a, **k):
+        lowered["x"] = run.lower(*a, **k)
+        return run(*a, **k)
+    sim._simulate = spy
+    rb.simulate(jax.device_put(shared, rb.batch_sharding(shared, auto)), laws, 0.01, 20, "rk4", save_every=5)
+    sim._simulate = run
+    hlo = lowered["x"].compile().as_text()
+    calls = [line for line in hlo.splitlines() if "custom-call(" in line]
+    assert calls and all("[65,3]" in line for line in calls), calls
+    assert not any(op in hlo for op in ("all-gather(", "all-to-all(", "collective-permute(")), "a collective"
+    # under vmap the marked call has a leading vmap axis (num_batch_dims counts it): still right
+    for mesh in (explicit, auto):
+        st = jax.device_put(per_body, rb.batch_sharding(per_body, mesh))
+        run = lambda dt: rb.simulate(st, laws, dt, 20, "rk4", save_every=5, native=True)
+        both = jax.vmap(run)(jnp.asarray([0.01, 0.02]))
+        assert both.position.sharding.spec[2] == "bodies", both.position.sharding
+        ref = rb.simulate(per_body, laws, 0.02, 20, "rk4", save_every=5, native=True)
+        for a, b in zip(jax.tree.leaves(both), jax.tree.leaves(ref)):
+            worst = max(worst, float(jnp.max(jnp.abs(a[1] - b))))
+    # inside a caller's jit an auto-sharded batch is not seen as sharded: the call is not marked,
+    # not split, and still right
+    st = jax.device_put(per_body, rb.batch_sharding(per_body, auto))
+    traj = jax.jit(lambda s: rb.simulate(s, laws, 0.01, 20, "rk4", save_every=5, native=True))(st)
+    ref = rb.simulate(per_body, laws, 0.01, 20, "rk4", save_every=5, native=True)
+    for a, b in zip(jax.tree.leaves(traj), jax.tree.leaves(ref)):
+        worst = max(worst, float(jnp.max(jnp.abs(a - b))))
+    print("WORST", worst)
+    """
+)
+
+
+@needs_kernels
+@pytest.mark.slow  # a fresh process with 2 host devices
+def test_native_kernel_splits_a_sharded_batch_over_its_devices():
+    # the kernel call is batch-partitionable: each device steps its own bodies (no collective),
+    # every leaf stays split on its body axis, and the values are the unsharded run's: each body's
+    # arithmetic is the same whichever device runs it, so they agree to the bit (asserted: 0)
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
+    env["PYTHONPATH"] = str(Path(__file__).resolve().parents[1])
+    out = subprocess.run([sys.executable, "-c", SHARDED_CHECK], env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert float(out.stdout.split("WORST")[-1]) == 0.0
+
+
+def test_native_plan_refuses_a_sharded_series_and_a_sharded_batch_of_two_axes(monkeypatch):
+    # the reasons native_plan gives where a sharded batch cannot be split (one device here: the
+    # sharding is pretended)
+    monkeypatch.setattr(_native, "sharded", lambda state: True)
+    method = rb.methods()["rk4"]
+    plan = lambda state, series: _native.native_plan(state, None, method, series=series, checked=False, checkpoint=None)
+    if not rb.native_status().available:
+        return
+    assert "time-series" in plan(_state((4,), jnp.float64), True)
+    assert "1-D batches" in plan(_state((2, 3), jnp.float64), False)
+    assert plan(_state((4,), jnp.float64), False) == ""

@@ -6,11 +6,21 @@ in one call: the methods of ``METHODS`` (``"euler"``, ``"rk4"``, ``"splitting"``
 ``"semi_implicit_euler"``, ``"rk4_body"``), float32 and float64, with the force
 laws that are per body evaluated inside the kernel (none, constant
 :class:`rbjax.Forces`, and sums of :class:`rbjax.Gravity`,
-:class:`rbjax.LinearDrag`, :class:`rbjax.QuadraticDrag` and
-:class:`rbjax.ConstantForce`). Anything else runs the JAX implementation, which
-stays the reference: the kernel mirrors it to round-off (tests/test_native.py)
-and supplies nothing but values. Derivatives come from the JAX step through a
-``custom_jvp``, so ``grad`` and ``jvp`` see exactly the JAX path.
+:class:`rbjax.LinearDrag`, :class:`rbjax.QuadraticDrag`,
+:class:`rbjax.ConstantForce` and :class:`rbjax.Thruster`, whose body-frame sums
+per body the kernel turns by the attitude at each evaluation). A time series
+of :class:`rbjax.Forces` (``(steps, *B, 3)``, world frame, N and N·m) goes in by
+the frame's slice, ``(save_every, n, 3)``, one row per step, held over the
+step's stages. With ``native=True``, ``"euler"`` and ``"semi_implicit_euler"``
+(``AT_STEP_START``: forces once per step, at its start) also take any other
+force model or callable ``(state, t) -> Forces``: XLA evaluates it at each
+step's start and the kernel takes the result, one call per step. A batch
+sharded over devices (1-D, no series) is split: the call is
+batch-partitionable, each device runs the kernel on its bodies. Anything else
+runs the JAX implementation, which stays the reference: the kernel mirrors it
+to round-off (tests/test_native.py) and supplies nothing but values.
+Derivatives come from the JAX step through a ``custom_jvp``, so ``grad`` and
+``jvp`` see exactly the JAX path.
 
 :func:`native_status` says whether the kernels were built and loaded, and why
 not; ``simulate(..., native=...)`` forces either path.
@@ -31,13 +41,16 @@ import jax
 import jax.core
 import jax.numpy as jnp
 import numpy as np
+from jax.experimental.xla_metadata import set_xla_metadata
 
+from .._attached import Thruster
 from .._force_model import ForceSum
 from .._forces import ConstantForce, Gravity, LinearDrag, QuadraticDrag
 from .._methods import Method, available
 from .._methods._common import principal_frame
 from .._pytree import replace
 from .._state import Forces, State
+from .._validate import checked_force_fn
 
 __all__ = ["NativeStatus", "native_status", "native_plan", "advance"]
 
@@ -46,6 +59,7 @@ METHODS = dict(
     sorted(((m.name, m.native_code) for m in available().values() if m.native_code is not None), key=lambda p: p[1])
 )
 _TARGET = "rbjax_advance"
+_ABI = 2  # kernels.cc: rbjax_native_abi, the version of the call's operands and attributes
 _ISA = ("x86-64 baseline", "AVX2", "AVX-512")
 
 
@@ -101,7 +115,19 @@ def native_status() -> NativeStatus:
         return NativeStatus(False, None, None, "the library was not built at install (no C++ compiler?)")
     try:
         lib = ctypes.CDLL(str(path))
+        abi = int(lib.rbjax_native_abi()) if hasattr(lib, "rbjax_native_abi") else 1
+        if abi != _ABI:
+            return NativeStatus(
+                False,
+                str(path),
+                None,
+                f"{path.name} was built from another kernels.cc (call version {abi}, this rbjax needs {_ABI}): "
+                "rebuild it (pip install -e ., or python setup.py build_ext --inplace)",
+            )
         jax.ffi.register_ffi_target(_TARGET, jax.ffi.pycapsule(lib.RbjaxAdvance), platform="cpu")
+        # a call marked num_batch_dims = 1 (only `_call` with sharded=True, whose operands are all
+        # (N, c)) is split over the devices of its batch; unmarked calls are not partitioned
+        jax.ffi.register_ffi_target_as_batch_partitionable(_TARGET)
         isa = _ISA[min(int(lib.rbjax_native_isa()), 2)]
     except (OSError, AttributeError, ValueError, RuntimeError) as e:
         return NativeStatus(False, str(path), None, f"{path.name} could not be loaded: {e}")
@@ -110,7 +136,18 @@ def native_status() -> NativeStatus:
 
 # --- which runs the kernels take -------------------------------------------------------------
 
-_SIMPLE = (Gravity, LinearDrag, QuadraticDrag, ConstantForce)
+_SIMPLE = (Gravity, LinearDrag, QuadraticDrag, ConstantForce, Thruster)
+
+# The methods whose steps evaluate the forces once, at the step's start state and time (euler.py:
+# euler_state, semi_implicit_euler.py: semi_implicit_state, whose kick sees the old state): with a
+# force law the kernel does not know, XLA evaluates it there and the kernel takes the result,
+# one call per step. The others need forces at intermediate states (the stages of rk4 and
+# rk4_body, splitting's kick after the drift), where a kernel call per stage would cost at
+# least four per-step calls. A kernel call per step reads and writes the whole state once,
+# as a fused JAX step does: roughly measured (shared 2-core machine, 1e5 bodies, float32),
+# euler and semi_implicit_euler with a callable were no faster natively than on JAX, so
+# native=None keeps such runs on JAX and native=True takes this path.
+AT_STEP_START = ("euler", "semi_implicit_euler")
 
 
 def _terms(forces: Any) -> tuple[Any, ...] | None:
@@ -126,8 +163,17 @@ def _terms(forces: Any) -> tuple[Any, ...] | None:
     return None
 
 
-def native_plan(state: Any, forces: Any, method: Method, *, series: bool, checked: bool, checkpoint: Any) -> str:
-    """``""`` when this run can take the native kernels, else the reason it cannot (for messages)."""
+def native_plan(
+    state: Any, forces: Any, method: Method, *, series: bool, checked: bool, checkpoint: Any, default: bool = False
+) -> str:
+    """``""`` when this run can take the native kernels, else the reason it cannot (for messages).
+
+    ``forces`` is what the steps see: ``None``, a :class:`Forces` (a time series
+    when ``series``), a force model, or a force callable. ``default``: the plan for
+    ``native=None``, which keeps forces evaluated by XLA (callables, force models
+    other than the kernel's laws) on the JAX path: there a kernel call per step
+    was measured no faster than the JAX steps (see ``AT_STEP_START``).
+    """
     status = native_status()
     if not status.available:
         return status.reason
@@ -137,20 +183,33 @@ def native_plan(state: Any, forces: Any, method: Method, *, series: bool, checke
         return f"{type(state).__name__} has no native kernel (State has)"
     if state.dtype not in (jnp.float32, jnp.float64):
         return f"dtype {state.dtype} has no native kernel (float32 and float64 have)"
-    if series or _terms(forces) is None:
+    if not series and _terms(forces) is None and method.name not in AT_STEP_START:
         return (
-            "these forces are not evaluated natively (none, constant Forces, Gravity, LinearDrag, "
-            "QuadraticDrag, ConstantForce and their sums are)"
+            f"method {method.name!r} needs the forces at intermediate states, and these are evaluated by XLA "
+            "(the kernel evaluates none, constant or time-series Forces, Gravity, LinearDrag, QuadraticDrag, "
+            "ConstantForce, Thruster and their sums itself; other force models and callables run natively with "
+            f"{' and '.join(AT_STEP_START)}, which evaluate the forces once per step, at its start)"
         )
+    if default and not series and _terms(forces) is None:
+        return "forces evaluated by XLA take the JAX path unless native=True"
     if checked:
         return "checked mode tests every step in JAX"
     if checkpoint is not None:
         return "gradient checkpointing segments the JAX scan"
     if jax.default_backend() != "cpu":
         return f"the default backend is {jax.default_backend()}, the kernels are for the CPU"
-    if any(_sharded(a) for a in jax.tree.leaves(state)):
-        return "the batch is sharded (the kernel has no partitioning rule)"
+    if sharded(state):
+        if series:
+            return "a sharded batch with time-series forces (the series' leading axis is time, not the batch)"
+        if len(state.batch_shape) != 1:
+            return f"a sharded batch of shape {state.batch_shape} (the kernel splits 1-D batches (N,))"
     return ""
+
+
+def sharded(state: Any) -> bool:
+    """Whether some field of ``state`` is laid out over a mesh (see :func:`_sharded`): the kernel call
+    is then split over the batch's devices (``_call``'s ``sharded``)."""
+    return any(_sharded(a) for a in jax.tree.leaves(state))
 
 
 def _sharded(a: Any) -> bool:
@@ -177,8 +236,13 @@ def say_once_unavailable() -> None:
 
 
 def _parameters(forces: Any, batch: tuple[int, ...], dtype: Any) -> tuple[dict[str, jax.Array], int]:
-    """The kernel's force parameters ``F, tau, g (n, 3)``, ``drag (n, 4)`` (``n`` = 1 when shared)
-    and its ``terms`` bits."""
+    """The kernel's force parameters ``F, tau, g (n, 3)``, ``drag (n, 4)``, ``thrust (n, 6)`` (``n`` = 1
+    when shared) and its ``terms`` bits.
+
+    ``thrust`` holds the thrusters' body-frame sums per body, ``f_b = Σ T_s d_s`` (N) and
+    ``τ_b = Σ p_s × T_s d_s`` (N·m) over the thrusters ``s`` on the body (zero rows for the
+    others), which the kernel turns by ``R(q)`` at each evaluation (steps.h: ``forces``).
+    """
     n = int(np.prod(batch, dtype=np.int64))
 
     def per_body(a: Any, comps: int) -> jax.Array:
@@ -190,12 +254,13 @@ def _parameters(forces: Any, batch: tuple[int, ...], dtype: Any) -> tuple[dict[s
 
     zero3, zero = jnp.zeros((1, 3), dtype), jnp.zeros((1, 1), dtype)
     acc: dict[str, Any] = {"F": zero3, "tau": zero3, "g": zero3, "b": zero, "br": zero, "c": zero, "cr": zero}
+    acc["thrust"] = jnp.zeros((1, 6), dtype)
     used: set[str] = set()
 
     def add(key: str, a: Any, comps: int) -> None:
         if a is None:
             return
-        p = per_body(a, comps)
+        p = a if key == "thrust" else per_body(a, comps)
         acc[key] = p if key not in used else acc[key] + p
         used.add(key)
 
@@ -211,10 +276,25 @@ def _parameters(forces: Any, batch: tuple[int, ...], dtype: Any) -> tuple[dict[s
         elif isinstance(term, QuadraticDrag):
             add("c", term.linear, 1)
             add("cr", term.angular, 1)
+        elif isinstance(term, Thruster):
+            add("thrust", _thrust_sums(term, n, dtype), 6)
     rows = max(acc[k].shape[0] for k in ("b", "br", "c", "cr"))
     drag = jnp.concatenate([jnp.broadcast_to(acc[k], (rows, 1)) for k in ("b", "br", "c", "cr")], axis=1)
-    terms = (1 if used else 0) | (2 if used & {"c", "cr"} else 0)
-    return {"F": acc["F"], "tau": acc["tau"], "g": acc["g"], "drag": drag}, terms
+    terms = (1 if used else 0) | (2 if used & {"c", "cr"} else 0) | (4 if "thrust" in used else 0)
+    return {"F": acc["F"], "tau": acc["tau"], "g": acc["g"], "drag": drag, "thrust": acc["thrust"]}, terms
+
+
+def _thrust_sums(thruster: Thruster, n: int, dtype: Any) -> jax.Array:
+    """``(n, 6)``: per body the body-frame sums ``f_b = Σ T_s d_s`` and ``τ_b = Σ p_s × T_s d_s``
+    over its thrusters (``body[s]`` = the body; ``Thruster`` needs a 1-D batch of ``n`` bodies)."""
+    s = thruster.body.shape[0]
+    d = jnp.broadcast_to(jnp.asarray(thruster.direction, dtype), (s, 3))
+    f = jnp.broadcast_to(jnp.asarray(thruster.thrust, dtype), (s,))[:, None] * d
+    fb = jnp.zeros((n, 3), dtype).at[thruster.body].add(f)
+    if thruster.point is None:
+        return jnp.concatenate([fb, jnp.zeros((n, 3), dtype)], axis=1)
+    p = jnp.broadcast_to(jnp.asarray(thruster.point, dtype), (s, 3))
+    return jnp.concatenate([fb, jnp.zeros((n, 3), dtype).at[thruster.body].add(jnp.cross(p, f))], axis=1)
 
 
 def _frames(body: Any, shared: bool, batch: tuple[int, ...], n: int) -> jax.Array:
@@ -226,8 +306,42 @@ def _frames(body: Any, shared: bool, batch: tuple[int, ...], n: int) -> jax.Arra
     return jnp.concatenate([p, 1 / d], axis=1)
 
 
-def _call(code: int, steps: int, dyn: State, body: Any, forces: Any, dt: jax.Array) -> State:
-    """``steps`` steps of the kernel's method ``code`` on a batch-first state ``dyn`` (fields ``(*B, c)``)."""
+def _series_parameters(forces: Forces, steps: int, batch: tuple[int, ...], dtype: Any) -> dict[str, jax.Array]:
+    """A time series' ``F, tau`` as the kernel takes them, ``(steps, n, 3)`` (``n`` = 1 when shared):
+    ``forces``' fields are ``(steps, *B', 3)`` with ``B'`` broadcastable to ``batch``, or ``None``."""
+    n = int(np.prod(batch, dtype=np.int64))
+
+    def rows(a: Any) -> jax.Array:
+        if a is None:
+            return jnp.zeros((steps, 1, 3), dtype)
+        a = jnp.asarray(a, dtype)
+        if int(np.prod(a.shape[1:-1], dtype=np.int64)) == 1:
+            return a.reshape(steps, 1, 3)
+        return jnp.broadcast_to(a, (steps,) + batch + (3,)).reshape(steps, n, 3)
+
+    return {"F": rows(forces.force), "tau": rows(forces.torque)}
+
+
+def _call(
+    code: int,
+    steps: int,
+    dyn: State,
+    body: Any,
+    forces: Any,
+    dt: jax.Array,
+    series: bool = False,
+    sharded: bool = False,
+) -> State:
+    """``steps`` steps of the kernel's method ``code`` on a batch-first state ``dyn`` (fields ``(*B, c)``).
+
+    ``forces``: ``None``, a constant :class:`Forces`, a sum of the laws of
+    ``_SIMPLE``, or with ``series`` a :class:`Forces` of fields ``(steps, *B', 3)``,
+    one slice per step. ``sharded`` (a 1-D batch, no series): every operand is
+    made ``(N, c)`` (shared rows broadcast) and the call is marked with
+    ``num_batch_dims = 1``, so XLA's batch partitioner splits it over the
+    devices of the batch (each runs the kernel on its bodies; a shared ``(1, c)``
+    row would be split as if it were bodies, hence the broadcast).
+    """
     batch = tuple(dyn.position.shape[:-1])
     n = int(np.prod(batch, dtype=np.int64))
     dtype = dyn.position.dtype
@@ -238,60 +352,89 @@ def _call(code: int, steps: int, dyn: State, body: Any, forces: Any, dt: jax.Arr
     m = body.mass.reshape(1, 1) if shared else jnp.broadcast_to(body.mass, batch).reshape(n, 1)
     inv = body.inverse_inertia
     inv = inv.reshape(1, 9) if shared else jnp.broadcast_to(inv, batch + (3, 3)).reshape(n, 9)
-    params, terms = _parameters(forces, batch, dtype)
+    if series:
+        zero3 = jnp.zeros((1, 3), dtype)
+        params = _series_parameters(forces, steps, batch, dtype) | {
+            "g": zero3,
+            "drag": jnp.zeros((1, 4), dtype),
+            "thrust": jnp.zeros((1, 6), dtype),
+        }
+        terms = 1
+    else:
+        params, terms = _parameters(forces, batch, dtype)
     frame = _frames(body, shared, batch, n) if code == METHODS["splitting"] else jnp.zeros((1, 7), dtype)
+    operands = [m, inv, params["F"], params["tau"], params["g"], params["drag"], frame, params["thrust"]]
+    if sharded:
+        operands = [jnp.broadcast_to(a, (n, a.shape[-1])) for a in operands]
+    results = tuple(
+        jax.ShapeDtypeStruct(a.shape, dtype, sharding=jax.typeof(a).sharding if sharded else None) for a in flat
+    )
     call = jax.ffi.ffi_call(
-        _TARGET,
-        tuple(jax.ShapeDtypeStruct(a.shape, dtype) for a in flat),
-        vmap_method="broadcast_all",
-        input_output_aliases={0: 0, 1: 1, 2: 2, 3: 3},
+        _TARGET, results, vmap_method="broadcast_all", input_output_aliases={0: 0, 1: 1, 2: 2, 3: 3}
     )
-    out = call(
-        *flat,
-        m,
-        inv,
-        params["F"],
-        params["tau"],
-        params["g"],
-        params["drag"],
-        frame,
-        jnp.asarray(dt, dtype),
-        steps=np.int64(steps),
-        method=np.int64(code),
-        terms=np.int64(terms),
+    attrs = dict(
+        steps=np.int64(steps), method=np.int64(code), terms=np.int64(terms), series=np.int64(steps if series else 0)
     )
+    if sharded:
+        with set_xla_metadata(num_batch_dims="1"):
+            out = call(*flat, *operands, jnp.asarray(dt, dtype), **attrs)
+    else:
+        out = call(*flat, *operands, jnp.asarray(dt, dtype), **attrs)
     x, v, q, L = (a.reshape(batch + a.shape[-1:]) for a in out)
     return replace(dyn, position=x, velocity=v, orientation=q, angular_momentum=L)
 
 
-@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2))
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2, 3, 4, 5))
 def advance(
     code: int,
     steps: int,
     reference: Callable[..., State],
+    series: bool,
+    force_fn: Callable[[Any, jax.Array], Forces] | None,
+    sharded: bool,
     dyn: State,
     consts_soa: dict[str, Any],
     consts: dict[str, Any],
     forces: Any,
     dt: jax.Array,
-    t: jax.Array,
+    ts: jax.Array,
 ) -> State:
     """``steps`` steps of the method numbered ``code`` (:attr:`rbjax._methods.Method.native_code`) by the kernel,
-    with the values of ``reference`` (same arguments).
+    with the values of ``reference`` (same arguments, less the first six); ``sharded``: the batch
+    is laid out over devices, and each call is split over them (see ``_call``).
 
     ``dyn`` is the stripped, batch-first state (fields ``(*B, c)``: the
     kernel gathers each block of bodies itself, so no transposes);
     ``consts_soa`` its constant fields with the prepared body (``mass``
     ``(*B)`` or ``()``, ``inverse_inertia`` ``(*B, 3, 3)`` or ``(3, 3)``), and
-    ``consts`` the unprepared ones (the force models see those); ``forces``
-    is what ``simulate`` was given (``None``, a constant batch-first
-    :class:`Forces` or a force model), ``dt`` the step (s) and ``t`` the time
-    of the first step. Differentiated through ``reference``, the JAX steps.
+    ``consts`` the unprepared ones (the force models see those); ``dt`` the
+    step (s) and ``ts`` ``(steps,)`` each step's start time (s). The forces:
+
+    * ``force_fn`` ``None`` and ``forces`` ``None``, a constant batch-first
+      :class:`Forces` or a sum of the laws the kernel knows: all ``steps`` in one call;
+    * ``series``: ``forces`` a :class:`Forces` of fields ``(steps, *B', 3)``,
+      step ``k``'s slice held over its stages: all ``steps`` in one call;
+    * else (a method of ``AT_STEP_START`` only) ``force_fn`` ``(state, t) ->
+      Forces`` (checked and cast, a user's callable) or, when it is ``None``,
+      the force model ``forces``, evaluated by XLA at each step's start state
+      (batch-first, with ``consts``, ``time = t``) and start time ``ts[k]``, then
+      one kernel call per step with that constant :class:`Forces`.
+
+    Differentiated through ``reference``, the JAX steps.
     """
-    del reference, consts, t
-    return _call(code, steps, dyn, consts_soa["body"], forces, dt)
+    del reference
+    body = consts_soa["body"]
+    if series or (force_fn is None and _terms(forces) is not None):
+        return _call(code, steps, dyn, body, forces, dt, series, sharded)
+    fn = force_fn if force_fn is not None else checked_force_fn(forces)
+
+    def one(d: State, t: jax.Array) -> tuple[State, None]:
+        f = fn(replace(d, **{**consts, "time": t}), t)
+        return _call(code, 1, d, body, f, dt, sharded=sharded), None
+
+    return jax.lax.scan(one, dyn, ts)[0]
 
 
 @advance.defjvp
-def _advance_jvp(code, steps, reference, primals, tangents):
+def _advance_jvp(code, steps, reference, series, force_fn, sharded, primals, tangents):
     return jax.jvp(reference, primals, tangents)

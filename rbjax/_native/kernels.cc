@@ -15,7 +15,10 @@
 // gathers its bodies into a structure of arrays once per call.
 //
 // The `terms` attribute: bit 0, some force or torque acts (else v and L stay);
-// bit 1, quadratic drag is among them (two square roots per evaluation).
+// bit 1, quadratic drag is among them (two square roots per evaluation); bit 2, thrusters
+// (body-fixed force and torque sums, turned by R(q) at each evaluation).
+// The `series` attribute: 0, or `steps` when F and τ are a time series (V, steps, n, 3),
+// one slice per step (rbjax.simulate's forces of shape (steps, *B, 3)), held over its stages.
 
 #include <algorithm>
 #include <atomic>
@@ -44,12 +47,14 @@ struct Block {
 };
 
 // Per-body constants of a block: mass, I_L⁻¹ (row-major 3x3) and the force parameters
-// (constant F and τ, gravity g, drag b, b_r, c, c_r; zero where a term is absent).
+// (constant F and τ, gravity g, drag b, b_r, c, c_r, thrusters' body-frame sums; zero where a
+// term is absent).
 template <typename T>
 struct Consts {
   T m[kBlock], inv_m[kBlock], inv[9][kBlock];  // inv_m: 1/m, so F/m is a product (within an ulp)
   T F[3][kBlock], tau[3][kBlock], g[3][kBlock];
   T b[kBlock], br[kBlock], c[kBlock], cr[kBlock];
+  T fb[3][kBlock], tb[3][kBlock];  // thrusters' body-frame force and torque sums (steps.h: forces)
 };
 
 // the per-body helpers of steps.h must inline into the loops over bodies, or nothing vectorises
@@ -91,12 +96,12 @@ int isa() {
 
 template <typename T>
 inline void block_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], int n, T dt, int64_t steps,
-                        int64_t method, bool forces, bool quad) {
+                        int64_t method, bool forces, bool quad, bool thrust) {
 #ifdef RBJAX_X86
-  if (isa() == 2) return avx512::block_steps<T>(B, k, frame, n, dt, steps, method, forces, quad);
-  if (isa() == 1) return avx2::block_steps<T>(B, k, frame, n, dt, steps, method, forces, quad);
+  if (isa() == 2) return avx512::block_steps<T>(B, k, frame, n, dt, steps, method, forces, quad, thrust);
+  if (isa() == 1) return avx2::block_steps<T>(B, k, frame, n, dt, steps, method, forces, quad, thrust);
 #endif
-  baseline::block_steps<T>(B, k, frame, n, dt, steps, method, forces, quad);
+  baseline::block_steps<T>(B, k, frame, n, dt, steps, method, forces, quad, thrust);
 }
 
 // A per-body parameter of `comps` components, (V, n, comps) with n = N or 1 (shared).
@@ -104,8 +109,9 @@ template <typename T>
 struct Param {
   const T* p = nullptr;
   int64_t n = 1;
-  void load(int64_t vb, int64_t i0, int count, int comps, T (*dst)[kBlock]) const {
-    const T* base = p + vb * comps * n;
+  int64_t rows = 1;  // slices per batch V: the steps of a time series (V, steps, n, comps), else 1
+  void load(int64_t vb, int64_t i0, int count, int comps, T (*dst)[kBlock], int64_t row = 0) const {
+    const T* base = p + (vb * rows + row) * comps * n;
     for (int c = 0; c < comps; ++c)
       for (int j = 0; j < count; ++j) dst[c][j] = base[(n == 1 ? 0 : i0 + j) * comps + c];
   }
@@ -116,11 +122,13 @@ template <typename T>
 struct Problem {
   T *x, *v, *q, *L;                  // outputs, (V, N, c)
   const T *x0, *v0, *q0, *L0;        // inputs, (V, N, c)
-  Param<T> m, inv, F, tau, g, drag;  // (V, n, c): mass 1, inverse 9, F/τ/g 3, drag 4 (b, b_r, c, c_r)
+  Param<T> m, inv, F, tau, g, drag;  // (V, n, c): mass 1, inverse 9, F/τ/g 3, drag 4 (b, b_r, c, c_r);
+                                     // F and τ (V, steps, n, 3) when `series`
   Param<T> frame;                    // (V, n, 7): the principal frame's quaternion and inverse moments
+  Param<T> thrusters;                // (V, n, 6): the thrusters' body-frame force and torque sums
   const T* dt;                       // (V,)
   int64_t V, N, steps, method;
-  bool forces, quad;
+  bool forces, quad, thrust, series;  // series: F and τ hold one slice per step, held over the step's stages
 };
 
 template <typename T>
@@ -143,6 +151,15 @@ void run_block(const Problem<T>& P, int64_t vb, int64_t i0, int n) {
   P.g.load(vb, i0, n, 3, k.g);
   P.drag.load(vb, i0, n, 4, drag);
   if (P.method == kSplitting) P.frame.load(vb, i0, n, 7, frame);
+  if (P.thrust) {
+    T fbtb[6][kBlock];
+    P.thrusters.load(vb, i0, n, 6, fbtb);
+    for (int c = 0; c < 3; ++c)
+      for (int j = 0; j < n; ++j) {
+        k.fb[c][j] = fbtb[c][j];
+        k.tb[c][j] = fbtb[3 + c][j];
+      }
+  }
   for (int j = 0; j < n; ++j) {
     k.m[j] = m[0][j];
     k.inv_m[j] = T(1) / m[0][j];
@@ -151,7 +168,19 @@ void run_block(const Problem<T>& P, int64_t vb, int64_t i0, int n) {
     k.c[j] = drag[2][j];
     k.cr[j] = drag[3][j];
   }
-  block_steps(B, k, frame, n, P.dt[vb], P.steps, P.method, P.forces, P.quad);
+  if (!P.series) {
+    block_steps(B, k, frame, n, P.dt[vb], P.steps, P.method, P.forces, P.quad, P.thrust);
+  } else {
+    // a time series: each step's F and τ into the block's constants, then that one step (the
+    // block stays in L1 between the steps, as in the loop over steps of block_steps)
+    for (int64_t s = 0; s < P.steps; ++s) {
+      if (s > 0) {
+        P.F.load(vb, i0, n, 3, k.F, s);
+        P.tau.load(vb, i0, n, 3, k.tau, s);
+      }
+      block_steps(B, k, frame, n, P.dt[vb], 1, P.method, P.forces, P.quad, P.thrust);
+    }
+  }
   for (int f = 0; f < 4; ++f)
     for (int c = 0; c < comps[f]; ++c)
       for (int j = 0; j < n; ++j) out[f][(vb * N + i0 + j) * comps[f] + c] = blk[f][c][j];
@@ -187,9 +216,10 @@ template <typename T>
 ffi::Error advance_typed(ffi::ThreadPool& pool, ffi::AnyBuffer x, ffi::AnyBuffer v, ffi::AnyBuffer q,
                          ffi::AnyBuffer L, ffi::AnyBuffer m, ffi::AnyBuffer inv, ffi::AnyBuffer F,
                          ffi::AnyBuffer tau, ffi::AnyBuffer g, ffi::AnyBuffer drag, ffi::AnyBuffer frame,
-                         ffi::AnyBuffer dt, ffi::Result<ffi::AnyBuffer> xo, ffi::Result<ffi::AnyBuffer> vo,
-                         ffi::Result<ffi::AnyBuffer> qo, ffi::Result<ffi::AnyBuffer> Lo, int64_t steps,
-                         int64_t method, int64_t terms) {
+                         ffi::AnyBuffer thrust, ffi::AnyBuffer dt, ffi::Result<ffi::AnyBuffer> xo,
+                         ffi::Result<ffi::AnyBuffer> vo, ffi::Result<ffi::AnyBuffer> qo,
+                         ffi::Result<ffi::AnyBuffer> Lo, int64_t steps, int64_t method, int64_t terms,
+                         int64_t series) {
   auto dims = x.dimensions();
   if (dims.size() < 2 || dims[dims.size() - 1] != 3) return ffi::Error::InvalidArgument("x must be (..., N, 3)");
   if (method < kEuler || method > kRk4Body) {
@@ -202,6 +232,9 @@ ffi::Error advance_typed(ffi::ThreadPool& pool, ffi::AnyBuffer x, ffi::AnyBuffer
   P.method = method;
   P.forces = (terms & 1) != 0;
   P.quad = (terms & 2) != 0;
+  P.thrust = (terms & 4) != 0;
+  P.series = series != 0;
+  if (P.series && series != steps) return ffi::Error::InvalidArgument("a time series needs one slice per step");
   P.x0 = x.typed_data<T>();
   P.v0 = v.typed_data<T>();
   P.q0 = q.typed_data<T>();
@@ -223,22 +256,32 @@ ffi::Error advance_typed(ffi::ThreadPool& pool, ffi::AnyBuffer x, ffi::AnyBuffer
   bind(g, P.g);
   bind(drag, P.drag);
   bind(frame, P.frame);
+  bind(thrust, P.thrusters);
+  if (P.series) {
+    P.F.rows = P.tau.rows = steps;
+    for (const ffi::AnyBuffer* b : {&F, &tau}) {
+      auto d = b->dimensions();
+      if (d.size() < 3 || d[d.size() - 3] != steps) {
+        return ffi::Error::InvalidArgument("time-series F and tau must be (..., steps, n, 3)");
+      }
+    }
+  }
   if (P.V > 0) run(P, pool);
   return ffi::Error::Success();
 }
 
 ffi::Error advance(ffi::ThreadPool pool, ffi::AnyBuffer x, ffi::AnyBuffer v, ffi::AnyBuffer q, ffi::AnyBuffer L,
                    ffi::AnyBuffer m, ffi::AnyBuffer inv, ffi::AnyBuffer F, ffi::AnyBuffer tau, ffi::AnyBuffer g,
-                   ffi::AnyBuffer drag, ffi::AnyBuffer frame, ffi::AnyBuffer dt, ffi::Result<ffi::AnyBuffer> xo,
-                   ffi::Result<ffi::AnyBuffer> vo, ffi::Result<ffi::AnyBuffer> qo, ffi::Result<ffi::AnyBuffer> Lo,
-                   int64_t steps, int64_t method, int64_t terms) {
+                   ffi::AnyBuffer drag, ffi::AnyBuffer frame, ffi::AnyBuffer thrust, ffi::AnyBuffer dt,
+                   ffi::Result<ffi::AnyBuffer> xo, ffi::Result<ffi::AnyBuffer> vo, ffi::Result<ffi::AnyBuffer> qo,
+                   ffi::Result<ffi::AnyBuffer> Lo, int64_t steps, int64_t method, int64_t terms, int64_t series) {
   switch (x.element_type()) {
     case ffi::DataType::F32:
-      return advance_typed<float>(pool, x, v, q, L, m, inv, F, tau, g, drag, frame, dt, xo, vo, qo, Lo, steps,
-                                  method, terms);
+      return advance_typed<float>(pool, x, v, q, L, m, inv, F, tau, g, drag, frame, thrust, dt, xo, vo, qo, Lo,
+                                  steps, method, terms, series);
     case ffi::DataType::F64:
-      return advance_typed<double>(pool, x, v, q, L, m, inv, F, tau, g, drag, frame, dt, xo, vo, qo, Lo, steps,
-                                   method, terms);
+      return advance_typed<double>(pool, x, v, q, L, m, inv, F, tau, g, drag, frame, thrust, dt, xo, vo, qo, Lo,
+                                   steps, method, terms, series);
     default:
       return ffi::Error::InvalidArgument("rbjax native kernels take float32 or float64 states");
   }
@@ -246,8 +289,13 @@ ffi::Error advance(ffi::ThreadPool pool, ffi::AnyBuffer x, ffi::AnyBuffer v, ffi
 
 }  // namespace rbjax_native
 
-// The library's two exported symbols (everything else is hidden: -fvisibility=hidden).
+// The library's exported symbols (everything else is hidden: -fvisibility=hidden).
 extern "C" __attribute__((visibility("default"))) XLA_FFI_Error* RbjaxAdvance(XLA_FFI_CallFrame* call_frame);
+
+// The version of the call's operands and attributes, which rbjax/_native/__init__.py checks on
+// load (_ABI there): a library built from an older kernels.cc is refused, not called wrongly.
+// 2: the thrusters' operand and the `series` attribute. (A library without this symbol is older.)
+extern "C" __attribute__((visibility("default"))) int rbjax_native_abi() { return 2; }
 
 // The instruction set the steps run with here: 0 x86-64 baseline (or not x86), 1 AVX2, 2 AVX-512.
 extern "C" __attribute__((visibility("default"))) int rbjax_native_isa() { return rbjax_native::isa(); }
@@ -266,6 +314,7 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(RbjaxAdvance, rbjax_native::advance,
                                   .Arg<ffi::AnyBuffer>()  // gravity
                                   .Arg<ffi::AnyBuffer>()  // drag coefficients
                                   .Arg<ffi::AnyBuffer>()  // principal frames (splitting)
+                                  .Arg<ffi::AnyBuffer>()  // thrusters' body-frame sums
                                   .Arg<ffi::AnyBuffer>()  // dt
                                   .Ret<ffi::AnyBuffer>()
                                   .Ret<ffi::AnyBuffer>()
@@ -273,4 +322,5 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(RbjaxAdvance, rbjax_native::advance,
                                   .Ret<ffi::AnyBuffer>()
                                   .Attr<int64_t>("steps")
                                   .Attr<int64_t>("method")
-                                  .Attr<int64_t>("terms"));
+                                  .Attr<int64_t>("terms")
+                                  .Attr<int64_t>("series"));

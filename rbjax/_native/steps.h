@@ -87,6 +87,14 @@ RBJAX_INLINE void pure_quat_multiply(const T w[3], const T q[4], T p[4]) {
   p[3] = q[0] * w[2] + (w[0] * q[2] - w[1] * q[1]);
 }
 
+// a × b.
+template <typename T>
+RBJAX_INLINE void cross3(const T a[3], const T b[3], T out[3]) {
+  out[0] = a[1] * b[2] - a[2] * b[1];
+  out[1] = a[2] * b[0] - a[0] * b[2];
+  out[2] = a[0] * b[1] - a[1] * b[0];
+}
+
 // ‖a‖, as rbjax._math.safe_norm (whose where only guards its gradient at 0).
 template <typename T>
 RBJAX_INLINE T norm3(const T a[3]) {
@@ -100,12 +108,20 @@ RBJAX_INLINE void normalize(T q[4]) {
   for (int c = 0; c < 4; ++c) q[c] = q[c] * inv;
 }
 
-// Force and torque on body j at velocity v and world ω: the terms of a force model
-// sum in the order constant, gravity, linear drag, quadratic drag. Absent terms have
-// zero coefficients, and adding their (signed) zeros changes no finite value, so this
-// is the sum of the present terms alone.
-template <typename T, bool kQuad>
-RBJAX_INLINE void forces(const Consts<T>& k, int j, const T v[3], const T w[3], T F[3], T tau[3]) {
+// Force and torque on body j at attitude q, velocity v and world ω: the terms of a force model
+// sum in the order constant, gravity, linear drag, quadratic drag, thrusters. Absent terms have
+// zero coefficients, and adding their (signed) zeros changes no finite value, so this is the
+// sum of the present terms alone.
+//
+// Thrusters (kThrust; rbjax/_attached.py: Thruster): thruster s on body j pushes with world force
+// T_s R d_s at the world offset R p_s, torque (R p_s) × (T_s R d_s), with R the matrix of
+// quat_rotate(q, ·) (not a rotation at an RK4 stage, where |q| ≠ 1). Summed over the body's
+// thrusters, F = R f_b and τ = Σ (R p_s) × (R f_s) = cof(R) τ_b, with the body-frame sums
+// f_b = Σ T_s d_s and τ_b = Σ p_s × T_s d_s (scattered onto the bodies in JAX once per call):
+// (R a) × (R b) = cof(R) (a × b) holds for any 3x3 R, whose cofactor matrix has the columns
+// c₁ × c₂, c₂ × c₀, c₀ × c₁ of R's columns c_k. The same map as the JAX model's, regrouped.
+template <typename T, bool kQuad, bool kThrust>
+RBJAX_INLINE void forces(const Consts<T>& k, int j, const T q[4], const T v[3], const T w[3], T F[3], T tau[3]) {
   T sv = T(0), sw = T(0);
   if (kQuad) {
     sv = -k.c[j] * norm3(v);
@@ -118,6 +134,24 @@ RBJAX_INLINE void forces(const Consts<T>& k, int j, const T v[3], const T w[3], 
     if (kQuad) {
       F[c] = F[c] + sv * v[c];
       tau[c] = tau[c] + sw * w[c];
+    }
+  }
+  if (kThrust) {
+    T R[9];
+    rotation(q, R);
+    const T fb[3] = {k.fb[0][j], k.fb[1][j], k.fb[2][j]}, tb[3] = {k.tb[0][j], k.tb[1][j], k.tb[2][j]};
+    T Fw[3];
+    matvec3(R, fb, Fw);
+    // the columns of R, and cof(R) τ_b = τ_b,0 (c₁ × c₂) + τ_b,1 (c₂ × c₀) + τ_b,2 (c₀ × c₁)
+    const T c0[3] = {R[0], R[3], R[6]}, c1[3] = {R[1], R[4], R[7]}, c2[3] = {R[2], R[5], R[8]};
+    T x12[3], x20[3], x01[3];
+    cross3(c1, c2, x12);
+    cross3(c2, c0, x20);
+    cross3(c0, c1, x01);
+    #pragma GCC unroll 16
+    for (int c = 0; c < 3; ++c) {
+      F[c] = F[c] + Fw[c];
+      tau[c] = tau[c] + ((tb[0] * x12[c] + tb[1] * x20[c]) + tb[2] * x01[c]);
     }
   }
 }
@@ -162,7 +196,7 @@ RBJAX_INLINE void store_body(Block<T>& B, int j, const T q[4], const T L[3], con
 
 // `steps` explicit-Euler steps of a block (rbjax/_methods/euler.py: euler_state).
 // kForces: whether any force or torque acts (else v and L do not change).
-template <typename T, bool kForces, bool kQuad>
+template <typename T, bool kForces, bool kQuad, bool kThrust>
 void euler_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
   const T h = T(0.5) * dt;
   for (int64_t s = 0; s < steps; ++s) {
@@ -173,7 +207,7 @@ void euler_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
       omega(q, L, inv, w);
       if (kForces) {
         T F[3], tau[3];
-        forces<T, kQuad>(k, j, v, w, F, tau);
+        forces<T, kQuad, kThrust>(k, j, q, v, w, F, tau);
         #pragma GCC unroll 16
         for (int c = 0; c < 3; ++c) {
           B.v[c][j] = v[c] + F[c] * k.inv_m[j] * dt;
@@ -193,7 +227,7 @@ void euler_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
 
 // The Newton–Euler right-hand side (rbjax/_dynamics.py) of a 13-component state
 // y = (x, v, q, L) of body j, into d; v̇ and L̇ only with forces.
-template <typename T, bool kForces, bool kQuad>
+template <typename T, bool kForces, bool kQuad, bool kThrust>
 RBJAX_INLINE void derivative(const Consts<T>& k, int j, const T y[13], T d[13]) {
   T inv[9], w[3], p[4];
   load_inv(k, j, inv);
@@ -202,7 +236,7 @@ RBJAX_INLINE void derivative(const Consts<T>& k, int j, const T y[13], T d[13]) 
   for (int c = 0; c < 3; ++c) d[c] = y[3 + c];
   if (kForces) {
     T F[3], tau[3];
-    forces<T, kQuad>(k, j, y + 3, w, F, tau);
+    forces<T, kQuad, kThrust>(k, j, y + 6, y + 3, w, F, tau);
     #pragma GCC unroll 16
     for (int c = 0; c < 3; ++c) {
       d[3 + c] = F[c] * k.inv_m[j];
@@ -231,7 +265,7 @@ RBJAX_INLINE void rk4_stage(int first, int moving, T b, T a, T dt, const T y[13]
 // explicit_rk.py): stage i at y + dt (a_i k_{i-1}), the result y + dt Σ_i b_i k_i
 // summed left to right (accumulated as each stage's k is known, the same sum), then q
 // normalised. Without forces v and L do not change, and x moves by v in every stage.
-template <typename T, bool kForces, bool kQuad>
+template <typename T, bool kForces, bool kQuad, bool kThrust>
 void rk4_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
   const T half = T(0.5), sixth = T(1.0 / 6.0), third = T(1.0 / 3.0);
   const int first = kForces ? 0 : 3;  // without forces only x (0-2, from v alone) and q move
@@ -250,13 +284,13 @@ void rk4_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
       for (int c = 0; c < 4; ++c) y[6 + c] = B.q[c][j];
       #pragma GCC unroll 16
       for (int c = 0; c < 13; ++c) st[c] = y[c];
-      derivative<T, kForces, kQuad>(k, j, y, kk);
+      derivative<T, kForces, kQuad, kThrust>(k, j, y, kk);
       rk4_stage<T, true, kForces>(first, moving, sixth, half, dt, y, kk, acc, st);
-      derivative<T, kForces, kQuad>(k, j, st, kk);
+      derivative<T, kForces, kQuad, kThrust>(k, j, st, kk);
       rk4_stage<T, false, kForces>(first, moving, third, half, dt, y, kk, acc, st);
-      derivative<T, kForces, kQuad>(k, j, st, kk);
+      derivative<T, kForces, kQuad, kThrust>(k, j, st, kk);
       rk4_stage<T, false, kForces>(first, moving, third, T(1), dt, y, kk, acc, st);
-      derivative<T, kForces, kQuad>(k, j, st, kk);
+      derivative<T, kForces, kQuad, kThrust>(k, j, st, kk);
       #pragma GCC unroll 16
       for (int c = first; c < moving; ++c) {
         if (kForces || c >= 6) y[c] = y[c] + dt * (acc[c] + sixth * kk[c]);
@@ -359,11 +393,11 @@ RBJAX_INLINE void free_rotor(T q[4], const T L[3], const T p[4], const T e[3], T
 }
 
 // kick(h) of body j (rbjax._methods._common.kick): v += F/m h, L += τ h, with the forces at (q, L, v).
-template <typename T, bool kQuad>
+template <typename T, bool kQuad, bool kThrust>
 RBJAX_INLINE void kick(const Consts<T>& k, int j, const T q[4], const T inv[9], T h, T v[3], T L[3]) {
   T w[3], F[3], tau[3];
   omega(q, L, inv, w);
-  forces<T, kQuad>(k, j, v, w, F, tau);
+  forces<T, kQuad, kThrust>(k, j, q, v, w, F, tau);
 #pragma GCC unroll 16
   for (int c = 0; c < 3; ++c) {
     v[c] = v[c] + F[c] * k.inv_m[j] * h;
@@ -374,7 +408,7 @@ RBJAX_INLINE void kick(const Consts<T>& k, int j, const T q[4], const T inv[9], 
 // `steps` steps of "splitting" (rbjax/_methods/splitting.py): kick(h/2) drift(h) kick(h/2), the
 // forces at the step's start and after the drift. frame: the principal frame's quaternion p
 // (rows 0-3) and inverse moments e (rows 4-6) per body.
-template <typename T, bool kForces, bool kQuad>
+template <typename T, bool kForces, bool kQuad, bool kThrust>
 void splitting_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], int n, T dt, int64_t steps) {
   const T half = dt / T(2);
   T turns[4][kBlock];  // without forces L, and so H_L, stays: computed once per call
@@ -393,7 +427,7 @@ void splitting_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], 
     for (int j = 0; j < n; ++j) {
       T q[4], L[3], v[3], inv[9];
       load_body(B, k, j, q, L, v, inv);
-      if (kForces) kick<T, kQuad>(k, j, q, inv, half, v, L);  // with the forces at the start
+      if (kForces) kick<T, kQuad, kThrust>(k, j, q, inv, half, v, L);  // with the forces at the start
       const T p[4] = {frame[0][j], frame[1][j], frame[2][j], frame[3][j]};
       const T e[3] = {frame[4][j], frame[5][j], frame[6][j]};
 #pragma GCC unroll 16
@@ -406,7 +440,7 @@ void splitting_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], 
         for (int c = 0; c < 4; ++c) turn[c] = turns[c][j];
       }
       free_rotor(q, L, p, e, dt, turn);
-      if (kForces) kick<T, kQuad>(k, j, q, inv, half, v, L);  // with the forces after the drift
+      if (kForces) kick<T, kQuad, kThrust>(k, j, q, inv, half, v, L);  // with the forces after the drift
       store_body(B, j, q, L, v);
     }
   }
@@ -415,7 +449,7 @@ void splitting_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], 
 // The body-frame right-hand side of rbjax/_methods/rk4_body.py (_body_derivative) for
 // y = (x, v, q, π): ẋ = v, v̇ = F/m, q̇ = ½ q ⊗ (0, ω), π̇ = π × ω + Rᵀ τ with ω = I_L⁻¹ π;
 // the forces see the world state (q, L = R π), as rk4_body's force_fn(world(y)) does.
-template <typename T, bool kForces, bool kQuad>
+template <typename T, bool kForces, bool kQuad, bool kThrust>
 RBJAX_INLINE void body_derivative(const Consts<T>& k, int j, const T y[13], T d[13]) {
   T inv[9], w[3], p[4];
   load_inv(k, j, inv);
@@ -438,7 +472,7 @@ RBJAX_INLINE void body_derivative(const Consts<T>& k, int j, const T y[13], T d[
     matvec3_t(R, Lw, b);
     matvec3(inv, b, a);
     matvec3(R, a, ww);
-    forces<T, kQuad>(k, j, y + 3, ww, F, tau);
+    forces<T, kQuad, kThrust>(k, j, q, y + 3, ww, F, tau);
     matvec3_t(R, tau, tb);
 #pragma GCC unroll 16
     for (int c = 0; c < 3; ++c) {
@@ -454,7 +488,7 @@ RBJAX_INLINE void body_derivative(const Consts<T>& k, int j, const T y[13], T d[
 
 // `steps` RK4 steps of the body-frame equations (rbjax/_methods/rk4_body.py): π = Rᵀ L, the
 // classical tableau as rk4_steps sums it, q normalised, then L = R(q) π.
-template <typename T, bool kForces, bool kQuad>
+template <typename T, bool kForces, bool kQuad, bool kThrust>
 void rk4_body_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
   const T half = T(0.5), sixth = T(1.0 / 6.0), third = T(1.0 / 3.0);
   for (int64_t s = 0; s < steps; ++s) {
@@ -465,16 +499,16 @@ void rk4_body_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps)
       quat_rotate_back(y + 6, st, y + 10);
 #pragma GCC unroll 16
       for (int c = 0; c < 3; ++c) y[c] = B.x[c][j];
-      body_derivative<T, kForces, kQuad>(k, j, y, k1);
+      body_derivative<T, kForces, kQuad, kThrust>(k, j, y, k1);
 #pragma GCC unroll 16
       for (int c = 0; c < 13; ++c) st[c] = y[c] + dt * (half * k1[c]);
-      body_derivative<T, kForces, kQuad>(k, j, st, k2);
+      body_derivative<T, kForces, kQuad, kThrust>(k, j, st, k2);
 #pragma GCC unroll 16
       for (int c = 0; c < 13; ++c) st[c] = y[c] + dt * (half * k2[c]);
-      body_derivative<T, kForces, kQuad>(k, j, st, k3);
+      body_derivative<T, kForces, kQuad, kThrust>(k, j, st, k3);
 #pragma GCC unroll 16
       for (int c = 0; c < 13; ++c) st[c] = y[c] + dt * k3[c];
-      body_derivative<T, kForces, kQuad>(k, j, st, k4);
+      body_derivative<T, kForces, kQuad, kThrust>(k, j, st, k4);
 #pragma GCC unroll 16
       for (int c = 0; c < 13; ++c) {
         y[c] = y[c] + dt * (((sixth * k1[c] + third * k2[c]) + third * k3[c]) + sixth * k4[c]);
@@ -572,7 +606,7 @@ RBJAX_INLINE void exp_scalars(const T r[3], T& th, T& e0, T& hs) {
 // with ω from the new L and the old q, normalised, and x += v dt with the new v. Three loops
 // per step, vectorised: the kick and r = ω dt, exp's scalars, the turn; between the last two, a
 // scalar pass hands angles beyond sincos_reduced's range (which no accurate step reaches) to libm.
-template <typename T, bool kForces, bool kQuad>
+template <typename T, bool kForces, bool kQuad, bool kThrust>
 void semi_implicit_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
   T r[3][kBlock], th[kBlock], e0[kBlock], hs[kBlock];
   for (int64_t s = 0; s < steps; ++s) {
@@ -580,7 +614,7 @@ void semi_implicit_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t s
     for (int j = 0; j < n; ++j) {
       T q[4], L[3], v[3], inv[9], w[3];
       load_body(B, k, j, q, L, v, inv);
-      if (kForces) kick<T, kQuad>(k, j, q, inv, dt, v, L);
+      if (kForces) kick<T, kQuad, kThrust>(k, j, q, inv, dt, v, L);
       omega(q, L, inv, w);
 #pragma GCC unroll 16
       for (int c = 0; c < 3; ++c) {
@@ -614,36 +648,30 @@ void semi_implicit_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t s
 }
 
 // All steps of one block with the method's and the forces' static choices made.
+template <typename T, bool kForces, bool kQuad, bool kThrust>
+void method_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], int n, T dt, int64_t steps,
+                  int64_t method) {
+  if (method == kSplitting) return splitting_steps<T, kForces, kQuad, kThrust>(B, k, frame, n, dt, steps);
+  if (method == kSemiImplicitEuler) return semi_implicit_steps<T, kForces, kQuad, kThrust>(B, k, n, dt, steps);
+  if (method == kRk4Body) return rk4_body_steps<T, kForces, kQuad, kThrust>(B, k, n, dt, steps);
+  if (method == kEuler) return euler_steps<T, kForces, kQuad, kThrust>(B, k, n, dt, steps);
+  return rk4_steps<T, kForces, kQuad, kThrust>(B, k, n, dt, steps);
+}
+
 template <typename T>
 void block_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], int n, T dt, int64_t steps,
-                 int64_t method, bool forces, bool quad) {
-  if (method == kSplitting) {
-    if (!forces) return splitting_steps<T, false, false>(B, k, frame, n, dt, steps);
-    if (!quad) return splitting_steps<T, true, false>(B, k, frame, n, dt, steps);
-    return splitting_steps<T, true, true>(B, k, frame, n, dt, steps);
+                 int64_t method, bool forces, bool quad, bool thrust) {
+  if (!forces) return method_steps<T, false, false, false>(B, k, frame, n, dt, steps, method);
+  if (thrust) {
+    if (!quad) return method_steps<T, true, false, true>(B, k, frame, n, dt, steps, method);
+    return method_steps<T, true, true, true>(B, k, frame, n, dt, steps, method);
   }
-  if (method == kSemiImplicitEuler) {
-    if (!forces) return semi_implicit_steps<T, false, false>(B, k, n, dt, steps);
-    if (!quad) return semi_implicit_steps<T, true, false>(B, k, n, dt, steps);
-    return semi_implicit_steps<T, true, true>(B, k, n, dt, steps);
-  }
-  if (method == kRk4Body) {
-    if (!forces) return rk4_body_steps<T, false, false>(B, k, n, dt, steps);
-    if (!quad) return rk4_body_steps<T, true, false>(B, k, n, dt, steps);
-    return rk4_body_steps<T, true, true>(B, k, n, dt, steps);
-  }
-  if (method == kEuler) {
-    if (!forces) return euler_steps<T, false, false>(B, k, n, dt, steps);
-    if (!quad) return euler_steps<T, true, false>(B, k, n, dt, steps);
-    return euler_steps<T, true, true>(B, k, n, dt, steps);
-  }
-  if (!forces) return rk4_steps<T, false, false>(B, k, n, dt, steps);
-  if (!quad) return rk4_steps<T, true, false>(B, k, n, dt, steps);
-  return rk4_steps<T, true, true>(B, k, n, dt, steps);
+  if (!quad) return method_steps<T, true, false, false>(B, k, frame, n, dt, steps, method);
+  return method_steps<T, true, true, false>(B, k, frame, n, dt, steps, method);
 }
 
 // instantiated here, inside the includer's instruction-set region, for both float types
 template void block_steps<float>(Block<float>&, const Consts<float>&, const float (*)[kBlock], int, float, int64_t,
-                                 int64_t, bool, bool);
+                                 int64_t, bool, bool, bool);
 template void block_steps<double>(Block<double>&, const Consts<double>&, const double (*)[kBlock], int, double,
-                                  int64_t, int64_t, bool, bool);
+                                  int64_t, int64_t, bool, bool, bool);
