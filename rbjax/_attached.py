@@ -20,11 +20,20 @@ from jax.sharding import NamedSharding, PartitionSpec
 from jaxtyping import Float, Int
 
 from ._body import floats
-from ._force_model import ForceModel, cast_to, check_core, check_fits, check_non_negative, is_concrete, rigid_only
-from ._math import cross, matvec3, quat_rotate, safe_norm
+from ._force_model import (
+    ForceModel,
+    PerBodyForce,
+    cast_to,
+    check_core,
+    check_fits,
+    check_non_negative,
+    is_concrete,
+    rigid_only,
+)
+from ._math import cross, matvec3, quat_rotate, safe_norm, scale3
 from ._pytree import field, pytree_dataclass
 from ._quantities import angular_velocity
-from ._state import AnyState, Forces, MatrixState, ParticleState, State
+from ._state import AnyState, Forces, MatrixState, ParticleState, RigidState, State
 from ._typing import ArrayLike, array_like, optional_array_like
 
 __all__ = ["Spring", "Thruster"]
@@ -263,6 +272,11 @@ class Thruster(ForceModel):
     (checked when simulated); ``direction`` (unit: checked when concrete),
     ``point``: ``(S, 3)`` or ``(3,)``; ``thrust`` ``(S,)`` or scalar, of either
     sign (a negative thrust pushes along ``-d``). Rigid states only.
+
+    :func:`rbjax.simulate` (JAX path) steps thrusters whose ``body`` is concrete
+    (not traced by a caller's ``jit``) and names each body at most once as a
+    per-body law inside its step, without the gather and scatter (see
+    :meth:`as_per_body`): the same formulas, so the same values.
     """
 
     body: Int[Array, " S"] = field(converter=array_like)
@@ -298,3 +312,45 @@ class Thruster(ForceModel):
         r = _offset(state, self.body, self.point)
         force = _scatter(state, self.body, f)
         return Forces(force=force, torque=None if r is None else _scatter(state, self.body, cross(r, f)))
+
+    def as_per_body(self, state: AnyState) -> PerBodyForce | None:
+        """These thrusters as :class:`_OneThrusterPerBody` when ``body`` is concrete and names each body
+        at most once (the bodies without one get zero thrust along a zero direction), else ``None``."""
+        if not is_concrete(self.body) or len(state.batch_shape) != 1 or isinstance(state, ParticleState):
+            return None
+        idx = np.asarray(self.body)
+        if np.unique(idx).size != idx.size:
+            return None
+        n, s = state.batch_shape[0], idx.size
+
+        def per_body(a: Array, core: tuple[int, ...]) -> Array:
+            a = jnp.broadcast_to(cast_to(a, state), (s, *core))
+            return jnp.zeros((n, *core), state.dtype).at[idx].set(a)
+
+        point = None if self.point is None else per_body(self.point, (3,))
+        return _OneThrusterPerBody(per_body(self.direction, (3,)), per_body(self.thrust, ()), point)
+
+
+@pytree_dataclass
+class _OneThrusterPerBody(PerBodyForce):
+    """:class:`Thruster` with at most one thruster on each body, as a per-body law: ``F = T R d`` and
+    ``τ = (R p) × F`` (``p`` ``None``: no torque), the same formulas, so the same values.
+
+    ``direction`` ``(N, 3)``, ``thrust`` ``(N,)``, ``point`` ``(N, 3)`` or ``None``, per body
+    (body frame, N and m); a body without a thruster has zero ``thrust`` and ``direction``.
+    ``simulate`` lifts it inside its step (no gather or scatter by index, no transposes around it).
+    """
+
+    direction: Float[Array, "*B 3"] = field(core_shape=(3,))
+    thrust: Float[Array, "*B"] = field()
+    point: Float[Array, "*B 3"] | None = field(core_shape=(3,), default=None)
+
+    def on_body(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
+        rigid = rigid_only("Thruster", state)
+        f = scale3(self.thrust, _one_to_world(rigid, self.direction))
+        return Forces(force=f, torque=None if self.point is None else cross(_one_to_world(rigid, self.point), f))
+
+
+def _one_to_world(state: RigidState, p: Array) -> Array:
+    """``R p`` for one body."""
+    return quat_rotate(state.orientation, p) if isinstance(state, State) else matvec3(state.rotation, p)

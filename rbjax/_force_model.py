@@ -80,6 +80,15 @@ class ForceModel:
                 changes[name] = eqx.error_if(c, c < 0, msg)
         return replace(self, **changes) if changes else self
 
+    def as_per_body(self, state: AnyState) -> PerBodyForce | None:
+        """This model as a :class:`PerBodyForce` on ``state``'s batch, or ``None`` when it is not one.
+
+        A per-body law is its own; a model that names bodies by index may return an
+        equivalent per-body law (the same formulas, so the same values) when its
+        indices are concrete and name each body at most once (:class:`rbjax.Thruster`).
+        """
+        return None
+
     def __add__(self, other: ForceModel) -> ForceSum:
         if not isinstance(other, ForceModel):
             return NotImplemented
@@ -108,6 +117,9 @@ class PerBodyForce(ForceModel):
         self.check(state)
         return lift(lambda model, s: model.on_body(s, t))(self, state)
 
+    def as_per_body(self, state: AnyState) -> PerBodyForce | None:
+        return self
+
 
 def per_body_terms(forces: Any) -> tuple[PerBodyForce, ...] | None:
     """The terms of ``forces`` when every one is a :class:`PerBodyForce` (a sum or one model), else ``None``."""
@@ -115,6 +127,20 @@ def per_body_terms(forces: Any) -> tuple[PerBodyForce, ...] | None:
     if terms and all(isinstance(term, PerBodyForce) for term in terms):
         return tuple(terms)
     return None
+
+
+def with_per_body_terms(forces: ForceModel, state: AnyState) -> ForceModel:
+    """``forces`` with every term that has a per-body form (:meth:`ForceModel.as_per_body`) in that form.
+
+    Called on concrete models before ``simulate`` traces them, so that a sum of such
+    terms is lifted inside the step (see :func:`per_body_terms`); terms without one
+    are kept as they are.
+    """
+    terms = forces.terms if isinstance(forces, ForceSum) else (forces,)
+    new = tuple(term.as_per_body(state) or term for term in terms)
+    if all(a is b for a, b in zip(new, terms)):
+        return forces
+    return ForceSum(new) if isinstance(forces, ForceSum) else new[0]
 
 
 def is_concrete(a: Any) -> bool:

@@ -49,7 +49,7 @@ from ._force_model import (
     is_concrete,
     rigid_only,
 )
-from ._math import broadcasts_to, norm3
+from ._math import broadcasts_to, norm3, scale3
 from ._pytree import field, pytree_dataclass, static_field
 from ._quantities import angular_velocity
 from ._state import AnyState, Forces
@@ -92,7 +92,7 @@ class Gravity(PerBodyForce):
         check_fits(self, "g", 1, state.batch_shape, "the batch shape")
 
     def on_body(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
-        return Forces(force=state.mass * cast_to(self.g, state))
+        return Forces(force=scale3(state.mass, cast_to(self.g, state)))
 
 
 def _materialised(w: Array) -> Array:
@@ -133,11 +133,11 @@ class LinearDrag(_Drag):
     angular: Float[Array, "*B"] | None = field(default=None, converter=optional_array_like)
 
     def on_body(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
-        f = -cast_to(self.linear, state) * state.velocity
+        f = scale3(-cast_to(self.linear, state), state.velocity)
         if self.angular is None:
             return Forces(force=f)
         w = _materialised(angular_velocity(rigid_only("LinearDrag(angular=...)", state)))
-        return Forces(force=f, torque=-cast_to(self.angular, state) * w)
+        return Forces(force=f, torque=scale3(-cast_to(self.angular, state), w))
 
 
 @pytree_dataclass
@@ -154,12 +154,12 @@ class QuadraticDrag(_Drag):
 
     def on_body(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         v = state.velocity
-        f = -cast_to(self.linear, state) * norm3(v) * v
+        f = scale3(-cast_to(self.linear, state) * norm3(v), v)
         if self.angular is None:
             return Forces(force=f)
         w = angular_velocity(rigid_only("QuadraticDrag(angular=...)", state))
         w = _materialised(w)
-        return Forces(force=f, torque=-cast_to(self.angular, state) * norm3(w) * w)
+        return Forces(force=f, torque=scale3(-cast_to(self.angular, state) * norm3(w), w))
 
 
 # ---------------------------------------------------------------- prescribed loads

@@ -165,6 +165,18 @@ def over(a: Array, s: Array) -> Array:
     return jnp.stack([a[..., k] / s for k in range(3)], axis=-1)
 
 
+def scale3(s: Array, a: Array) -> Array:
+    """``s a`` for a per-body scalar ``s`` and ``(..., 3)`` vectors, by components (see :func:`over`).
+
+    Under ``vmap`` in the batch-last layout ``s * a`` puts the batch axis first
+    (``(N, 3)``) and transposes it back: where the product is loop-invariant
+    (gravity's ``m g``), XLA:CPU hoists it out of ``simulate``'s loop in that
+    layout, and the kicks then read it strided and split into one fusion per
+    component. By components the product comes out ``(3, N)`` directly.
+    """
+    return jnp.stack([s * a[..., k] for k in range(3)], axis=-1)
+
+
 def kick3(v: Array, f: Array, m: Array, h: Array) -> Array:
     """``v + f/m h`` by components (see :func:`over`): the same operations, which XLA may fuse
     (contract) differently from the vector form, so results differ from it by round-off only."""

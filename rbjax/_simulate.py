@@ -16,7 +16,7 @@ from jaxtyping import Float
 from . import _checked, _methods, _native
 from ._batching import batch_last, batch_shape, lift, map_leaves, to_batch_first, to_batch_last
 from ._body import prepare
-from ._force_model import ForceModel, per_body_terms
+from ._force_model import ForceModel, per_body_terms, with_per_body_terms
 from ._methods import DEFAULT_METHOD, Method
 from ._pytree import replace
 from ._scan import check_checkpoint, checkpointed_scan, frames_as_outputs, frames_in_buffer
@@ -354,6 +354,9 @@ def run_simulation(
         checks=checks,
         checkpoint=checkpoint,
     )
+    if not native and isinstance(forces, ForceModel):
+        # concrete index-based models (one thruster per body) become per-body laws, lifted inside the step
+        forces = with_per_body_terms(forces, state)
     out = _simulate(
         state,
         forces,

@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import math
 
+import jax
+
 from .._batching import lift
 from .._dynamics import omega_world
 from .._math import cross, kick3, matmul3, matvec3, orthonormalize_unchecked, pure_quat_multiply, quat_normalize, skew
@@ -36,6 +38,11 @@ def euler_state(s: State, f: Forces, dt) -> State:
     """One explicit-Euler step of one body in the ``(x, v, q, L)`` form."""
     x, v = _translate(s.position, s.velocity, s.body.mass, f, dt)
     w = omega_world(s)
+    if f.torque is not None:
+        # A force law with a torque usually reads ω of the same state (drag): computed into memory,
+        # it is one pass that XLA's CSE shares with the law's own materialised ω (rbjax._forces),
+        # instead of a second pass over q, L and I⁻¹; torque-free it would only add a pass.
+        w = jax.lax.optimization_barrier(w)
     q = s.orientation
     q = quat_normalize(q + 0.5 * dt * pure_quat_multiply(w, q))
     L = s.angular_momentum if f.torque is None else s.angular_momentum + f.torque * dt

@@ -26,6 +26,7 @@ attitude. Both keep ``|q| = 1`` by normalisation. Order 4 for both.
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
 from .._batching import lift
@@ -62,15 +63,27 @@ def _body_derivative(s: State, f: Forces) -> State:
     return replace(s, position=s.velocity, velocity=a, orientation=dq, angular_momentum=dpi)
 
 
+def _world_for_forces(y: State) -> State:
+    """The world-frame stage state that the forces see, its ``L = R π`` computed into memory.
+
+    A force law that reads ``ω`` (drag) turns ``L`` back into the body frame:
+    fused, XLA:CPU emits the chain ``R I⁻¹ Rᵀ R Rᵀ L`` as scalar code with
+    outlined per-element functions, and the first call spends most of its time
+    compiling them. When no force reads ``L`` the barrier's result is unused
+    and XLA removes it (the force-free step compiles as before).
+    """
+    w = lift(_to_world)(y)
+    return replace(w, angular_momentum=jax.lax.optimization_barrier(w.angular_momentum))
+
+
 def rk4_body(state: State, force_fn, t, dt) -> State:
     """One RK4 step of the body-frame equations (see the module docstring); batch-level."""
-    world = lift(_to_world)
     y0 = lift(_to_body)(state)
     ks = []
     for i in range(4):
         y = combine(y0, dt, _A[i], ks[:i])
-        ks.append(lift(_body_derivative)(y, force_fn(world(y), t + _C[i] * dt)))
-    return world(project(combine(y0, dt, _B, ks)))
+        ks.append(lift(_body_derivative)(y, force_fn(_world_for_forces(y), t + _C[i] * dt)))
+    return lift(_to_world)(project(combine(y0, dt, _B, ks)))
 
 
 register(
