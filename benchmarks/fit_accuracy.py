@@ -385,6 +385,7 @@ def main() -> None:
         f"{'in2σ':>5} {'cov_cal':>7} {'axes_cal':>8} {'dtype':>7} {'fit s':>6}"
     )
     print(head)
+    nan = float("nan")  # the model sweeps over several recordings have no covariance columns
     for case in cases(args.quick):
         if args.sweep is not None and case.sweep != args.sweep:
             continue
@@ -395,7 +396,7 @@ def main() -> None:
             f"{r['sweep']:>10} {r['sensors']:>17} {seconds:>4g} {r['rate']:>5g} {r['orientation_std']:>7.0e} "
             f"{r['rate_std']:>6.0e} {r['excitation']:>9} {r['converged']:>5.2f} {r['error_median']:>8.1e} "
             f"{r['error_max']:>8.1e} {r['sigma_rel']:>8.1e} {r['crb_rel']:>8.1e} {r['z_rms']:>6.2f} {r['cal']:>5.2f} "
-            f"{r['within_2sigma']:>5.2f} {r.get('cov_cal', float('nan')):>7.2f} {r.get('axes_cal', float('nan')):>8.2f} "
+            f"{r['within_2sigma']:>5.2f} {r.get('cov_cal', nan):>7.2f} {r.get('axes_cal', nan):>8.2f} "
             f"{r['dtype']:>7} {r['fit_s']:>6.1f}"
             + (f"  lever arm {r['lever_arm_error_mm']:.2f} mm" if "lever_arm_error_mm" in r else "")
             + (f"  drag c1/trI err {r['drag_error_median']:.1e} cal {r['drag_z_rms']:.2f}" if "drag_z_rms" in r else "")

@@ -106,6 +106,7 @@ def test_symmetric_body_axes_in_its_plane_are_not_determined():
     tilt = np.arccos(min(1.0, abs(axis @ R[:, 2])))
     assert tilt < 4 * np.hypot(sd[0], sd[1]), (tilt, sd)
 
+
 def test_noisy_with_gyro_beats_linear_baseline_and_uncertainty_covers_truth():
     q, wb = _record(T_FAST)
     qn, wn = imu_noise(q, wb, np.random.default_rng(0))
