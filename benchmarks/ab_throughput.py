@@ -8,6 +8,7 @@ best body-steps per second of each and their ratio ``new / base``.
 
     python benchmarks/ab_throughput.py --base 1f075bb            # base = a git revision
     python benchmarks/ab_throughput.py --base 1f075bb --quick    # N = 1e4 only, euler
+    python benchmarks/ab_throughput.py --base 1f075bb --path jax # simulate(native=False) on both
 
 The base revision is checked out into a temporary git worktree (removed at the
 end); the new side is this checkout.
@@ -31,12 +32,13 @@ import jax, jax.numpy as jnp, numpy as np
 jax.config.update("jax_enable_x64", True)
 import rbjax as rb
 method, dtype, n, steps = sys.argv[1], getattr(jnp, sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
+native = {"default": None, "jax": False, "native": True}[sys.argv[5]]
 rng = np.random.default_rng(0)
 q = rng.normal(size=(n, 4)); q /= np.linalg.norm(q, axis=1, keepdims=True)
 body = rb.box(jnp.asarray(rng.uniform(0.5, 2, n), dtype), jnp.asarray(rng.uniform(0.1, 1, (n, 3)), dtype))
 w = jnp.asarray(rng.normal(size=(n, 3)), dtype)
 s = rb.State.create(body, orientation=jnp.asarray(q, dtype), angular_velocity=w)
-run = jax.jit(lambda s: rb.simulate(s, None, 1e-3, steps, method, save_every=steps))
+run = jax.jit(lambda s: rb.simulate(s, None, 1e-3, steps, method, save_every=steps, native=native))
 jax.block_until_ready(run(s))
 best = float("inf")
 for _ in range(5):
@@ -45,10 +47,10 @@ print(json.dumps({"rate": n * steps / best}))
 """
 
 
-def measure(src: str, method: str, dtype: str, n: int, steps: int) -> float:
+def measure(src: str, method: str, dtype: str, n: int, steps: int, path: str) -> float:
     env = dict(os.environ, PYTHONPATH=src, JAX_PLATFORMS="cpu")
     out = subprocess.run(
-        [sys.executable, "-c", CHILD, method, dtype, str(n), str(steps)],
+        [sys.executable, "-c", CHILD, method, dtype, str(n), str(steps), path],
         env=env,
         cwd=src,
         capture_output=True,
@@ -66,6 +68,12 @@ def main(argv=None) -> int:
     ap.add_argument("--sizes", default="10000,100000,1000000")
     ap.add_argument("--repeats", type=int, default=3, help="A/B pairs per configuration")
     ap.add_argument("--steps", type=int, default=None, help="steps per run (default: 2e7 body-steps / N)")
+    ap.add_argument(
+        "--path",
+        choices=["default", "jax", "native"],
+        default="default",
+        help="simulate's native=None / False / True on both sides (the base's kernels are built for it)",
+    )
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=os.path.join(HERE, "results", "ab_throughput.json"))
     args = ap.parse_args(argv)
@@ -73,6 +81,9 @@ def main(argv=None) -> int:
         args.methods, args.dtypes, args.sizes, args.repeats = "euler", "float32", "10000", 1
     work = tempfile.mkdtemp(prefix="rbjax_base_")
     subprocess.run(["git", "-C", ROOT, "worktree", "add", "--detach", work, args.base], check=True, capture_output=True)
+    if args.path != "jax":  # the kernels are git-ignored build outputs: the base's own, built from its sources
+        build = [sys.executable, "setup.py", "-q", "build_ext", "--inplace"]
+        subprocess.run(build, cwd=work, check=True, capture_output=True)
     rows = []
     try:
         for method in args.methods.split(","):
@@ -81,8 +92,8 @@ def main(argv=None) -> int:
                     steps = args.steps or (max(20, int(2e8 // n // 10)) if not args.quick else 50)
                     base, new = [], []
                     for _ in range(args.repeats):  # A B A B ...
-                        base.append(measure(work, method, dtype, n, steps))
-                        new.append(measure(ROOT, method, dtype, n, steps))
+                        base.append(measure(work, method, dtype, n, steps, args.path))
+                        new.append(measure(ROOT, method, dtype, n, steps, args.path))
                     row = dict(method=method, dtype=dtype, n=n, steps=steps, base=max(base), new=max(new))
                     row["ratio"] = row["new"] / row["base"]
                     rows.append(row)
@@ -95,7 +106,7 @@ def main(argv=None) -> int:
         subprocess.run(["git", "-C", ROOT, "worktree", "remove", "--force", work], capture_output=True)
     os.makedirs(os.path.dirname(args.out), exist_ok=True)
     with open(args.out, "w") as f:
-        json.dump({"base": args.base, "rows": rows}, f, indent=1)
+        json.dump({"base": args.base, "path": args.path, "rows": rows}, f, indent=1)
     return 0
 
 
