@@ -310,7 +310,7 @@ def main(argv=None) -> int:
     for dtype in dtypes:
         dname = np.dtype(dtype).name
         for n in sizes:
-            # at least 100 steps per call (the issue's measurement): below that, at N = 1e6 the call's
+            # at least 100 steps per call (as the goals are measured): below that, at N = 1e6 the call's
             # fixed work (the trajectory's two frames, a body per frame: ~0.12 s) outweighs the steps
             steps = int(max(4 if args.quick else 100, min(2000, budget // n)))
             state = make_state(n, dtype)
@@ -469,7 +469,7 @@ def _rate(rows, **kw):
 
 
 def evaluate_goals(rows, hw, methods) -> dict:
-    """The issue's targets, at N = 1e5 float32 (or the largest N measured)."""
+    """The targets, at N = 1e5 float32 (or the largest N measured)."""
     ns = sorted({r["bodies"] for r in rows if r["engine"] == "rbjax"})
     n = 100_000 if 100_000 in ns else ns[-1]
     eu = _rate(rows, engine="rbjax", method="euler", dtype="float32", bodies=n)
@@ -495,7 +495,7 @@ def evaluate_goals(rows, hw, methods) -> dict:
         )
         if r:
             per_method[m] = dict(roofline_fraction=r["roofline_fraction"], met=r["roofline_fraction"] >= 0.5)
-    # the issue's target: euler at least 0.9x the hand-written loop at every N and dtype measured
+    # the target: euler at least 0.9x the hand-written loop at every N and dtype measured
     vs_limit = {}
     for r in rows:
         if r["engine"] == "numba-limit":

@@ -1,4 +1,4 @@
-"""The bad-input guard (issue 17): every public name is called with invalid inputs, or excused.
+"""The bad-input guard: every public name is called with invalid inputs, or excused.
 
 Each *slot* is one argument of one public function or constructor; hypothesis
 draws a value from one of the *families* of invalid inputs that apply to it
@@ -380,7 +380,7 @@ def test_every_public_name_is_covered_or_excused():
 
 
 # Bad inputs that used to get JAX's message from State.create and friends (they converted with
-# jnp.asarray before any check); fixed with issue 15, kept as regression cases.
+# jnp.asarray before any check); kept as regression cases.
 FIXED_GAPS = {
     "State.create(position='x')": lambda: rb.State.create(_body(), position="x"),
     "State.create(angular_velocity=float16)": lambda: rb.State.create(
@@ -401,7 +401,7 @@ def test_state_create_refuses_in_rbjax_words(name):
     assert _from_rbjax(info.value), info.value
 
 
-# ------------------------------------------------------------------ issue 26: silent wrong answers, third round
+# ------------------------------------------------------------------ silent wrong answers off the tested path
 
 
 def test_cli_fit_help_quotes_the_defaults_fit_inertia_uses():
@@ -521,7 +521,7 @@ def _helper_call(name: str, **override):
 
 
 def test_the_helper_list_is_complete():
-    """The introspected list holds the helpers the issue named (so the regex still reads the annotations)."""
+    """The introspected list holds the known validation helpers (so the regex still reads the annotations)."""
     for name in ("quat_multiply", "quat_exp", "skew", "quat_to_matrix", "orthonormalize", "cross", "quat_rotate"):
         assert name in HELPERS, name
     assert HELPERS["quat_rotate"] == {"q": (4,), "v": (3,)}
@@ -863,7 +863,7 @@ def test_animate_labels_its_axes_and_draws_the_arrow_over_the_body(_batch_traj, 
         assert arrow.get_zorder() > solid.get_zorder()
 
 
-# ---- one default method across the house (issue 26: "euler" was 3.09 rad off on the README's body)
+# ---- one default method across the house ("euler" is 3.09 rad off on the README's body)
 
 
 def test_every_public_method_default_is_the_house_default():

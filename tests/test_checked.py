@@ -179,7 +179,7 @@ def test_traced_non_finite_t0_is_caught_in_checked_mode():
 
 
 def test_divergence_message_quotes_the_measured_stability_limit():
-    # issue 17: rk4 goes NaN on the first step at dt·|ω| = 100; checked mode names the step and body
+    # rk4 goes NaN on the first step at dt·|ω| = 100; checked mode names the step and body
     # and quotes the measured limit (benchmarks/stability_limits.py) stored on the Method
     assert rb.methods()["rk4"].stable_dt_omega == {"State": 7.5, "MatrixState": 1.0, "ParticleState": np.inf}
     s = rb.State.create(rb.box(1.0, [0.1, 0.2, 0.4]), angular_velocity=jnp.array([0.3, 100.0, 0.3]))

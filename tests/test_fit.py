@@ -272,7 +272,7 @@ def test_float32_clean_fit():
 
 
 def test_float32_sigma_of_a_weakly_determined_fit_matches_float64():
-    # the issue's case: a short (0.5 s @ 100 Hz) gyro-only fit of a near-pure spin, 0.01 rad/s
+    # a reported case: a short (0.5 s @ 100 Hz) gyro-only fit of a near-pure spin, 0.01 rad/s
     # noise. float32 reported σ ≈ 0.09 where float64 gave 3.5 (a direction with a relative
     # singular value 1e-5 fell below the float32 cut and got variance 0), with converged=True.
     # Now the columns are scaled and the joins eliminated before the cut: measured σ equal to
@@ -349,7 +349,7 @@ _PURE_SPIN = np.tile([0.0, 0.0, 5.0], (60, 1))  # about a fixed axis: nothing to
 
 
 def test_ragged_list_and_bad_members_are_fitted_one_by_one():
-    # the issue's cases: a list of throws of different lengths failed with NumPy's "setting an
+    # reported cases: a list of throws of different lengths failed with NumPy's "setting an
     # array element with a sequence"; one under-excited recording made the whole batch raise
     # without saying which. Now the good ones are padded to one shape and fitted as one batch (one
     # compiled program), the bad one is named with its reason and gets NaN with failed=True
@@ -397,7 +397,7 @@ def test_ragged_members_fit_as_if_alone_and_a_nan_member_of_a_batch():
 
 
 def test_gyro_in_degrees_gets_a_units_hint():
-    # the issue's case: a gyro in deg/s was reported as "too little excitation". With orientations
+    # a reported case: a gyro in deg/s was reported as "too little excitation". With orientations
     # the gyro reads 57.3x the rate they imply; without them a median |ω| > 50 rad/s adds the hint
     # to the excitation error (no fit runs: these raise in the NumPy checks)
     q, wb = _record(T_FAST[:50])
@@ -495,7 +495,7 @@ def test_bad_times_and_zero_torques_raise_with_remedy():
 
 
 def test_world_frame_gyro_is_detected():
-    # the issue's mistake: the reference's world-frame ω passed as body_rates (with the check
+    # a common mistake: the reference's world-frame ω passed as body_rates (with the check
     # off, measured: moments [2e-6, 0.5, 0.5] with σ ≈ 3e-7). Clean: median misfits 3.8e-4
     # (world frame) vs 2.6 rad/s (body frame), ratio ~7000 against the threshold 3
     q, w_world = reference_rotation(I_TRUE, np.array([1.0, 0, 0, 0]), W0, T_FAST)
@@ -531,7 +531,7 @@ def test_gyro_frame_check_misfits():
 
 
 def test_orientation_glitches_do_not_claim_convergence():
-    # the issue's case: three 1-rad orientation glitches in a clean 2 s @ 200 Hz recording gave
+    # a reported case: three 1-rad orientation glitches in a clean 2 s @ 200 Hz recording gave
     # converged=True with σ = 2.8e-19 on the largest moment. The noise level is estimated
     # robustly (MAD), so the glitches sit far out and the residual ratio says so (measured:
     # solver converged, ratio 2300, σ ≈ 0.01-0.04 on the moments, errors ≤ 2.3e-3).
@@ -553,7 +553,7 @@ def test_orientation_glitches_do_not_claim_convergence():
 
 
 def test_gyro_bias_is_fitted_as_a_nuisance_parameter():
-    # the issue's case: a constant 0.02 rad/s bias on a 2 s @ 200 Hz gyro (1e-3 rad + 0.01 rad/s
+    # a reported case: a constant 0.02 rad/s bias on a 2 s @ 200 Hz gyro (1e-3 rad + 0.01 rad/s
     # noise). Measured on this draw: error 4.7e-4 unbiased, 6.7e-3 biased without the option
     # (and still "converged", residual ratio 1.6), 4.3e-4 with it; bias back to 0.9-2.1 σ.
     q, wb = _record(T_FAST)
@@ -632,7 +632,7 @@ def test_noise_ten_times_larger_not_told_is_estimated_and_sigma_follows():
 
 
 def test_thrown_object_gyro_only():
-    # the issue's case: 1 s @ 400 Hz, |ω| ≈ 10 rad/s, gyro noise 2e-3 rad/s, no orientations; goal
+    # a thrown phone: 1 s @ 400 Hz, |ω| ≈ 10 rad/s, gyro noise 2e-3 rad/s, no orientations; goal
     # error ≤ 0.5% (measured 1e-4 on three draws). 401 samples: the compiled program of the test above
     t = np.linspace(0.0, 1.0, 401)
     q, wb = _record(t, w0=np.array([1.0, 9.8, 1.3]))
@@ -678,7 +678,7 @@ def test_gyro_only_bad_inputs_name_the_remedy():
 
 
 def _glitched(q):
-    """``q`` with the issue's three 1-rad orientation glitches (about x, y, z) at samples 60, 190, 330."""
+    """``q`` with three 1-rad orientation glitches (about x, y, z) at samples 60, 190, 330."""
     q = q.copy()
     for i, axis in zip((60, 190, 330), np.eye(3), strict=True):
         q[i] = reference.qmul(q[i], np.r_[np.cos(0.5), np.sin(0.5) * axis])
@@ -686,7 +686,7 @@ def _glitched(q):
 
 
 def test_robust_loss_sets_glitches_aside_and_names_them():
-    # the issue's goal: three 1-rad glitches in 2 s @ 200 Hz (1e-3 rad noise), error within 2x of
+    # the goal: three 1-rad glitches in 2 s @ 200 Hz (1e-3 rad noise), error within 2x of
     # the same fit without glitches. Measured: squared 3.4e-2 (not converged); Huber 4.5e-4 against
     # 4.6e-4 clean; Cauchy with the gyro 5.6e-4 against 4.7e-4
     q, wb = _record(T_FAST)
@@ -767,7 +767,7 @@ def test_bad_robust_options_raise(kwargs, exc, match):
 
 @pytest.mark.slow
 def test_short_random_tumbles_converge_with_calibrated_sigma():
-    # issue 13's case: random 1 s @ 200 Hz tumbles, 1e-3 rad + 0.01 rad/s noise, converged only
+    # random 1 s @ 200 Hz tumbles, 1e-3 rad + 0.01 rad/s noise, converged only
     # 72-90% of the time (the solver crept along the flat valleys of near-spherical bodies). Goal
     # ≥ 98% converged, ≥ 95% of the moments within 3σ. On the 100-draw study
     # (benchmarks/fit_convergence.py) 99% / 98%; here 40 draws of the same generator, one batch.
@@ -786,7 +786,7 @@ def test_short_random_tumbles_converge_with_calibrated_sigma():
         qs.append(qn)
         ws.append(wn)
     res = rb.fit_inertia(t, np.stack(qs), body_rates=np.stack(ws))
-    # since issue 28 converged also needs well_determined (every moment σ ≤ 0.1 tr I): 8 of these
+    # converged also needs well_determined (every moment σ ≤ 0.1 tr I): 8 of these
     # 40 are near-symmetric bodies whose 1 s tumble determines the moments to σ 0.1-1.3 (the same σ
     # as before; estimates up to 0.2 off, e.g. 0.058 ± 0.43 for 0.26), which used to count as
     # converged. The solver and the consistency test still pass on ≥ 39/40; measured 32/40 converged
@@ -829,7 +829,7 @@ def test_gyro_rotation_is_fitted_as_a_nuisance_parameter():
 
 @pytest.mark.slow  # two ~10 s programs (with and without the accelerometer)
 def test_accelerometer_lever_arm_from_free_flight():
-    # the issue's goal: r within 1 mm for |r| ≈ 5 cm, |ω| ≈ 10 rad/s, 0.05 m/s² noise, 1 s @ 200 Hz.
+    # the goal: r within 1 mm for |r| ≈ 5 cm, |ω| ≈ 10 rad/s, 0.05 m/s² noise, 1 s @ 200 Hz.
     # Readings from the DOP853 body rates with ω̇ from Euler's equations in closed form
     # (free flight: gravity not sensed), plus a constant bias. Measured: |r error| 0.19 mm
     # (σ 0.06-0.5 mm), inertia error 1.9e-4

@@ -1,4 +1,4 @@
-"""Damaged or inconsistent files raise ValueError naming the file and the field (issue 17, item 7)."""
+"""Damaged or inconsistent files raise ValueError naming the file and the field."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""implicit_midpoint at large dt·|ω|: the continuation converges; a failed solve is flagged (issue 17.2)."""
+"""implicit_midpoint at large dt·|ω|: the continuation converges; a failed solve is flagged."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Chunked runs: run record, interrupted runs told apart, inconsistent chunks refused, resume bitwise (issue 17.8)."""
+"""Chunked runs: run record, interrupted runs told apart, inconsistent chunks refused, resume bitwise."""
 
 from __future__ import annotations
 

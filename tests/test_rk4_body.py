@@ -1,4 +1,4 @@
-"""``"rk4_body"``: classical RK4 on the body-frame equations (issue 19, rk4's error constant).
+"""``"rk4_body"``: classical RK4 on the body-frame equations (against rk4's error constant).
 
 References are independent of rbjax: RK4 on Euler's equations written out in
 NumPy, the exact torque-free solution (``rb.torque_free``, itself tested against
@@ -47,7 +47,7 @@ def test_rates_are_textbook_rk4_on_eulers_equations():
 
 def test_t_handle_energy_and_flip_times():
     s = rb.State.create(rb.Body(1.0, I_T), angular_velocity=W0)
-    h, n = 0.01, 10_000  # the issue's 100 s at h = 0.01
+    h, n = 0.01, 10_000  # 100 s at h = 0.01
     exact = rb.torque_free(s, h * np.arange(n + 1))
     E0 = float(rb.kinetic_energy(s))
     flips = lambda tr: np.nonzero(np.diff(np.sign(np.asarray(rb.body_angular_velocity(tr))[:, 1])))[0]

@@ -1,6 +1,6 @@
 """Trajectories under the JAX idioms users write: frames, slices, bodies, vmap, concatenation, dtypes.
 
-Each case of issue 15 is reproduced first: a trajectory used to keep ``body``
+Each reported case is reproduced first: a trajectory used to keep ``body``
 without a time axis, so ``jax.tree.map(lambda x: x[-1], traj)`` returned the
 last *body* for every state (a silent wrong answer), ``jax.vmap`` over frames
 failed or mixed up frames and bodies, and concatenation failed. Now every leaf

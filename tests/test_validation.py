@@ -1,4 +1,4 @@
-"""Bad arguments raise TypeError/ValueError in rbjax's words, naming the argument (issue 17, items 5-6)."""
+"""Bad arguments raise TypeError/ValueError in rbjax's words, naming the argument."""
 
 from __future__ import annotations
 
