@@ -21,9 +21,10 @@ from ._checked import Checks
 from ._chunk_dir import ChunkWriter, chunk_files, fingerprint
 from ._io import load
 from ._methods import DEFAULT_METHOD, Method, is_registered
-from ._simulate import check_run, is_time_series, run_simulation, start_time
+from ._simulate import run_simulation
 from ._state import ForceLike, Forces, StateT
 from ._typing import ArrayLike
+from ._validate import check_run, is_time_series, start_time
 
 __all__ = ["simulate_chunked"]
 

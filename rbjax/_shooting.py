@@ -38,11 +38,11 @@ from ._batching import batch_shape, in_axes_of
 from ._math import quat_conjugate, quat_log, quat_multiply
 from ._methods import DEFAULT_METHOD, Method
 from ._pytree import replace
-from ._simulate import as_force_fn, simulate, start_time
+from ._simulate import simulate
 from ._state import AnyState, ForceLike, Forces, State, split_constants
 from ._trajectory import stack_frames
 from ._typing import ArrayLike
-from ._validate import check_dt, check_state
+from ._validate import as_force_fn, check_dt, check_state, start_time
 
 __all__ = ["shoot", "defects", "simulate_truncated"]
 

@@ -9,7 +9,6 @@ from typing import Any
 import jax
 import jax.core
 import jax.numpy as jnp
-import numpy as np
 from jax import Array
 from jaxtyping import Float
 
@@ -20,67 +19,22 @@ from ._force_model import ForceModel, per_body_terms, with_per_body_terms
 from ._methods import DEFAULT_METHOD, Method
 from ._pytree import replace
 from ._scan import check_checkpoint, checkpointed_scan, frames_as_outputs, frames_in_buffer
-from ._state import AnyState, ForceLike, Forces, ParticleState, StateT, split_constants
+from ._state import ForceLike, Forces, ParticleState, StateT, split_constants
 from ._trajectory import stack_frames
 from ._typing import ArrayLike
-from ._validate import check_count, check_dt, check_state, checked_force_fn, traced_step_size
+from ._validate import (
+    as_force_fn,
+    cast_forces,
+    check_dt,
+    check_run,
+    check_state,
+    checked_force_fn,
+    is_time_series,
+    start_time,
+    traced_step_size,
+)
 
-__all__ = ["step", "simulate", "as_force_fn"]
-
-
-def as_force_fn(forces: ForceLike) -> Callable[[Any, Array], Forces]:
-    """Normalise ``None`` / ``Forces`` / callable to ``(state, t) -> Forces``."""
-    if forces is None:
-        return lambda state, t: Forces()
-    if isinstance(forces, Forces):
-        return lambda state, t: forces
-    if callable(forces):
-        return forces
-    raise TypeError(f"forces must be Forces, a callable (state, t) -> Forces, or None; got {type(forces)}")
-
-
-def cast_forces(forces: Forces, dtype: Any) -> Forces:
-    """``forces`` with its arrays in the state's ``dtype`` (a float64 force must not promote a float32 state)."""
-    cast = lambda a: None if a is None else a.astype(dtype)
-    if all(a is None or a.dtype == dtype for a in (forces.force, forces.torque)):
-        return forces
-    return replace(forces, force=cast(forces.force), torque=cast(forces.torque))
-
-
-def start_time(state: AnyState) -> Array:
-    """The one time ``t`` (s) of a state or batch, from ``state.time``.
-
-    A batch is stepped on one clock: concrete times must all be equal; traced
-    ones (inside ``jit``) are taken from the first body. An empty batch
-    (``N = 0``) has no clock: its time is 0 (pass ``t0`` to choose another).
-    """
-    t = state.time
-    if jnp.size(t) == 0:  # static shape: no body, no clock to read
-        return jnp.zeros((), jnp.result_type(t))
-    if not isinstance(t, jax.core.Tracer) and isinstance(t, jax.Array) and not t.is_fully_addressable:
-        # a batch split over processes: its clock from a reduction (replicated), not a host copy
-        lo, hi = _time_range(t)
-        if lo != hi:
-            raise ValueError(
-                f"the states of a batch must share one time to be stepped together; state.time of shape "
-                f"{t.shape} ranges over [{float(lo)}, {float(hi)}]. Set one with dataclasses.replace(state, "
-                "time=t) or pass t0="
-            )
-        return jnp.asarray(np.asarray(lo))
-    if not isinstance(t, jax.core.Tracer):
-        host = np.asarray(t)
-        if host.size > 1 and np.ptp(host) != 0:
-            raise ValueError(
-                f"the states of a batch must share one time to be stepped together; state.time has shape "
-                f"{t.shape}. Set one with dataclasses.replace(state, time=t) or pass t0="
-            )
-        return jnp.asarray(host.reshape(-1)[0])  # from the host: a sharded time needs no gather
-    return jnp.max(t)  # all equal; a reduction, which sharded batches allow
-
-
-@jax.jit
-def _time_range(t: Array) -> tuple[Array, Array]:
-    return jnp.min(t), jnp.max(t)
+__all__ = ["step", "simulate", "run_simulation"]
 
 
 def _canonical(state: Any) -> Any:
@@ -155,23 +109,6 @@ def step(
     return replace(new, **keep, time=jnp.broadcast_to(t + dt, jnp.shape(state.time)).astype(dtype))
 
 
-def is_time_series(forces: Forces, state: AnyState, steps: int) -> bool:
-    leaves = [a for a in (forces.force, forces.torque) if a is not None]
-    if not leaves:
-        return False
-    nb = len(state.batch_shape)
-    series = [a.ndim - 1 > nb for a in leaves]
-    if any(series):
-        for a in leaves:
-            if a.ndim - 1 <= nb or a.shape[0] != steps:
-                raise ValueError(
-                    f"time-series forces must have shape (steps={steps}, *batch, 3); got {a.shape} "
-                    f"for a state of batch shape {state.batch_shape}"
-                )
-        return True
-    return False
-
-
 def simulate(
     state: StateT,
     forces: ForceLike,
@@ -207,12 +144,9 @@ def simulate(
             or a hashable batch step function ``(state, force_fn, t, dt) -> state``
             such as a :class:`rbjax.Scene`'s kernel; static. Anything else raises
             ``TypeError``. Default ``"splitting"``: Strang splitting, second order and symplectic
-            (energy error bounded, world ``L`` exact, exact for symmetric tops),
-            about 2.3x ``"euler"``'s cost per step. Measured 2026-12-02 on the
-            README's body (1 kg box 0.1 x 0.2 x 0.4 m, ``ω = (0.01, 5, 0.01)``
-            rad/s, ``dt = 1e-3``, 5 s) against :func:`rbjax.torque_free`: at most
-            2.1e-6 rad of attitude error and 2.1e-7 relative energy error, where
-            ``"euler"`` (the default before) was 3.09 rad off and gained 1.3%.
+            (energy error bounded, world ``L`` exact, exact for symmetric tops), at a
+            few times ``"euler"``'s cost per step (``rb.methods()[name].cost``); the
+            accuracy it buys on the README's body is in docs/integrators.md.
             Pass ``"euler"`` for the lecture notes' update.
         save_every: keep every ``save_every``-th state (static); must divide ``steps``.
         t0: start time (s); default ``state.time``, so ``simulate(traj[-1], ...)``
@@ -291,26 +225,6 @@ def _native_path(native: bool | None, state, forces, method: Method, *, series: 
     if reason and method.native_code is not None and type(state).__name__ == "State":
         _native.say_once_unavailable()
     return not reason
-
-
-def check_run(state, dt, steps, method, save_every, t0, fn: str) -> tuple[int, int, Method]:
-    """``TypeError``/``ValueError`` for a bad argument of a run (``simulate``, ``simulate_chunked``).
-
-    Returns ``(steps, save_every)`` as ints and the :class:`Method` that
-    ``method`` names. A concrete ``dt`` and ``t0`` are checked here; traced ones
-    only in checked mode, at run time.
-    """
-    check_state(state, fn)
-    method = _methods.resolve(method, fn)
-    method.step(type(state))
-    steps = check_count("steps", steps, 0)
-    save_every = check_count("save_every", save_every, 1)
-    if steps % save_every:
-        raise ValueError(f"save_every must be a positive int dividing steps={steps}, got {save_every!r}")
-    check_dt(dt)
-    if t0 is not None:
-        check_dt(t0, "t0", positive=False)
-    return steps, save_every, method
 
 
 def run_simulation(

@@ -1,4 +1,4 @@
-"""Argument checks shared by ``step``, ``simulate`` and ``simulate_chunked``.
+"""A run's arguments, normalised and checked: shared by ``step``, ``simulate`` and ``simulate_chunked``.
 
 Everything here runs before or while tracing, in rbjax's words: a concrete bad
 value raises ``TypeError``/``ValueError`` naming the argument; a traced one is
@@ -18,12 +18,26 @@ import jax
 import jax.core
 import jax.numpy as jnp
 import numpy as np
+from jax import Array
 
+from . import _methods
 from ._math import broadcasts_to
-from ._pytree import data_fields, is_rbjax_dataclass, new_unchecked
-from ._state import Forces, MatrixState, ParticleState, State
+from ._methods import Method
+from ._pytree import data_fields, is_rbjax_dataclass, new_unchecked, replace
+from ._state import AnyState, ForceLike, Forces, MatrixState, ParticleState, State
 
-__all__ = ["check_dt", "check_count", "check_state", "traced_step_size", "checked_force_fn"]
+__all__ = [
+    "check_dt",
+    "check_count",
+    "check_state",
+    "traced_step_size",
+    "checked_force_fn",
+    "as_force_fn",
+    "cast_forces",
+    "start_time",
+    "is_time_series",
+    "check_run",
+]
 
 _STATE_TYPES = (State, MatrixState, ParticleState)
 
@@ -141,3 +155,95 @@ def checked_force_fn(fn: Callable[[Any, Any], Any]) -> Callable[[Any, Any], Forc
         return check_forces_output(fn(state, t), state, fn)
 
     return wrapped
+
+
+def as_force_fn(forces: ForceLike) -> Callable[[Any, Array], Forces]:
+    """Normalise ``None`` / ``Forces`` / callable to ``(state, t) -> Forces``."""
+    if forces is None:
+        return lambda state, t: Forces()
+    if isinstance(forces, Forces):
+        return lambda state, t: forces
+    if callable(forces):
+        return forces
+    raise TypeError(f"forces must be Forces, a callable (state, t) -> Forces, or None; got {type(forces)}")
+
+
+def cast_forces(forces: Forces, dtype: Any) -> Forces:
+    """``forces`` with its arrays in the state's ``dtype`` (a float64 force must not promote a float32 state)."""
+    cast = lambda a: None if a is None else a.astype(dtype)
+    if all(a is None or a.dtype == dtype for a in (forces.force, forces.torque)):
+        return forces
+    return replace(forces, force=cast(forces.force), torque=cast(forces.torque))
+
+
+def start_time(state: AnyState) -> Array:
+    """The one time ``t`` (s) of a state or batch, from ``state.time``.
+
+    A batch is stepped on one clock: concrete times must all be equal; traced
+    ones (inside ``jit``) are taken from the first body. An empty batch
+    (``N = 0``) has no clock: its time is 0 (pass ``t0`` to choose another).
+    """
+    t = state.time
+    if jnp.size(t) == 0:  # static shape: no body, no clock to read
+        return jnp.zeros((), jnp.result_type(t))
+    if not isinstance(t, jax.core.Tracer) and isinstance(t, jax.Array) and not t.is_fully_addressable:
+        # a batch split over processes: its clock from a reduction (replicated), not a host copy
+        lo, hi = _time_range(t)
+        if lo != hi:
+            raise ValueError(
+                f"the states of a batch must share one time to be stepped together; state.time of shape "
+                f"{t.shape} ranges over [{float(lo)}, {float(hi)}]. Set one with dataclasses.replace(state, "
+                "time=t) or pass t0="
+            )
+        return jnp.asarray(np.asarray(lo))
+    if not isinstance(t, jax.core.Tracer):
+        host = np.asarray(t)
+        if host.size > 1 and np.ptp(host) != 0:
+            raise ValueError(
+                f"the states of a batch must share one time to be stepped together; state.time has shape "
+                f"{t.shape}. Set one with dataclasses.replace(state, time=t) or pass t0="
+            )
+        return jnp.asarray(host.reshape(-1)[0])  # from the host: a sharded time needs no gather
+    return jnp.max(t)  # all equal; a reduction, which sharded batches allow
+
+
+@jax.jit
+def _time_range(t: Array) -> tuple[Array, Array]:
+    return jnp.min(t), jnp.max(t)
+
+
+def is_time_series(forces: Forces, state: AnyState, steps: int) -> bool:
+    leaves = [a for a in (forces.force, forces.torque) if a is not None]
+    if not leaves:
+        return False
+    nb = len(state.batch_shape)
+    series = [a.ndim - 1 > nb for a in leaves]
+    if any(series):
+        for a in leaves:
+            if a.ndim - 1 <= nb or a.shape[0] != steps:
+                raise ValueError(
+                    f"time-series forces must have shape (steps={steps}, *batch, 3); got {a.shape} "
+                    f"for a state of batch shape {state.batch_shape}"
+                )
+        return True
+    return False
+
+
+def check_run(state, dt, steps, method, save_every, t0, fn: str) -> tuple[int, int, Method]:
+    """``TypeError``/``ValueError`` for a bad argument of a run (``simulate``, ``simulate_chunked``).
+
+    Returns ``(steps, save_every)`` as ints and the :class:`Method` that
+    ``method`` names. A concrete ``dt`` and ``t0`` are checked here; traced ones
+    only in checked mode, at run time.
+    """
+    check_state(state, fn)
+    method = _methods.resolve(method, fn)
+    method.step(type(state))
+    steps = check_count("steps", steps, 0)
+    save_every = check_count("save_every", save_every, 1)
+    if steps % save_every:
+        raise ValueError(f"save_every must be a positive int dividing steps={steps}, got {save_every!r}")
+    check_dt(dt)
+    if t0 is not None:
+        check_dt(t0, "t0", positive=False)
+    return steps, save_every, method

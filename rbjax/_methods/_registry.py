@@ -14,10 +14,8 @@ from .._state import MatrixState, ParticleState, State
 
 #: The integrator every public function uses when ``method`` is not given (``step``, ``simulate``,
 #: ``simulate_chunked``, ``Scene.build``, ``shoot``, ``simulate_truncated``): Strang splitting,
-#: second order, symplectic, world ``L`` exact, exact for symmetric tops, ~2.3x Euler's cost per
-#: step. On the README's body (box 0.1 x 0.2 x 0.4 m, 1 kg, ω = (0.01, 5, 0.01) rad/s) over 5 s at
-#: dt = 1e-3 it is within 2.1e-6 rad of rb.torque_free, energy within 2.1e-7 (relative); Euler
-#: was 3.09 rad off with +1.3% energy (docs/integrators.md).
+#: second order, symplectic, world ``L`` exact, exact for symmetric tops. Its cost against Euler's
+#: is the registry's ``cost``; its accuracy on the README's body is in docs/integrators.md.
 DEFAULT_METHOD = "splitting"
 
 #: The body kinds a :class:`rbjax.Scene` specialises on, from the most special to the most general
