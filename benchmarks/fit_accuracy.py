@@ -212,7 +212,7 @@ def _jacobian(case: Case, times: np.ndarray, k: int = 0) -> tuple[np.ndarray, li
 def _moment_sigma(cov5: np.ndarray) -> np.ndarray:
     """σ of the principal moments of ``I / tr I`` (ascending) from the covariance of the 5 shape parameters."""
     lam, V = np.linalg.eigh(INERTIA / np.trace(INERTIA))
-    G = np.einsum("ik,ejl,lk->ke", V, _traceless_basis(), V)  # dλ_k / dp_e = v_kᵀ E_e v_k
+    G = np.einsum("jk,ejl,lk->ke", V, _traceless_basis(), V)  # dλ_k / dp_e = v_kᵀ E_e v_k
     return np.sqrt(np.einsum("ke,ef,kf->k", G, cov5, G))
 
 

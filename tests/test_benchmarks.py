@@ -14,6 +14,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 import rbjax as rb
@@ -147,3 +148,20 @@ def test_run_all_lists_every_benchmark():
     names = {os.path.basename(p) for p in res.stdout.split()}
     assert {"work_precision.py", "throughput.py"} <= names and "run_all.py" not in names
     assert not any(n.startswith("_") for n in names)
+
+
+def test_fit_accuracy_bound_maps_the_shape_covariance_to_the_moments_by_their_derivative():
+    # fit_accuracy's Cramér–Rao bound pushes the covariance of the five shape parameters p to the
+    # principal moments with dλ_k/dp_e = v_kᵀ E_e v_k (first-order perturbation of a symmetric
+    # matrix). Held to central differences of eigvalsh: h = 1e-6 leaves an O(h²) ≈ 1e-12 error.
+    sys.path.insert(0, BENCH)
+    import fit_accuracy as fa
+
+    base = fa.INERTIA / np.trace(fa.INERTIA)
+    E = fa._traceless_basis()
+    h = 1e-6
+    fd = np.stack([(np.linalg.eigvalsh(base + h * e) - np.linalg.eigvalsh(base - h * e)) / (2 * h) for e in E], 1)
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(5, 5))
+    cov = A @ A.T
+    np.testing.assert_allclose(fa._moment_sigma(cov), np.sqrt(np.einsum("ke,ef,kf->k", fd, cov, fd)), rtol=1e-8)
