@@ -117,8 +117,10 @@ def fit_inertia(
             4 for recordings of at most 256 intervals (throws: so that throws of
             different speeds share one compiled program).
         orientation_std, rate_std: noise standard deviations (rad, rad/s) that
-            weight the residuals; default estimated from second differences of
-            the data (valid for smooth motion sampled finely).
+            weight the residuals; default estimated from the data: the residuals
+            of local quadratics in time over five samples, on the recording's own
+            (possibly jittered) clock (:mod:`rbjax.identification._noise`), at least
+            ``1e-7`` of the signal (4 eps in float32: what the fit's model reaches).
         continuity_weight: weight of segment joins relative to data residuals
             (a join gap of ``σ / continuity_weight`` costs as much as one
             ``σ`` data residual). Soft joins let segments drift apart and lose
@@ -162,7 +164,7 @@ def fit_inertia(
             ``a = ω̇ × r + ω × (ω × r) + b_a`` with ``ω̇ = -I⁻¹ (ω × I ω)`` from
             the model. Fits the lever arm ``r`` (m) and the bias ``b_a`` (m/s²),
             reported as ``FitResult.lever_arm``, ``accelerometer_bias`` and their σ.
-        acceleration_std: its noise std (m/s²); default estimated from second differences.
+        acceleration_std: its noise std (m/s²); default estimated from the data, as the others.
         loss: ``"squared"`` (least squares, the default), ``"huber"`` or
             ``"cauchy"``: a robust loss on each sample's residual 3-vector per
             sensor (``|r|`` in units of that sensor's σ), minimised by

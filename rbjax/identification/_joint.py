@@ -93,8 +93,8 @@ def fit_joint(members, options) -> FitResult:
         chi2 = float(np.sum(r[part] ** 2))
         n_i = 3 * blocks * float(valid[part].sum())
         dof = n_i - (6 - float(p.data["n_unused"][0])) - n_shared * n_i / n_all
-        # against the joint fit's residual level s² (not the estimated noise levels, which the
-        # motion's own second differences inflate on short throws): which throw stands out
+        # against the joint fit's own residual level s² (the noise levels are model_consistent's
+        # test): which throw stands out from the others
         ratio = chi2 / (dof * s2)
         pval = float(chi2_sf(dof, ratio * dof))
         stats[i] = (float(np.sqrt(ratio)), chi2, dof, pval)

@@ -2,7 +2,7 @@
 
 NumPy only, before any tracing (eager ``jnp`` calls would compile once per new
 shape): :func:`prepare` checks the inputs (:mod:`._checks`) and identifiability,
-estimates noise levels from second differences, fits the linear start
+estimates noise levels (:mod:`._noise`), fits the linear start
 (:mod:`._linear`), chooses substeps and segments, and cuts the recordings into
 padded multiple-shooting segments for the traced model (:mod:`._model`).
 """
@@ -29,16 +29,8 @@ from ._linear import (
     np_params_from_inertia,
     skew,
 )
+from ._noise import noise_dof, noise_std, orientation_noise_std
 from ._segments import Segments
-
-
-def _mad_sigma(x: np.ndarray) -> np.ndarray:
-    """Noise std of white noise seen through a second difference (variance 6σ²), robustly."""
-    return 1.4826 * np.median(np.abs(x), axis=(-2, -1)) / np.sqrt(6.0)
-
-
-# effective degrees of freedom of a MAD-of-second-differences noise estimate per component
-_MAD_DOF = 0.2
 
 # Default numerics (see fit_inertia's docstring for the error budget)
 _MAX_STEP_ANGLE = 0.05  # rad turned per integrator step: rk4 error ~1e-9 rad per step at this size
@@ -240,19 +232,16 @@ def prepare(
             f"({n_theta} inertia + 6 per segment × {S} segments); record more samples or use fewer segments"
         )
 
-    # noise levels from second differences (robust MAD), floored so clean data stay finite
+    # noise levels not given: from what local quadratics in time cannot follow (._noise)
+    eps = float(np.finfo(dtype).eps)
     if not use_q:
         sq = np.full(N, np.nan)
     elif orientation_std is None:
-        sq = np.maximum(_mad_sigma(np.diff(inc, axis=-2)), 1e-12)
+        sq = orientation_noise_std(t, q, eps)
     else:
         sq = np.full(N, float(orientation_std))
     if use_rates:
-        sw = (
-            np.full(N, float(rate_std))
-            if rate_std is not None
-            else np.maximum(_mad_sigma(np.diff(wr, 2, axis=-2)), 1e-12)
-        )
+        sw = np.full(N, float(rate_std)) if rate_std is not None else noise_std(t, np.asarray(wr, np.float64), eps)
     else:
         sw = np.full(N, np.nan)
 
@@ -344,9 +333,7 @@ def prepare(
         )
         sa = np.nan
         if use_accel:
-            sa = (
-                acceleration_std if acceleration_std is not None else max(_mad_sigma(np.diff(acc[n], 2, axis=0)), 1e-12)
-            )
+            sa = acceleration_std if acceleration_std is not None else float(noise_std(t, acc[n], eps))
             a_first = np.broadcast_to(acc[n][0], (S, 3))
             seg = replace(seg, a_first=a_first, a_meas=acc[n][idx_c + 1], wa=ones / float(sa))
         if tau_n is not None:
@@ -357,15 +344,13 @@ def prepare(
         # with a zero Jacobian column, not degrees of freedom of the fit
         n_unused = 0.0 if use_q else 3.0
         # the noise levels that whiten the residuals [orientation, gyro, accelerometer] (NaN: no such
-        # sensor), and the effective degrees of freedom of each: inf when given, about a quarter of
-        # the second differences' components when estimated (the MAD of correlated second
-        # differences: measured 0.24-0.26 n for white noise, T = 50-1000; 0.2 n is used)
+        # sensor), and the effective degrees of freedom of each: inf when given, else ._noise's
         given = (orientation_std is not None, rate_std is not None, acceleration_std is not None)
-        n_mad = _MAD_DOF * 3 * max(T - 2, 1)
+        n_est = noise_dof(T)
         datas.append(
             dict(
                 noise_std=np.array([sq[n], sw[n], sa], np.float64),
-                noise_dof=np.array([np.inf if g else n_mad for g in given]),
+                noise_dof=np.array([np.inf if g else n_est for g in given]),
                 seg=seg,
                 n_data=np.float64(n_data),
                 n_unused=np.float64(n_unused),

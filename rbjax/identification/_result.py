@@ -121,7 +121,7 @@ class FitResult:
         consistency_pvalue: probability of residuals at least this large if
             the model and noise levels were right: per sensor ``k``, with a
             given noise level ``P(χ²(ν_k) ≥ Σ_k r²)``; with an estimated one
-            (from second differences, ~``0.2·3(T-2)`` effective degrees of
+            (:mod:`rbjax.identification._noise`, ~``0.18·3(T-4)`` effective degrees of
             freedom ``ν_e``) ``P(F(ν_k, ν_e) ≥ s²_k)``, ``s²_k`` the
             residual variance per degree of freedom in units of that level;
             ``ν_k`` the sensor's share of ``dof``. The smallest, times the
@@ -137,8 +137,8 @@ class FitResult:
             the estimate (the moments live in ``[0, tr I / 2]``).
         noise_std: ``(3,)`` noise levels that whiten the residuals:
             orientation (rad), gyro (rad/s), accelerometer (m/s²); the ones
-            given, or else estimated from the data's second differences
-            (robust MAD); NaN for a sensor not given.
+            given, or else estimated from the data (the MAD of what local
+            quadratics in time cannot follow); NaN for a sensor not given.
         noise_estimated: ``(3,)`` bool: the level was estimated, not given.
         noise_scale: ``(3,)`` ``s_k = sqrt(s²_k)``, each sensor's residual RMS per
             degree of freedom in units of ``noise_std``: the residual-based
@@ -184,10 +184,9 @@ class FitResult:
             residuals this much larger than the joint fit's level if it were
             like the others. One below ``CONSISTENCY_ALPHA`` disagrees with
             the rest (a different body, a collision, a gyro glitch) and is the
-            one to inspect. (Against ``s²`` rather than the estimated noise
-            levels: on short, fast throws the second differences include the
-            motion's and over-estimate the noise; ``s²`` is checked by
-            ``model_consistent``.)
+            one to inspect. (Against ``s²``, the joint fit's own level, so that
+            it asks which throw differs from the others; ``s²`` against the
+            noise levels is ``model_consistent``'s test.)
         member_initial_orientation: ``(M, 4)`` per recording given, its fitted
             orientation ``[w, x, y, z]`` (body to world) at its first sample,
             ``q_meas,0 ⊗ exp(δ)``: with ``joint=True`` one row per recording
