@@ -175,7 +175,13 @@ class Recording:
         result's ``times`` are the gyro's, restricted to the span the
         accelerometer covers, and ``accelerations`` are linearly interpolated
         onto them, ``a(t) = a_i + (t - t_i)(a_{i+1} - a_i)/(t_{i+1} - t_i)``.
-        Without a gyroscope the accelerometer's own times are used.
+        Without a gyroscope the accelerometer's own times are used. They serve
+        :func:`rbjax.find_throws`; fit the throws from the gyro alone
+        (``dataclasses.replace(rec.window(t0, t1), accelerations=None)``, as
+        ``python -m rbjax fit`` does): interpolation averages neighbouring samples,
+        so their noise is smoothed and correlated: the level
+        :func:`rbjax.fit_inertia` estimates from them falls below their actual
+        scatter, and a fit with them says ``model_consistent=False``.
 
         Raises :class:`rbjax.RecordingError` naming the file, the line and the
         remedy: no file, no gyro or accelerometer columns, a half group (x and
