@@ -358,3 +358,18 @@ def test_cli_fits_the_throws_jointly_unless_separate(export, tmp_path, capsys):
     text = capsys.readouterr().out
     assert "jointly" not in text and "median ± spread" in text
     assert "joint" not in json.loads(out.read_text())["combined"]
+
+
+def test_lists_a_find_throws_user_may_pass_by_mistake_are_named(tmp_path):
+    # find_throws gives (t0, t1) pairs, not recordings: fit_inertia names the mix-up and the remedy
+    # before it builds anything (NumPy's own "inhomogeneous shape" error was what reached users)
+    tg, gyro, ta, accel, _ = make_recording(seed=2)
+    rec = rb.Recording.from_phyphox(write_phyphox(tmp_path, tg, gyro, ta, accel))
+    windows = rb.find_throws(rec)
+    remedy = r"\[rec.window\(t0, t1\) for t0, t1 in windows\]"
+    with pytest.raises(TypeError, match=r"list of \(t0, t1\) pairs.*" + remedy):
+        rb.fit_inertia(windows)
+    with pytest.raises(TypeError, match=r"mixes Recordings with other things \(item 1 is a tuple\)"):
+        rb.fit_inertia([rec.window(*windows[0]), windows[1]])
+    with pytest.raises(ValueError, match=r"times must be 1-D.*pass gyro readings as body_rates="):
+        rb.fit_inertia(rec.window(*windows[0]).gyro)

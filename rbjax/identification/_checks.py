@@ -155,7 +155,13 @@ def check_inputs(times, orientations, body_rates, torques, body_torques=None):
     """
     t = np.asarray(times, dtype=np.float64)
     if t.ndim != 1:
-        raise ValueError(f"fit_inertia: times must be 1-D (T,), got shape {t.shape}")
+        hint = (
+            "; the first argument is the sample times (s): pass gyro readings as body_rates= and quaternions "
+            "as orientations="
+            if t.ndim == 2 and t.shape[-1] in (3, 4)
+            else ""
+        )
+        raise ValueError(f"fit_inertia: times must be 1-D (T,), got shape {t.shape}{hint}")
     if orientations is None:
         if body_rates is None:
             raise ValueError(

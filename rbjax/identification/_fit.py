@@ -246,6 +246,7 @@ def fit_inertia(
         body_torques=body_torques,
         accelerations=accelerations,
     )
+    _check_list_of_recordings(times)
     if isinstance(times, Recording) or (
         isinstance(times, (list, tuple)) and len(times) > 0 and all(isinstance(r, Recording) for r in times)
     ):
@@ -296,3 +297,22 @@ def fit_inertia(
         if members is None:  # one recording, or a batch-wide problem: the message stands
             raise
         return fit_members(members, options)
+
+
+def _check_list_of_recordings(times: object) -> None:
+    """``TypeError`` for the two lists a user of :func:`rbjax.find_throws` may pass by mistake."""
+    if not isinstance(times, (list, tuple)) or not times:
+        return
+    remedy = "pass the recordings themselves: [rec.window(t0, t1) for t0, t1 in windows]"
+    is_rec = [isinstance(r, Recording) for r in times]
+    if any(is_rec) and not all(is_rec):
+        bad = is_rec.index(False)
+        raise TypeError(
+            f"fit_inertia: times is a list that mixes Recordings with other things (item {bad} is a "
+            f"{type(times[bad]).__name__}); {remedy}"
+        )
+    windows = all(
+        isinstance(w, tuple) and len(w) == 2 and all(isinstance(x, (int, float, np.number)) for x in w) for w in times
+    )
+    if windows:
+        raise TypeError(f"fit_inertia: times is a list of (t0, t1) pairs, as rb.find_throws returns; {remedy}")
