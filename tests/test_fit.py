@@ -406,6 +406,14 @@ def test_gyro_in_degrees_gets_a_units_hint():
     spin = np.tile(np.degrees([0.0, 0.0, 5.0]), (50, 1))  # 286 "rad/s" about a fixed axis
     with pytest.raises(ValueError, match=r"too little excitation.*deg/s.*np\.deg2rad"):
         rb.fit_inertia(T_FAST[:50], body_rates=spin)
+    # a gyro-only throw at 100 Hz in deg/s, or with times in ms, turns more than half a turn per
+    # sample interval (8.6 and 150 rad here): no recording samples that coarsely, and the error
+    # names both units instead of fitting (the deg/s throw had returned converged=False, no hint)
+    t = np.arange(50) * 0.01
+    _, w_throw = _record(t, w0=np.array([3.0, 12.0, 4.0]))
+    for times, rates in ((t, np.degrees(w_throw)), (t * 1000, w_throw)):
+        with pytest.raises(ValueError, match=r"more than half a turn.*np\.deg2rad\(body_rates\).*times / 1000"):
+            rb.fit_inertia(times, body_rates=rates)
 
 
 def test_bad_input_raises_before_tracing():

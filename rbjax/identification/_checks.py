@@ -218,6 +218,8 @@ def check_inputs(times, orientations, body_rates, torques, body_torques=None):
         if not np.all(np.isfinite(a)):
             raise ValueError(f"fit_inertia: {name} contain non-finite values")
         out.append(np.broadcast_to(a, lead + (3,)))
+    if out[0] is not None:
+        _check_gyro_sampling(t, out[0])
     for name, a in (("torques", out[1]), ("body_torques", out[2])):
         if a is not None and not np.any(a):
             raise ValueError(
@@ -225,3 +227,20 @@ def check_inputs(times, orientations, body_rates, torques, body_torques=None):
                 f"torque-free data); omit {name}= for a shape-only fit (normalised to tr I = 1)"
             )
     return t, q, out[0], out[1], out[2]
+
+
+def _check_gyro_sampling(t: np.ndarray, w: np.ndarray) -> None:
+    """``ValueError`` when the gyro turns the body more than half a turn between samples (median).
+
+    No recording samples a rotation that coarsely; it is what rates in deg/s or times in ms
+    look like (57x or 1000x the angle per interval), which the fit would otherwise report as
+    too little excitation or as residuals far above the noise.
+    """
+    speed = np.linalg.norm(np.asarray(w, np.float64), axis=-1)  # (*N, T)
+    turned = float(np.median(0.5 * (speed[..., 1:] + speed[..., :-1]) * np.diff(t)))
+    if turned > np.pi:
+        raise ValueError(
+            f"fit_inertia: the gyro turns the body a median {turned:.3g} rad between samples, more than "
+            "half a turn, which no recording can follow; are the rates in rad/s (deg/s: pass "
+            "np.deg2rad(body_rates)) and the times in seconds (ms: pass times / 1000)?"
+        )
