@@ -105,7 +105,7 @@ class PerBodyForce(ForceModel):
     bodies where it is per body (its fields declare their per-body rank) and shared where
     it is not. ``simulate`` lifts :meth:`on_body` itself inside its steps, in the layout its
     scan carries the state in, so the law fuses with the step instead of needing the batch
-    transposed around it (see :func:`per_body_terms`).
+    transposed around it (see :func:`split_per_body`).
     """
 
     def on_body(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:  # pragma: no cover - abstract
@@ -121,19 +121,24 @@ class PerBodyForce(ForceModel):
         return self
 
 
-def per_body_terms(forces: Any) -> tuple[PerBodyForce, ...] | None:
-    """The terms of ``forces`` when every one is a :class:`PerBodyForce` (a sum or one model), else ``None``."""
+def split_per_body(forces: ForceModel) -> tuple[tuple[PerBodyForce, ...], ForceModel | None]:
+    """The :class:`PerBodyForce` terms of ``forces`` (a sum or one model) and the sum of the others.
+
+    The rest is ``None`` when every term is per body, one model when one is left, else a
+    :class:`ForceSum`; the order of the terms within each part is kept.
+    """
     terms = forces.terms if isinstance(forces, ForceSum) else (forces,)
-    if terms and all(isinstance(term, PerBodyForce) for term in terms):
-        return tuple(terms)
-    return None
+    per_body = tuple(term for term in terms if isinstance(term, PerBodyForce))
+    others = tuple(term for term in terms if not isinstance(term, PerBodyForce))
+    rest = None if not others else others[0] if len(others) == 1 else ForceSum(others)
+    return per_body, rest
 
 
 def with_per_body_terms(forces: ForceModel, state: AnyState) -> ForceModel:
     """``forces`` with every term that has a per-body form (:meth:`ForceModel.as_per_body`) in that form.
 
     Called on concrete models before ``simulate`` traces them, so that a sum of such
-    terms is lifted inside the step (see :func:`per_body_terms`); terms without one
+    terms is lifted inside the step (see :func:`split_per_body`); terms without one
     are kept as they are.
     """
     terms = forces.terms if isinstance(forces, ForceSum) else (forces,)

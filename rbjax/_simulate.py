@@ -15,7 +15,7 @@ from jaxtyping import Float
 from . import _checked, _methods, _native
 from ._batching import batch_last, batch_shape, lift, map_leaves, to_batch_first, to_batch_last
 from ._body import prepare
-from ._force_model import ForceModel, per_body_terms, with_per_body_terms
+from ._force_model import ForceModel, split_per_body, with_per_body_terms
 from ._methods import DEFAULT_METHOD, Method
 from ._pytree import replace
 from ._scan import check_checkpoint, checkpointed_scan, frames_as_outputs, frames_in_buffer
@@ -344,22 +344,26 @@ def _simulate(
     # it checks the callable's output while tracing and casts it to the state's dtype
     user_fn = checked_force_fn(force_fn if force_fn is not None else as_force_fn(forces))
 
-    def soa_forces(state, t):
-        # force callables and models are batch-level code written batch-first
-        with batch_last(False):
-            # the batch's one clock as a scalar time: it broadcasts, and a sharded batch needs
-            # no unsharded (N,) array beside its sharded fields
-            out = user_fn(replace(to_aos(split_constants(state)[0]), **{**consts, "time": t}), t)
-        return to_soa(out)
+    def soa_forces_of(fn):
+        def soa_forces(state, t):
+            # force callables and models are batch-level code written batch-first
+            with batch_last(False):
+                # the batch's one clock as a scalar time: it broadcasts, and a sharded batch needs
+                # no unsharded (N,) array beside its sharded fields
+                out = fn(replace(to_aos(split_constants(state)[0]), **{**consts, "time": t}), t)
+            return to_soa(out)
+
+        return soa_forces
 
     def batch_first_forces(state, t):
         return user_fn(replace(state, time=t), t)
 
-    # a sum of per-body laws: each body's law lifted inside the step, in the scan's layout, so
-    # XLA fuses it with the step (through soa_forces the batch is transposed around every call)
-    terms = per_body_terms(forces) if soa and isinstance(forces, ForceModel) else None
-    if terms is not None:
-        terms = tuple(to_soa(term) for term in terms)
+    # per-body laws: each body's law lifted inside the step, in the scan's layout, so XLA fuses
+    # it with the step; the other terms of a sum (springs, ...) through the batch-level path,
+    # which transposes the batch around every call
+    per_body, rest = split_per_body(forces) if soa and isinstance(forces, ForceModel) else ((), None)
+    if per_body:
+        per_body = tuple(to_soa(term) for term in per_body)
 
         def per_body_forces(state, t):
             def on_body(s, *models):
@@ -368,7 +372,7 @@ def _simulate(
                     total = total + model.on_body(s, t)
                 return total
 
-            return lift(on_body)(state, *terms)
+            return lift(on_body)(state, *per_body)
 
     # the steps' force function, chosen once; time-series forces give one per step, from its slice
     if series:
@@ -381,10 +385,13 @@ def _simulate(
         if isinstance(forces, Forces):
             const_forces = to_soa(forces)
             fn = lambda state, t: const_forces
-        elif terms is not None:
+        elif per_body and rest is None:
             fn = per_body_forces
+        elif per_body:
+            rest_forces = soa_forces_of(checked_force_fn(rest))
+            fn = lambda state, t: per_body_forces(state, t) + rest_forces(state, t)
         else:
-            fn = soa_forces if soa else batch_first_forces
+            fn = soa_forces_of(user_fn) if soa else batch_first_forces
         step_forces = lambda f: fn
 
     # the checked-mode record rides in the carry; None (an empty pytree) when off

@@ -489,7 +489,9 @@ class Forces:
                 return a
             return a + b
 
-        return Forces(add(self.force, other.force), add(self.torque, other.torque))
+        # both were checked when built; their sum is not re-checked, so that it also adds the
+        # batch-last (3, *B) forces of simulate's scan
+        return replace(self, force=add(self.force, other.force), torque=add(self.torque, other.torque))
 
 
 ForceLike = Union[Forces, Callable[[Any, Array], Forces], None]

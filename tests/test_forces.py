@@ -258,25 +258,51 @@ _PER_BODY_CASES = [
 def test_per_body_laws_inside_the_step_match_the_batch_path(method, dtype):
     rng = np.random.default_rng(4)
     n, steps = 5, 12
+    state = _tumbling_boxes(rng, n, dtype)
+    _assert_lifted_matches_batch_path(state, _per_body_laws(rng, n, dtype), method, steps)
+
+
+def _tumbling_boxes(rng, n, dtype):
     body = rb.box(jnp.asarray(rng.uniform(0.5, 2.0, n), dtype), jnp.asarray(rng.uniform(0.1, 1.0, (n, 3)), dtype))
-    state = rb.State.create(
+    return rb.State.create(
         body,
         velocity=jnp.asarray(rng.normal(size=(n, 3)), dtype),
         angular_velocity=jnp.asarray(rng.normal(size=(n, 3)) * 3, dtype),
     )
-    model = (
+
+
+def _per_body_laws(rng, n, dtype):
+    return (
         rb.Gravity()
         + rb.QuadraticDrag(jnp.asarray(rng.uniform(0.0, 0.1, n), dtype), 0.01)
         + rb.LinearDrag(0.05, jnp.asarray(rng.uniform(0.0, 0.1, n), dtype))
         + rb.ConstantForce(force=[0.1, 0.0, 0.2], torque=jnp.asarray(rng.normal(size=(n, 3)), dtype))
     )
+
+
+def _assert_lifted_matches_batch_path(state, model, method, steps):
     lifted = rb.simulate(state, model, 1e-2, steps, method, save_every=4, native=False)
     batch = rb.simulate(state, lambda s, t: model(s, t), 1e-2, steps, method, save_every=4, native=False)
-    eps = float(jnp.finfo(dtype).eps)
+    eps = float(jnp.finfo(state.dtype).eps)
     for f in ("position", "velocity", "orientation", "angular_momentum"):
         a, b = np.asarray(getattr(lifted, f), np.float64), np.asarray(getattr(batch, f), np.float64)
         scale = max(1.0, float(np.max(np.abs(b))))
         np.testing.assert_allclose(a, b, rtol=0, atol=8 * steps * eps * scale, err_msg=f)
+
+
+# a sum of per-body laws and a spring (which names bodies by index): the per-body terms are lifted
+# inside the step and the spring goes through the batch-level path, their forces added; held to
+# the whole sum as one opaque callable, to the bound above
+@pytest.mark.parametrize(
+    ("method", "dtype"), [("euler", jnp.float32), ("rk4", jnp.float64), ("splitting", jnp.float64)]
+)
+def test_a_sum_with_a_spring_keeps_its_per_body_terms_inside_the_step(method, dtype):
+    rng = np.random.default_rng(6)
+    n = 5
+    spring = rb.Spring.between([0, 1], [2, 4], 5.0, point_a=[[0.1, 0.0, 0.0]] * 2, damping=0.2)
+    _assert_lifted_matches_batch_path(
+        _tumbling_boxes(rng, n, dtype), _per_body_laws(rng, n, dtype) + spring, method, 12
+    )
 
 
 # thrusters naming each body at most once are lifted per body inside simulate's step (no gather,
@@ -290,12 +316,7 @@ def test_one_thruster_per_body_is_lifted_and_matches_the_scatter_path(method, dt
 
     rng = np.random.default_rng(5)
     n, steps = 6, 12
-    body = rb.box(jnp.asarray(rng.uniform(0.5, 2.0, n), dtype), jnp.asarray(rng.uniform(0.1, 1.0, (n, 3)), dtype))
-    state = rb.State.create(
-        body,
-        velocity=jnp.asarray(rng.normal(size=(n, 3)), dtype),
-        angular_velocity=jnp.asarray(rng.normal(size=(n, 3)) * 3, dtype),
-    )
+    state = _tumbling_boxes(rng, n, dtype)
     d = rng.normal(size=(4, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     # bodies 1 and 3 have none; the order of the thrusters is not the bodies'
