@@ -1,5 +1,6 @@
-"""What a scene's forces cost: ``simulate`` with no forces, ``Gravity() + QuadraticDrag`` and the same law
-as a callable, on the JAX path and the default path (the native kernel where it applies), side by side.
+"""What a scene's forces cost: ``simulate`` with no forces, ``Gravity() + QuadraticDrag``, the same law
+as a callable, and the law plus springs on ten bodies, on the JAX path and the default path (the native
+kernel where it applies; a sum with springs runs on JAX), side by side.
 
 Each figure is a share of the same path's force-free rate, measured in one process: N boxes with
 per-body masses, float32, ``steps`` steps per call with only the last state saved, the best of 3
@@ -21,7 +22,7 @@ import jax.numpy as jnp
 
 import rbjax as rb
 
-FORCES = ("none", "gravity+quadratic drag", "callable (same law)")
+FORCES = ("none", "gravity+quadratic drag", "callable (same law)", "gravity+quadratic drag+springs")
 
 
 def forces(name: str):
@@ -29,6 +30,10 @@ def forces(name: str):
         return None
     if name == "gravity+quadratic drag":
         return rb.Gravity() + rb.QuadraticDrag(0.05, 0.01)
+    if name == "gravity+quadratic drag+springs":  # ten bodies tied to anchors: a sum with a term not per body
+        return (
+            rb.Gravity() + rb.QuadraticDrag(0.05, 0.01) + rb.Spring.to_anchor(jnp.arange(10), jnp.zeros((10, 3)), 10.0)
+        )
     g, c = jnp.array([0.0, 0.0, -9.81], jnp.float32), 0.05
 
     def law(s, t):  # Gravity() + QuadraticDrag(0.05) on the centre of mass (no drag torque)
