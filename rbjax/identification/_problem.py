@@ -380,9 +380,21 @@ def prepare(
     )
 
 
-def _median_finite(a: np.ndarray) -> np.ndarray:
-    """Column medians of ``a (n, k)`` over its finite entries; NaN for a column without any."""
-    return np.array([np.median(c[np.isfinite(c)]) if np.isfinite(c).any() else np.nan for c in a.T])
+def _pooled_levels(levels: np.ndarray, dofs: np.ndarray) -> np.ndarray:
+    """Each sensor's noise level ``(k,)`` pooled over recordings ``levels, dofs (n, k)``.
+
+    ``σ² = Σ ν_i σ_i² / Σ ν_i`` over the recordings that have the sensor, whose degrees of
+    freedom are then ``Σ ν_i``; a given level (``ν = inf``) is the same in every recording.
+    NaN for a sensor none has.
+    """
+    out = np.full(levels.shape[1], np.nan)
+    for k, (s, v) in enumerate(zip(levels.T, dofs.T, strict=True)):
+        ok = np.isfinite(s)
+        if not ok.any():
+            continue
+        given = np.isinf(v[ok])
+        out[k] = s[ok][0] if given.any() else np.sqrt(np.sum(v[ok] * s[ok] ** 2) / np.sum(v[ok]))
+    return out
 
 
 def join_problems(problems: list[Problem]) -> Problem:
@@ -395,20 +407,20 @@ def join_problems(problems: list[Problem]) -> Problem:
     ``s + 1``), so the throws are independent motions of the same body. All
     must be packed alike (``segments`` each, one ``pad_intervals`` and
     ``substeps``). Start: the mean of the recordings' shared blocks. Each
-    sensor's noise level is the median of the recordings' (one sensor, one
-    level; each estimate on a short throw is noisy), ``noise_dof`` their sum. Sample indices
-    count the recordings' samples one after the other.
+    sensor's noise level pools the recordings' (one sensor, one level:
+    :func:`_pooled_levels`), ``noise_dof`` their sum. Sample indices count the
+    recordings' samples one after the other.
     """
     first = problems[0]
     n_shared = first.static["layout"].shared
     shared = np.mean([p.y0[0, :n_shared] for p in problems], 0)
     y0 = np.concatenate([shared] + [p.y0[0, n_shared:] for p in problems])[None]
     stack = lambda name: np.stack([p.data[name][0] for p in problems])
-    noise = _median_finite(stack("noise_std"))
+    noise = _pooled_levels(stack("noise_std"), stack("noise_dof"))
     use_q, use_rates = first.static["use_orientations"], first.static["use_rates"]
     segs = []
     for p in problems:
-        # one sensor, one noise level: every recording weighted by the median of their levels
+        # one sensor, one noise level: every recording weighted by the pooled level
         f_q, f_w, f_a = np.where(np.isfinite(noise), p.data["noise_std"][0] / noise, 1.0)
         seg = p.data["seg"]
         segs.append(
