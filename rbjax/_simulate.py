@@ -387,7 +387,7 @@ def _simulate(
             fn = lambda state, t: const_forces
         elif per_body and rest is None:
             fn = per_body_forces
-        elif per_body:
+        elif per_body and rest is not None:
             rest_forces = soa_forces_of(checked_force_fn(rest))
             fn = lambda state, t: per_body_forces(state, t) + rest_forces(state, t)
         else:

@@ -141,7 +141,9 @@ def prepare(
     _methods.get(method, State)  # unknown method: ValueError now, not in the solver
     t, q, wr, tau, tau_b = check_inputs(times, orientations, body_rates, torques, body_torques)
     use_q = q is not None
-    lead = (q if use_q else wr).shape[:-1]
+    given = q if q is not None else wr
+    assert given is not None  # check_inputs: orientations or body_rates
+    lead = given.shape[:-1]
     batched = len(lead) == 2
     add = (lambda a: a) if batched else (lambda a: None if a is None else a[None])
     q, wr, tau, tau_b = add(q), add(wr), add(tau), add(tau_b)
