@@ -2,8 +2,8 @@
 
 N = 10⁴ tumbling bodies with distinct non-diagonal inertias, float32, constant
 torque, ``simulate`` of 500 steps (compiled once, best of 5), all methods side
-by side in one process. Beside each time, deterministic measures of the
-compiled program:
+by side in one process, every method on its JAX step (``native=False``).
+Beside each time, deterministic measures of the compiled program:
 
 * ``flops``, ``bytes``: XLA's cost analysis of one ``rbjax.step`` per body
   (``bytes`` sums every kernel's operands and outputs, so it counts the passes
@@ -59,7 +59,9 @@ def measure(name, state, forces, steps, repeats):
     step = jax.jit(lambda s: rb.step(s, forces, 1e-3, name)).lower(state).compile()
     ca = step.cost_analysis()
     ca = ca[0] if isinstance(ca, list) else ca
-    sim = jax.jit(lambda s: rb.simulate(s, forces, 1e-3, steps, name, save_every=steps))
+    # native=False: every method on its JAX step, so the ratios compare like with like (the native
+    # kernels cover five methods; their rates are in benchmarks/throughput.py)
+    sim = jax.jit(lambda s: rb.simulate(s, forces, 1e-3, steps, name, save_every=steps, native=False))
     kernels = loop_kernels(sim.lower(state).compile().as_text())
     jax.block_until_ready(sim(state))
     best = np.inf
