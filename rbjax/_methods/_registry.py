@@ -43,7 +43,10 @@ class Method:
         order: global order of accuracy (0: not known, e.g. a user's own step).
         steps: ``{state type: batch-level step function}``.
         conserves: short statement of what it conserves (for docs and tests).
-        cost: cost per step relative to ``"euler"`` (measured, approximate).
+        cost: cost per step relative to ``"euler"``, both on their JAX step
+            measured by ``benchmarks/integrator_cost.py`` (approximate: the ratios
+            move between machines; ``benchmarks/results/integrator_cost_*.md``). The
+            native kernels' rates are in docs/performance.md.
         stable_dt_omega: for explicit methods, ``{state type name: limit}``: the
             largest ``dt·|ω|`` (ω in rad/s, dt in s) at which 1000 torque-free
             steps stayed finite with a unit quaternion / rotation matrix, measured

@@ -62,6 +62,6 @@ register(
         order=1,
         steps=rigid_steps(implicit_gyroscopic),
         conserves="nothing; dissipates rotational energy and |L| (stable at large dt)",
-        cost=2.8,
+        cost=4.0,
     )
 )

@@ -198,6 +198,6 @@ register(
             "for implicit_midpoint a non-finite state means its Newton solve did not converge at this "
             "dt·|ω| (even with the continuation fallback)"
         ),
-        cost=19.9,
+        cost=34.1,
     )
 )

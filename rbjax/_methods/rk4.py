@@ -27,7 +27,7 @@ rk4 = register_tableau(
     "rk4",
     4,
     *CLASSICAL_RK4,
-    cost=1.2,
+    cost=2.4,
     # benchmarks/results/stability_limits.json
     stable_dt_omega={"State": 7.5, "MatrixState": 1.0, "ParticleState": math.inf},
     kernels=specialised.kernels(specialised.rk4),

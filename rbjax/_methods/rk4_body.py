@@ -95,7 +95,7 @@ register(
             "nothing exactly; the rates have the error of RK4 on Euler's equations (energy ~300x below "
             "'rk4' on the T-handle); world L drifts at O(dt^4) where 'rk4' keeps it exact torque-free"
         ),
-        cost=1.6,
+        cost=3.9,
         native_code=4,
     )
 )

@@ -141,6 +141,6 @@ rk8 = register_tableau(
     DOP853_A,
     DOP853_B,
     DOP853_C,
-    cost=3.5,
+    cost=6.6,
     stable_dt_omega={"State": 1.8, "MatrixState": 2.4, "ParticleState": math.inf},
 )

@@ -81,7 +81,7 @@ register(
             ParticleState: batch(semi_implicit_particles),
         },
         conserves="torque-free: L exactly, |L| in body axes; energy drifts O(dt) (particles: bounded)",
-        cost=1.6,
+        cost=1.9,
         # benchmarks/results/stability_limits.json: finite up to dt·|ω| = 1000 in both forms
         stable_dt_omega={"State": math.inf, "MatrixState": math.inf, "ParticleState": math.inf},
         native_code=3,

@@ -232,7 +232,7 @@ register(
             "torque-free: L exactly, |L|, |q|; symplectic: energy error bounded, no drift in float64 "
             "(float32: round-off drift ~1e-9 per step)"
         ),
-        cost=2.3,  # benchmarks/integrator_cost.py, N = 1e4 float32, 2026-12-01
+        cost=2.3,
         # spheres and cylinders turn without a principal frame (free_rotor_of_kind)
         kernels={(kind, State): splitting_of_kind for kind in ("isotropic", "axisymmetric")},
         native_code=2,
