@@ -495,6 +495,11 @@ def test_bad_times_and_zero_torques_raise_with_remedy():
     q, wb = _record(t)
     with pytest.raises(ValueError, match="times must be finite and strictly increasing.*index 9.*duplicates"):
         rb.fit_inertia(np.r_[t[:10], t[9], t[11:]], q)  # a repeated time
+    # Unix-style stamps in float32 (spacing 128 s near 1.7e9 s): the samples merge, and the message says why
+    with pytest.raises(ValueError, match="float32 times near 1.7e\\+09 s are only 1.3e\\+02 s apart.*float64"):
+        rb.fit_inertia((t + 1.7e9).astype(np.float32), q)
+    with pytest.raises(ValueError, match="duplicates and NaNs$"):  # float64 duplicates: no clock hint
+        rb.fit_inertia(np.r_[t[:10], t[9], t[11:]].astype(np.float64), q)
     for v in (np.nan, np.inf):
         with pytest.raises(ValueError, match=r"times must be finite and strictly increasing.*times\[10\] = (nan|inf)"):
             rb.fit_inertia(np.r_[t[:10], v, t[11:]], q)

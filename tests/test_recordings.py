@@ -48,6 +48,9 @@ def test_recording_checks_its_arrays():
         rb.Recording(t, gyro=np.zeros((10, 3)))
     with pytest.raises(ValueError, match=r"strictly increasing; times\[3\]"):
         rb.Recording(np.array([0, 1, 2, 2, 3.0]))
+    # phone uptime stamps in float32 (spacing 0.0625 s near 1e6 s) merge 100 Hz samples: the hint says so
+    with pytest.raises(ValueError, match=r"float32 times near 1e\+06 s are only 0.062 s apart.*float64"):
+        rb.Recording((1e6 + t / 10).astype(np.float32))
     with pytest.raises(ValueError, match="orientations has a non-finite value at sample 2"):
         q = np.tile([1.0, 0, 0, 0], (11, 1))
         q[2, 1] = np.nan

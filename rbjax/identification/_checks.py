@@ -147,6 +147,19 @@ def _series(name: str, x, T: int, k: int) -> np.ndarray:
     return a
 
 
+def coarse_clock_hint(times, t: np.ndarray) -> str:
+    """A hint where equal times come from a narrow float dtype (float32 Unix or uptime stamps)."""
+    dtype = np.asarray(times).dtype
+    if not np.issubdtype(dtype, np.floating) or dtype.itemsize >= 8 or not np.any(np.diff(t) == 0):
+        return ""
+    top = float(np.max(np.abs(t)))
+    step = float(np.spacing(np.asarray(top, dtype)))
+    return (
+        f"; {dtype.name} times near {top:.4g} s are only {step:.2g} s apart, so samples merge: "
+        "pass the times as float64, or subtract the first time before casting"
+    )
+
+
 def check_inputs(times, orientations, body_rates, torques, body_torques=None):
     """Checked NumPy copies ``(t, q, ω, τ, τ_b)``; ``q`` is None for a gyro-only recording.
 
@@ -195,7 +208,7 @@ def check_inputs(times, orientations, body_rates, torques, body_torques=None):
         raise ValueError(
             f"fit_inertia: times must be finite and strictly increasing (seconds, one per sample); "
             f"first bad interval at index {bad[0] if bad.size else '?'}; sort the samples and drop "
-            "duplicates and NaNs"
+            f"duplicates and NaNs{coarse_clock_hint(times, t)}"
         )
     if q is not None:
         if not np.all(np.isfinite(q)):

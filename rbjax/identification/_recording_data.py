@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from .._recording import RecordingError, read_recording
+from ._checks import coarse_clock_hint
 
 __all__ = ["Recording"]
 
@@ -87,8 +88,8 @@ class Recording:
         if bad.size:
             i = int(bad[0])
             raise ValueError(
-                f"Recording: times must be strictly increasing; times[{i + 1}] = {t[i + 1]!r} follows "
-                f"times[{i}] = {t[i]!r}: sort the samples and drop repeated ones"
+                f"Recording: times must be strictly increasing; times[{i + 1}] = {float(t[i + 1])} follows "
+                f"times[{i}] = {float(t[i])}: sort the samples and drop repeated ones{coarse_clock_hint(self.times, t)}"
             )
         object.__setattr__(self, "times", t)
         for name, width in _WIDTHS.items():
