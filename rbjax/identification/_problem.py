@@ -147,8 +147,7 @@ def prepare(
     batched = len(lead) == 2
     add = (lambda a: a) if batched else (lambda a: None if a is None else a[None])
     q, wr, tau, tau_b = add(q), add(wr), add(tau), add(tau_b)
-    main = q if q is not None else wr  # the recording that sets batch shape and dtype
-    assert main is not None  # check_inputs: orientations or body_rates
+    main = given if batched else given[None]  # the recording that sets batch shape and dtype
     N, T = main.shape[:2]
     dtype = jax.dtypes.canonicalize_dtype(main.dtype)  # float64 input stays float32 without x64
     if not np.issubdtype(dtype, np.floating):
