@@ -107,6 +107,7 @@ def sound_runs_are_bitwise_unchecked_in_both_dtypes() -> None:
     sound_runs_are_bitwise_unchecked(jnp.float64)
 
 
+@pytest.mark.slow  # a fresh process under XLA's default flags, every method checked and unchecked (~9 s)
 def test_sound_runs_pass_and_equal_the_unchecked_result():
     # Bitwise equality is a property of the programs XLA compiles by default, not of the suite's
     # fast-compile flags (tests/conftest.py): checked in a process with XLA's default flags.

@@ -200,6 +200,7 @@ def _three_noisy_recordings():
     return bodies, np.stack([imu_noise(q, wb, rng)[0] for q, wb in recs])
 
 
+@pytest.mark.slow  # a batch of three 2 s recordings, its own program (~10 s); the ragged-batch test stays quick
 def test_batch_compiles_once_and_matches_single_fits():
     bodies, qs = _three_noisy_recordings()
     before = _solve.compiled_programs()
@@ -543,6 +544,7 @@ def test_gyro_frame_check_misfits():
     _checks.gyro_frame_check(T_FAST, q_slow, w_slow + rng.normal(0, 1e-2, w_slow.shape), 4)
 
 
+@pytest.mark.slow  # a 2 s fit at 200 Hz with glitches (~7 s)
 def test_orientation_glitches_do_not_claim_convergence():
     # a reported case: three 1-rad orientation glitches in a clean 2 s @ 200 Hz recording gave
     # converged=True with σ = 2.8e-19 on the largest moment. The noise level is estimated
@@ -699,6 +701,7 @@ def _glitched(q):
     return q
 
 
+@pytest.mark.slow  # two 2 s fits, squared and Huber (~12 s); the clean-data robust test stays quick
 def test_robust_loss_sets_glitches_aside_and_names_them():
     # the goal: three 1-rad glitches in 2 s @ 200 Hz (1e-3 rad noise), error within 2x of
     # the same fit without glitches. Measured: squared 3.4e-2 (not converged); Huber 4.5e-4 against
@@ -719,7 +722,7 @@ def test_robust_loss_sets_glitches_aside_and_names_them():
     np.testing.assert_allclose(res.orientation_rms, 1e-3, rtol=0.1)
 
 
-@pytest.mark.slow  # two more ~10 s programs (with the gyro); the Huber case above is quick
+@pytest.mark.slow  # two more ~10 s programs (with the gyro)
 def test_cauchy_loss_with_the_gyro_sets_glitches_aside():
     q, wb = _record(T_FAST)
     qn, wn = imu_noise(q, wb, np.random.default_rng(0))
@@ -815,6 +818,7 @@ def test_short_random_tumbles_converge_with_calibrated_sigma():
     assert np.mean(z[solved] < 3) >= 0.93, np.sort(z[solved].ravel())[-10:]
 
 
+@pytest.mark.slow  # the gyro_rotation program compiles on its own (~5 s)
 def test_gyro_rotation_is_fitted_as_a_nuisance_parameter():
     # a gyro mounted 0.07 rad off the frame of the recorded orientations: reading R_gᵀ ω_body.
     # Measured on this draw: error 2.2e-2 and residual ratio 7.4 without the option (not

@@ -91,7 +91,8 @@ def _errors(method, n):
     return np.asarray(tr.orientation[-1]), np.asarray(rb.angular_velocity(tr)[-1])
 
 
-@pytest.mark.parametrize("method", METHODS)
+# rk8 with --runslow (tests/test_rk8.py checks its order 8 in the quick suite)
+@pytest.mark.parametrize("method", [pytest.param(m, marks=pytest.mark.slow) if m == "rk8" else m for m in METHODS])
 def test_convergence_order(method, conv_reference):
     # Observed order log2(e(n)/e(2n)) over T = 4 s must lie within ±0.3 of the
     # declared order for each case (generic tumble with and without a
@@ -237,7 +238,9 @@ def test_splitting_beats_the_three_term_split_on_a_nearly_symmetric_body():
     assert quat_angle(np.asarray(tr.orientation[-1]), q_ref[-1]) < 2e-6
 
 
-@pytest.mark.parametrize("method", sorted(rb.methods(rb.MatrixState)))
+@pytest.mark.parametrize(
+    "method", [pytest.param(m, marks=pytest.mark.slow) if m == "rk8" else m for m in sorted(rb.methods(rb.MatrixState))]
+)
 def test_matrix_state_same_motion(method):
     # The MatrixState form of every method is the same map in other coordinates:
     # after 50 steps it matches the State form to round-off (1e-12: 50 steps of
@@ -277,10 +280,14 @@ SYMMETRIC = {
 
 
 # rk8's 12 unrolled stages take ~30 s to compile under reverse mode, and the compositions
-# splitting4/6/8 repeat the "splitting" step (quick suite) 5-17 times: both with --runslow
+# splitting4/6/8 repeat the "splitting" step (quick suite) 5-17 times, and implicit_midpoint
+# differentiates its Newton solve (~6 s): all with --runslow
 @pytest.mark.parametrize(
     "method",
-    [pytest.param(m, marks=pytest.mark.slow) if m == "rk8" or m in COEFFICIENTS else m for m in METHODS],
+    [
+        pytest.param(m, marks=pytest.mark.slow) if m in ("rk8", "implicit_midpoint") or m in COEFFICIENTS else m
+        for m in METHODS
+    ],
 )
 def test_symmetric_bodies_finite_values_and_gradients(method):
     # eigh's gradient is NaN at repeated moments; no method may pass it through.
@@ -302,7 +309,8 @@ def test_symmetric_bodies_finite_values_and_gradients(method):
     assert np.all(np.abs(np.asarray(gw)).sum(-1) > 0)
 
 
-@pytest.mark.parametrize("method", ["splitting", "implicit_midpoint"])
+# implicit_midpoint (its Newton solve differentiated, ~6 s) with --runslow
+@pytest.mark.parametrize("method", ["splitting", pytest.param("implicit_midpoint", marks=pytest.mark.slow)])
 def test_gradient_wrt_inertia_matches_finite_differences(method):
     # Central differences, step 1e-6 (error O(h²) ≈ 1e-12 against round-off
     # O(eps/h) ≈ 1e-10): the analytic gradient must agree to 1e-6 relative.

@@ -99,7 +99,10 @@ def _both(state, forces, method, **kw):
 @needs_kernels
 @pytest.mark.parametrize("method", sorted(_native.METHODS))
 @pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
-@pytest.mark.parametrize("forces", ["none", "constant", "gravity+quadratic", "every term"])
+# "gravity+quadratic" with --runslow: "every term" has both laws (per-body and shared coefficients)
+@pytest.mark.parametrize(
+    "forces", ["none", "constant", pytest.param("gravity+quadratic", marks=pytest.mark.slow), "every term"]
+)
 def test_native_matches_jax(method, dtype, forces):
     state = _state((7,), dtype)
     nat, ref = _both(state, _forces(forces, (7,), dtype), method)
@@ -278,6 +281,7 @@ def test_native_time_series_over_batch_shapes_and_shared_bodies(method, batch, s
 
 
 @needs_kernels
+@pytest.mark.slow  # ~7 s; the quick suite runs this check with force models and with a callable
 def test_native_time_series_under_jit_vmap_chunked_runs_and_grad():
     state = _state((4,), jnp.float64)
     forces = _series((4,), jnp.float64)
@@ -372,8 +376,15 @@ def _thrusters(dtype):
 
 
 @needs_kernels
-@pytest.mark.parametrize("method", sorted(_native.METHODS))
-@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+# the quick suite runs every method in float64 and the one-stage ones in float32 too
+@pytest.mark.parametrize(
+    ("method", "dtype"),
+    [
+        pytest.param(m, d, marks=pytest.mark.slow if d == jnp.float32 and m not in _native.AT_STEP_START else ())
+        for m in sorted(_native.METHODS)
+        for d in (jnp.float32, jnp.float64)
+    ],
+)
 def test_native_thrusters_match_jax(method, dtype):
     # in the kernel: the body-frame sums turned by R(q) at each evaluation, the torque by cof(R),
     # which is (R p) × (R f) also at RK4's stages, where |q| ≠ 1 and R is no rotation
@@ -388,7 +399,8 @@ def test_native_thrusters_match_jax(method, dtype):
 
 
 @needs_kernels
-@pytest.mark.parametrize("shared_body", [False, pytest.param(True, marks=pytest.mark.slow)])
+@pytest.mark.slow  # ~6 s a case; the quick suite holds thrusters to JAX in test_native_thrusters_match_jax
+@pytest.mark.parametrize("shared_body", [False, True])
 def test_native_thrusters_over_blocks_under_vmap_and_grad(shared_body):
     # 130 bodies (three blocks), thrusters in the first and last; vmap over thrust; grad from JAX
     # (euler: the cheapest gradient to compile; every method meets thrusters above)

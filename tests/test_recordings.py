@@ -319,6 +319,7 @@ def test_a_fit_result_round_trips_bit_for_bit(throws_fit, tmp_path):
 # --- the command line --------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # fits each throw and draws a PNG per throw (~9 s); the joint CLI test stays quick
 def test_cli_fits_each_throw_of_a_phyphox_export(export, tmp_path, capsys):
     pytest.importorskip("matplotlib")
     png, out = tmp_path / "fits.png", tmp_path / "fit.json"

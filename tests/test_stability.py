@@ -41,6 +41,7 @@ def test_long_run_no_drift(method):
         assert np.max(dE) < 1e-10
 
 
+@pytest.mark.slow  # 1000 steps of every method at |ω| = 1000 (~6 s)
 def test_high_spin():
     # |ω| = 1000 rad/s, dt = 1e-3 (dt|ω| = 1), 1000 steps. Measured (float64):
     #   implicit_midpoint  ΔE/E = 4e-15, |L| exact;  splitting ΔE/E = +0.2% (bounded; +1.1% with the

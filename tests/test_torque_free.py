@@ -117,6 +117,7 @@ def flow_property_holds_to_round_off() -> None:
         assert float(jnp.max(rbjax.quat_angle(direct.orientation, composed.orientation))) < 1e-12
 
 
+@pytest.mark.slow  # a fresh process under XLA's default flags (~8 s)
 def test_flow_property_long_horizon():
     # the round-off bound holds for XLA's default (optimised) programs; unoptimised, as the suite
     # compiles (tests/conftest.py), the two sides round differently (1.07e-12 measured)
