@@ -145,6 +145,7 @@ from ._state import (
 from ._state import (
     State as State,
 )
+from ._validate import StepSizeWarning as StepSizeWarning
 
 # isort: split
 # --- trajectories and batches: frames, slices, bodies, concatenation, sharding ---

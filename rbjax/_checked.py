@@ -2,9 +2,10 @@
 
 With ``checked=True`` (or a :class:`Checks`) the scan carries a small record of
 the first failure: the step, the body's flat batch index and what went wrong.
-Each step tests every body for a non-finite state and for an orientation off
-the unit sphere (``|‖q‖ - 1|``, or ``max |RᵀR - 1|`` for a rotation matrix);
-each saved frame tests for an energy jump. After the scan, called eagerly (the
+Each step tests every body for a non-finite state, for an orientation off
+the unit sphere (``|‖q‖ - 1|``, or ``max |RᵀR - 1|`` for a rotation matrix)
+and for a rate the step cannot follow (``dt·|ω| > π``); each saved frame tests
+for an energy jump. After the scan, called eagerly (the
 usual case: ``simulate`` is compiled inside), the record is read on the host and
 a plain ``ValueError`` carries rbjax's message. Traced by a caller's ``jax.jit``
 the record is a tracer, so a single :func:`equinox.error_if` raises at run time
@@ -22,6 +23,7 @@ without checks.
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 import equinox as eqx
@@ -32,12 +34,12 @@ import numpy as np
 
 from ._methods import Method
 from ._pytree import core_ndim_of
-from ._quantities import kinetic_energy
+from ._quantities import angular_velocity, kinetic_energy
 from ._state import MatrixState, State, quat_tolerance
 
 __all__ = ["Checks", "resolve", "init_record", "after_step", "after_save", "raise_on_failure"]
 
-_KINDS = ("non_finite", "orientation", "energy")
+_KINDS = ("non_finite", "orientation", "energy", "turn")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,6 +60,13 @@ class Checks:
             (``MatrixState``) exceeds this; ``None`` means
             :func:`rbjax._state.quat_tolerance` of the state's dtype (``1e-6`` in
             float64, ``~1.5e-5`` in float32), the tolerance applied to inputs.
+        max_turn: fail when a body's ``dt·|ω|`` (rad per step, world ``ω`` after
+            a step) exceeds this. The default ``π``: a step that turns a body by
+            more than half a turn no longer follows its attitude, whatever the
+            method (see :class:`rbjax.StepSizeWarning`, which tests the start
+            state of an eager run; this tests every step, also under ``jit``,
+            so it sees a body that torques spin up). ``None`` turns it off, for
+            a study of the methods themselves at such steps.
 
     Non-finite states (any NaN or inf in a changing field) always fail.
     ``checked=True`` means ``Checks()``. Hashable: it is part of the compiled
@@ -67,6 +76,7 @@ class Checks:
     energy_factor: float | None = 100.0
     energy_floor: float = 0.0
     quat_tol: float | None = None
+    max_turn: float | None = math.pi
 
     def __post_init__(self) -> None:
         if self.energy_factor is not None and not self.energy_factor > 1:
@@ -75,6 +85,8 @@ class Checks:
             raise ValueError(f"Checks: energy_floor must be >= 0, got {self.energy_floor}")
         if self.quat_tol is not None and not self.quat_tol > 0:
             raise ValueError(f"Checks: quat_tol must be > 0 or None, got {self.quat_tol}")
+        if self.max_turn is not None and not (self.max_turn > 0 and math.isfinite(self.max_turn)):
+            raise ValueError(f"Checks: max_turn must be finite and > 0 (rad per step) or None, got {self.max_turn}")
 
 
 def resolve(checked: bool | Checks, state: Any) -> Checks | None:
@@ -86,7 +98,8 @@ def resolve(checked: bool | Checks, state: Any) -> Checks | None:
     if not isinstance(checked, Checks):
         raise TypeError(f"checked must be a bool or rbjax.Checks, got {type(checked)}")
     tol = checked.quat_tol if checked.quat_tol is not None else quat_tolerance(state.dtype)
-    return dataclasses.replace(checked, quat_tol=float(tol), energy_floor=float(checked.energy_floor))
+    turn = None if checked.max_turn is None else float(checked.max_turn)
+    return dataclasses.replace(checked, quat_tol=float(tol), energy_floor=float(checked.energy_floor), max_turn=turn)
 
 
 def _index_dtype() -> Any:
@@ -135,8 +148,8 @@ def _record(rec: dict, bad_kind: jax.Array, step: Any, steps: int) -> dict:
     }
 
 
-def after_step(rec: dict, state: Any, step: Any, checks: Checks, steps: int) -> dict:
-    """Test the state reached by step number ``step`` (1-based) for every body."""
+def after_step(rec: dict, state: Any, step: Any, checks: Checks, steps: int, dt: Any) -> dict:
+    """Test the state reached by step number ``step`` (1-based) of size ``dt`` for every body."""
     assert checks.quat_tol is not None  # resolve() fills it in
     batch = state.batch_shape
     consts = state.constant_fields
@@ -155,7 +168,11 @@ def after_step(rec: dict, state: Any, step: Any, checks: Checks, steps: int) -> 
         off = jnp.max(jnp.abs(gram), axis=(-1, -2)) > checks.quat_tol
     else:
         off = jnp.zeros(batch, bool)
-    kind = jnp.where(nonfinite, 0, jnp.where(off, 1, len(_KINDS)))
+    fast = jnp.zeros(batch, bool)
+    if checks.max_turn is not None and isinstance(state, (State, MatrixState)):
+        turn = dt * jnp.linalg.norm(angular_velocity(state), axis=-1)
+        fast = turn > jnp.asarray(checks.max_turn, turn.dtype)
+    kind = jnp.where(nonfinite, 0, jnp.where(off, 1, jnp.where(fast, 3, len(_KINDS))))
     return _record(rec, kind, step, steps)
 
 
@@ -212,19 +229,25 @@ class _Messages:
             step, body = where, "a body (index not recorded: steps x bodies overflows int32; enable x64)"
         step += self.step_offset
         # built per kind: a field that is None (energy_factor=None) is never formatted
+        advice = f"{_advice(self.method)}; see rbjax.Checks."
         if kind == 0:
             what = "the state became non-finite (NaN or inf)"
         elif kind == 1:
             what = f"the orientation left the unit sphere / SO(3) by more than quat_tol={self.checks.quat_tol:.3g}"
-        else:
+        elif kind == 2:
             what = (
                 f"the kinetic energy jumped by more than energy_factor={self.checks.energy_factor:g} "
                 "times its largest earlier saved value"
             )
+        else:
+            what = (
+                f"dt·|ω| exceeded max_turn={self.checks.max_turn:.3g} rad per step: the steps are too coarse "
+                "for its attitude (beyond π, half a turn, no method follows it)"
+            )
+            advice = "Take dt below π/|ω| at the fastest rate the body reaches; see rbjax.Checks."
         return (
             f"rbjax.simulate(checked=...): at step {step} (time t0 + {step}·dt), {body}"
-            f"{' of batch shape ' + str(self.batch_shape) if self.batch_shape else ''}: {what}. "
-            f"{_advice(self.method)}; see rbjax.Checks."
+            f"{' of batch shape ' + str(self.batch_shape) if self.batch_shape else ''}: {what}. {advice}"
         )
 
 

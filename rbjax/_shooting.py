@@ -38,11 +38,11 @@ from ._batching import batch_shape, in_axes_of
 from ._math import quat_conjugate, quat_log, quat_multiply
 from ._methods import DEFAULT_METHOD, Method
 from ._pytree import replace
-from ._simulate import simulate
+from ._simulate import run_simulation, simulate
 from ._state import AnyState, ForceLike, Forces, State, split_constants
 from ._trajectory import stack_frames
 from ._typing import ArrayLike
-from ._validate import as_force_fn, check_dt, check_state, start_time
+from ._validate import as_force_fn, check_dt, check_state, start_time, warn_if_step_outturns
 
 __all__ = ["shoot", "defects", "simulate_truncated"]
 
@@ -237,6 +237,7 @@ def simulate_truncated(
             f"simulate_truncated: truncate_every={k!r} must be a positive int dividing steps={steps} "
             f"and a multiple of save_every={save_every}"
         )
+    warn_if_step_outturns(state, dt, "simulate_truncated")
     n_chunks = steps // k
     const_vals = split_constants(state)[1]
     series = isinstance(forces, Forces) and any(
@@ -256,7 +257,8 @@ def simulate_truncated(
 
     # the first chunk starts from the caller's state, with its derivatives
     f0 = jax.tree.map(lambda a: a[0], fs) if series else forces
-    first = split_constants(simulate(state, f0, dt, k, method, save_every=save_every, t0=t0))[0]
+    first = run_simulation(state, f0, dt, k, method, save_every=save_every, t0=t0, checked=False, warn_step_size=False)
+    first = split_constants(first)[0]
     carry = jax.tree.map(lambda a: a[-1], first)
     rest_f = jax.tree.map(lambda a: a[1:], fs) if series else None
     _, rest = jax.lax.scan(chunk, carry, (jnp.arange(1, n_chunks, dtype=dtype), rest_f))

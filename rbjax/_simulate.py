@@ -32,6 +32,7 @@ from ._validate import (
     is_time_series,
     start_time,
     traced_step_size,
+    warn_if_step_outturns,
 )
 
 __all__ = ["step", "simulate", "run_simulation"]
@@ -96,6 +97,7 @@ def step(
     check_dt(dt)
     if t is not None:
         check_dt(t, "t", positive=False)
+    warn_if_step_outturns(state, dt, "step")
     dtype = state.dtype
     if isinstance(forces, Forces):
         forces = cast_forces(forces, dtype)
@@ -152,7 +154,8 @@ def simulate(
         t0: start time (s); default ``state.time``, so ``simulate(traj[-1], ...)``
             continues a run where it ended.
         checked: ``True`` or an :class:`rbjax.Checks` to test every step for a
-            non-finite state or an orientation off the unit sphere, and every saved
+            non-finite state, an orientation off the unit sphere or a body turning
+            more than half a turn per step (``dt·|ω| > π``), and every saved
             frame for an energy jump, raising an error that names the step and the
             body's batch index (works under ``jit``; see :class:`rbjax.Checks`);
             a force model's traced body indices and coefficient signs are tested
@@ -228,15 +231,30 @@ def _native_path(native: bool | None, state, forces, method: Method, *, series: 
 
 
 def run_simulation(
-    state, forces, dt, steps, method, *, save_every, t0, checked, checkpoint=None, step_offset=0, native=None
+    state,
+    forces,
+    dt,
+    steps,
+    method,
+    *,
+    save_every,
+    t0,
+    checked,
+    checkpoint=None,
+    step_offset=0,
+    native=None,
+    warn_step_size=True,
 ):
     """``simulate`` after its signature.
 
     ``step_offset`` is the number of steps already done from ``t0`` (a chunked
     run): step ``k`` runs at ``t0 + (step_offset + k) dt``, and checked-mode
-    errors count from it.
+    errors count from it. ``warn_step_size=False``: the caller has given the
+    :class:`StepSizeWarning` (or found none) for the whole run.
     """
-    steps, save_every, method = check_run(state, dt, steps, method, save_every, t0, "simulate")
+    steps, save_every, method = check_run(
+        state, dt, steps, method, save_every, t0, "simulate", warn_step_size=warn_step_size
+    )
     check_checkpoint(checkpoint, steps, save_every)
     force_fn = None
     state = _canonical(state)
@@ -402,7 +420,7 @@ def _simulate(
         with batch_last(soa):
             new = split_constants(step_fn(s, step_forces(f), t0 + (k0 + k).astype(dtype) * dt, dt))[0]
         if checks is not None:
-            rec = _checked.after_step(rec, replace(to_aos(new), **consts), k + 1, checks, steps)
+            rec = _checked.after_step(rec, replace(to_aos(new), **consts), k + 1, checks, steps, dt)
         return (new, rec), None
 
     # checkpoint segments inside a saved chunk, or whole chunks grouped into segments

@@ -10,6 +10,10 @@ while it is traced, by :func:`checked_force_fn`.
 from __future__ import annotations
 
 import functools
+import math
+import os
+import sys
+import warnings
 from collections.abc import Callable
 from typing import Any
 
@@ -24,6 +28,7 @@ from . import _methods
 from ._math import broadcasts_to
 from ._methods import Method
 from ._pytree import data_fields, is_rbjax_dataclass, new_unchecked, replace
+from ._quantities import angular_velocity
 from ._state import AnyState, ForceLike, Forces, MatrixState, ParticleState, State
 
 __all__ = [
@@ -37,6 +42,8 @@ __all__ = [
     "start_time",
     "is_time_series",
     "check_run",
+    "StepSizeWarning",
+    "warn_if_step_outturns",
 ]
 
 _STATE_TYPES = (State, MatrixState, ParticleState)
@@ -73,6 +80,91 @@ def check_count(name: str, value: Any, minimum: int) -> int:
         kind = "non-negative" if minimum == 0 else f">= {minimum}" if minimum > 1 else "positive"
         raise ValueError(f"{name} must be a {kind} int, got {value!r}")
     return int(value)
+
+
+class StepSizeWarning(RuntimeWarning):
+    """A step turns a body by more than half a turn: the attitude a run returns is not to be trusted.
+
+    Given by :func:`rbjax.simulate`, :func:`rbjax.simulate_chunked` and
+    :func:`rbjax.step` when, at the start state, ``dt·|ω| > π`` (rad) for some
+    body. Then the attitudes a step method samples cannot be told from those of
+    a slower turn the other way, and an explicit method's local error, a power
+    series in ``dt·|ω|``, no longer shrinks: ``"euler"`` returns finite unit
+    quaternions that have nothing to do with the motion. Methods that keep the
+    energy and momentum (``"splitting"``, ``"implicit_midpoint"``) still keep
+    them; their attitudes are as wrong. A motion a method integrates exactly
+    (a steady spin about a principal axis) is the exception.
+
+    Filter it (``warnings.simplefilter("ignore", rbjax.StepSizeWarning)``) for a
+    study of the methods themselves at such steps.
+    """
+
+
+def warn_if_step_outturns(state: Any, dt: Any, fn: str) -> None:
+    """:class:`StepSizeWarning` when a concrete start state turns some body by ``dt·|ω| > π`` in one step.
+
+    ``ω`` (rad/s, world frame) is :func:`rbjax.angular_velocity` of the start
+    state; torques can make it grow later, which this does not see. Traced
+    states and steps (inside ``jit``, ``vmap``, ``grad``) pass silently.
+    """
+    if not isinstance(state, (State, MatrixState)) or isinstance(dt, jax.core.Tracer):
+        return
+    leaves = jax.tree.leaves(state)
+    if any(isinstance(x, jax.core.Tracer) for x in leaves) or 0 in state.batch_shape:
+        return
+    if not all(getattr(x, "is_fully_addressable", True) for x in leaves):
+        return  # part of the batch lives in another process (multi-process sharding): not ours to read
+    if isinstance(state, MatrixState):
+        turn = float(dt) * np.linalg.norm(np.asarray(state.angular_velocity), axis=-1)
+    elif not np.max(_turn_bound(state, float(dt))) > math.pi:  # the usual case: NumPy, no compile
+        return
+    else:
+        turn = np.asarray(_turn_per_step(state, jnp.asarray(dt, state.dtype)))
+    worst = int(np.argmax(turn))
+    most = float(turn.reshape(-1)[worst])
+    if not most > math.pi:
+        return
+    which = f" (body {tuple(int(i) for i in np.unravel_index(worst, turn.shape))})" if turn.ndim else ""
+    rate = most / float(dt)
+    warnings.warn(
+        f"{fn}: dt·|ω| = {most:.3g} rad at the start{which}: each step turns the body by more than half a "
+        "turn, beyond what a step method follows (explicit ones return attitudes unrelated to the motion; "
+        f"conservative ones keep energy and momentum, not the attitude). Use dt < π/|ω| = {math.pi / rate:.3g} s, "
+        "and far less for accuracy (rbjax.methods(), docs/integrators.md); rbjax.torque_free gives the exact "
+        "torque-free motion at any time",
+        StepSizeWarning,
+        stacklevel=_user_stacklevel(),
+    )
+
+
+def _user_stacklevel() -> int:
+    """``warnings.warn``'s ``stacklevel`` that points at the first caller outside rbjax."""
+    package = os.path.dirname(os.path.abspath(__file__)) + os.sep
+    frame, level = sys._getframe(1), 1
+    while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(package):
+        frame, level = frame.f_back, level + 1
+    return level
+
+
+def _turn_bound(state: State, dt: float) -> np.ndarray:
+    """An upper bound on ``dt·|ω|`` per body, ``(*B,)``, in NumPy (no program to compile).
+
+    ``|ω| = |I_L⁻¹ Rᵀ L| ≤ |L| / λ_min`` and ``λ_min = det I / (λ_mid λ_max) ≥
+    det I / ‖I‖_F²``; for the bodies rbjax accepts it is 2-6 times ``|ω|``. The
+    inertia's nine entries are made contiguous rows first: NumPy's arithmetic on
+    strided ``(..., 3, 3)`` slices took twice as long at a million bodies.
+    """
+    inertia = np.asarray(state.body.inertia)
+    a, b, c, _, e, f, _, _, i = np.moveaxis(inertia.reshape(inertia.shape[:-2] + (9,)), -1, 0).copy()
+    det = a * (e * i - f * f) - b * (b * i - f * c) + c * (b * f - e * c)
+    frobenius2 = a * a + e * e + i * i + 2 * (b * b + c * c + f * f)
+    return dt * np.linalg.norm(np.asarray(state.angular_momentum), axis=-1) * frobenius2 / det
+
+
+@jax.jit
+def _turn_per_step(state: Any, dt: Array) -> Array:
+    """``dt·|ω|`` per body, ``(*B,)``, with ``ω`` the world angular velocity (:func:`rbjax.angular_velocity`)."""
+    return dt * jnp.linalg.norm(angular_velocity(state), axis=-1)
 
 
 def check_state(state: Any, fn: str) -> None:
@@ -229,12 +321,16 @@ def is_time_series(forces: Forces, state: AnyState, steps: int) -> bool:
     return False
 
 
-def check_run(state, dt, steps, method, save_every, t0, fn: str) -> tuple[int, int, Method]:
+def check_run(
+    state, dt, steps, method, save_every, t0, fn: str, *, warn_step_size: bool = True
+) -> tuple[int, int, Method]:
     """``TypeError``/``ValueError`` for a bad argument of a run (``simulate``, ``simulate_chunked``).
 
     Returns ``(steps, save_every)`` as ints and the :class:`Method` that
     ``method`` names. A concrete ``dt`` and ``t0`` are checked here; traced ones
-    only in checked mode, at run time.
+    only in checked mode, at run time. A concrete start state that turns a body
+    by more than half a turn per step gets a :class:`StepSizeWarning` unless
+    ``warn_step_size=False`` (a caller that warned already).
     """
     check_state(state, fn)
     method = _methods.resolve(method, fn)
@@ -246,4 +342,6 @@ def check_run(state, dt, steps, method, save_every, t0, fn: str) -> tuple[int, i
     check_dt(dt)
     if t0 is not None:
         check_dt(t0, "t0", positive=False)
+    if warn_step_size:
+        warn_if_step_outturns(state, dt, fn)
     return steps, save_every, method

@@ -301,6 +301,7 @@ EXCUSED: dict[str, str] = {
     "methods": "no argument but an optional state type; returns the registry",
     "native_status": "takes no argument; reports whether the native kernels loaded",
     "NativeStatus": "the report native_status returns; built by rbjax, not by users",
+    "StepSizeWarning": "a warning class: given by simulate and step, not called with data",
     "ForceModel": "abstract base class",
     "ForceSum": "built by + from validated models",
     "CustomForce": "wraps a user's callable: its output is checked as a force callable's (slot simulate(forces()))",

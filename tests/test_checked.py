@@ -78,12 +78,15 @@ def test_energy_jump_is_reported_at_the_saved_step():
         on = jnp.where(jnp.abs(t - 12 * DT) < 0.5 * DT, 1e4, 0.0).astype(state.dtype)
         return rb.Forces(torque=jnp.zeros(state.position.shape, state.dtype).at[1].set(on))
 
+    # the kick also spins body 1 past half a turn per step (max_turn fails at step 13): off here,
+    # for this test of the energy check
     with pytest.raises(
         Exception, match=r"at step 15 .*body \(1,\).*kinetic energy jumped by more than energy_factor=100"
     ):
-        rb.simulate(s, kick, DT, 30, "euler", save_every=5, checked=True)
+        rb.simulate(s, kick, DT, 30, "euler", save_every=5, checked=rb.Checks(max_turn=None))
     # a looser factor lets the same run through: the check is the only thing that failed
-    traj = rb.simulate(s, kick, DT, 30, "euler", save_every=5, checked=rb.Checks(energy_factor=1e9))
+    loose = rb.Checks(energy_factor=1e9, max_turn=None)
+    traj = rb.simulate(s, kick, DT, 30, "euler", save_every=5, checked=loose)
     assert np.isfinite(np.asarray(traj.angular_momentum)).all()
 
 
