@@ -67,7 +67,10 @@ def test_explicit_euler_blow_up_in_the_matrix_form():
     m = rb.to_matrix_state(_state())
     w = rb.angular_velocity(m)
     fast = rb._pytree.replace(m, angular_velocity=w.at[2].multiply(1e3))  # only body 2 spins fast
-    with pytest.raises(Exception, match=r"at step 1 .*body \(2,\).*left the unit sphere / SO\(3\)"):
+    with (
+        pytest.warns(rb.StepSizeWarning, match=r"body \(2,\)"),
+        pytest.raises(Exception, match=r"at step 1 .*body \(2,\).*left the unit sphere / SO\(3\)"),
+    ):
         rb.simulate(fast, None, DT, 50, "euler", checked=True)
 
 
@@ -187,8 +190,12 @@ def test_divergence_message_quotes_the_measured_stability_limit():
     # and quotes the measured limit (benchmarks/stability_limits.py) stored on the Method
     assert rb.methods()["rk4"].stable_dt_omega == {"State": 7.5, "MatrixState": 1.0, "ParticleState": np.inf}
     s = rb.State.create(rb.box(1.0, [0.1, 0.2, 0.4]), angular_velocity=jnp.array([0.3, 100.0, 0.3]))
-    with pytest.raises(ValueError, match=r"at step 1 .*the body: .*beyond dt·\|ω\| ≈ 7.5 \(State\) / 1 \(Matrix"):
+    with (
+        pytest.warns(rb.StepSizeWarning, match=r"dt·\|ω\| = 100 rad"),
+        pytest.raises(ValueError, match=r"at step 1 .*the body: .*beyond dt·\|ω\| ≈ 7.5 \(State\) / 1 \(Matrix"),
+    ):
         rb.simulate(s, None, 1.0, 10, "rk4", checked=True)
-    traj = rb.simulate(s, None, 1.0, 10, "rk4")  # unchecked: the documented silent failure
+    with pytest.warns(rb.StepSizeWarning):  # unchecked: the warning is what is said
+        traj = rb.simulate(s, None, 1.0, 10, "rk4")
     q1 = np.asarray(traj.orientation[1])
     assert not (np.isfinite(q1).all() and abs(np.linalg.norm(q1) - 1) < 1e-6)

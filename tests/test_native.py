@@ -240,8 +240,12 @@ def test_native_semi_implicit_turns_through_every_quadrant(dtype):
     w = np.zeros((half.size, 3))
     w[:, 0] = 2 * half / dt
     state = rb.State.create(body, angular_velocity=jnp.asarray(w, dtype))
-    nat = rb.simulate(state, None, dt, STEPS, "semi_implicit_euler", save_every=SAVE, native=True)
-    ref = rb.simulate(state, None, dt, STEPS, "semi_implicit_euler", save_every=SAVE, native=False)
+    # up to 4e6 rad a step: a steady spin about a principal axis, which this method turns exactly,
+    # is the one motion where such steps are sound; rbjax's warning cannot tell, and says so
+    with pytest.warns(rb.StepSizeWarning):
+        nat = rb.simulate(state, None, dt, STEPS, "semi_implicit_euler", save_every=SAVE, native=True)
+    with pytest.warns(rb.StepSizeWarning):
+        ref = rb.simulate(state, None, dt, STEPS, "semi_implicit_euler", save_every=SAVE, native=False)
     _assert_close(nat, ref, STEPS, dtype)
     # against the exact turn, in float64: each step's product and normalisation add a few ulps
     n = np.arange(nat.orientation.shape[0])[:, None] * SAVE
