@@ -16,6 +16,7 @@ from . import _checked, _methods, _native
 from ._batching import batch_last, batch_shape, lift, map_leaves, to_batch_first, to_batch_last
 from ._body import prepare
 from ._force_model import ForceModel, split_per_body, with_per_body_terms
+from ._math import broadcasts_to
 from ._methods import DEFAULT_METHOD, Method
 from ._pytree import replace
 from ._scan import check_checkpoint, checkpointed_scan, frames_as_outputs, frames_in_buffer
@@ -101,7 +102,15 @@ def step(
     dtype = state.dtype
     if isinstance(forces, Forces):
         forces = cast_forces(forces, dtype)
-        batch_shape(state, forces)
+        want = state.batch_shape + (3,)
+        for name in ("force", "torque"):
+            a = getattr(forces, name)
+            if a is not None and not broadcasts_to(tuple(a.shape), want):
+                raise ValueError(
+                    f"step: forces.{name} has shape {tuple(a.shape)}, which does not broadcast to the state's "
+                    f"{want} (batch shape {state.batch_shape} + (3,)); step takes one step's forces (a time "
+                    "series (steps, *batch, 3) is for simulate)"
+                )
     elif isinstance(forces, ForceModel):
         forces.check(state)
     dt = jnp.asarray(dt, dtype)

@@ -90,6 +90,22 @@ def test_force_callable_with_a_wrong_torque_shape_is_named():
             run()
 
 
+def test_step_names_forces_of_another_shape_and_points_a_time_series_to_simulate():
+    # a (steps, 3) series given to step had been reported as a "force callable 'as_force_fn.<locals>...'"
+    series = rb.Forces(force=jnp.ones((5, 3)))
+    with pytest.raises(ValueError, match=r"^step: forces.force has shape \(5, 3\).*\(3,\).*is for simulate"):
+        rb.step(_state(), series, 0.1)
+    # shared (3,) and per-body (N, 3) forces still step, and the same as their full broadcast
+    b = rb.State.create(rb.box(jnp.ones(2), jnp.full((2, 3), 0.3)), angular_velocity=jnp.ones((2, 3)))
+    shared = rb.step(b, rb.Forces(torque=jnp.asarray([0.0, 0.0, 1.0])), 0.1, "euler")
+    full = rb.step(b, rb.Forces(torque=jnp.tile(jnp.asarray([0.0, 0.0, 1.0]), (2, 1))), 0.1, "euler")
+    np.testing.assert_array_equal(np.asarray(shared.angular_momentum), np.asarray(full.angular_momentum))
+    # Euler: L gains τ dt exactly
+    np.testing.assert_allclose(
+        np.asarray(shared.angular_momentum - b.angular_momentum), [[0, 0, 0.1]] * 2, rtol=0, atol=1e-15
+    )
+
+
 def test_force_callable_with_a_shared_force_still_works_and_matches_the_full_one():
     # a (3,) force shared by the batch is valid: broadcast once, the same run as the (N, 3) one
     body = rb.box(jnp.ones(3), jnp.full((3, 3), 0.3))
