@@ -42,7 +42,7 @@ from ._simulate import run_simulation, simulate
 from ._state import AnyState, ForceLike, Forces, State, split_constants
 from ._trajectory import stack_frames
 from ._typing import ArrayLike
-from ._validate import as_force_fn, check_dt, check_state, start_time, warn_if_step_outturns
+from ._validate import as_force_fn, check_dt, check_state, start_time, warn_turn_per_step
 
 __all__ = ["shoot", "defects", "simulate_truncated"]
 
@@ -237,7 +237,7 @@ def simulate_truncated(
             f"simulate_truncated: truncate_every={k!r} must be a positive int dividing steps={steps} "
             f"and a multiple of save_every={save_every}"
         )
-    warn_if_step_outturns(state, dt, "simulate_truncated")
+    warn_turn_per_step(state, dt, "simulate_truncated")
     n_chunks = steps // k
     const_vals = split_constants(state)[1]
     series = isinstance(forces, Forces) and any(

@@ -33,7 +33,7 @@ from ._validate import (
     is_time_series,
     start_time,
     traced_step_size,
-    warn_if_step_outturns,
+    warn_turn_per_step,
 )
 
 __all__ = ["step", "simulate", "run_simulation"]
@@ -98,7 +98,7 @@ def step(
     check_dt(dt)
     if t is not None:
         check_dt(t, "t", positive=False)
-    warn_if_step_outturns(state, dt, "step")
+    warn_turn_per_step(state, dt, "step")
     dtype = state.dtype
     if isinstance(forces, Forces):
         forces = cast_forces(forces, dtype)

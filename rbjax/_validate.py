@@ -43,7 +43,7 @@ __all__ = [
     "is_time_series",
     "check_run",
     "StepSizeWarning",
-    "warn_if_step_outturns",
+    "warn_turn_per_step",
 ]
 
 _STATE_TYPES = (State, MatrixState, ParticleState)
@@ -100,7 +100,7 @@ class StepSizeWarning(RuntimeWarning):
     """
 
 
-def warn_if_step_outturns(state: Any, dt: Any, fn: str) -> None:
+def warn_turn_per_step(state: Any, dt: Any, fn: str) -> None:
     """:class:`StepSizeWarning` when a concrete start state turns some body by ``dt·|ω| > π`` in one step.
 
     ``ω`` (rad/s, world frame) is :func:`rbjax.angular_velocity` of the start
@@ -343,5 +343,5 @@ def check_run(
     if t0 is not None:
         check_dt(t0, "t0", positive=False)
     if warn_step_size:
-        warn_if_step_outturns(state, dt, fn)
+        warn_turn_per_step(state, dt, fn)
     return steps, save_every, method
