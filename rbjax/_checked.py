@@ -2,9 +2,9 @@
 
 With ``checked=True`` (or a :class:`Checks`) the scan carries a small record of
 the first failure: the step, the body's flat batch index and what went wrong.
-Each step tests every body for a non-finite state, for an orientation off
-the unit sphere (``|‖q‖ - 1|``, or ``max |RᵀR - 1|`` for a rotation matrix)
-and for a rate the step cannot follow (``dt·|ω| > π``); each saved frame tests
+Each step tests every body for a non-finite state and for an orientation off
+the unit sphere (``|‖q‖ - 1|``, or ``max |RᵀR - 1|`` for a rotation matrix);
+each saved frame tests for a rate the steps cannot follow (``dt·|ω| > π``) and
 for an energy jump. After the scan, called eagerly (the
 usual case: ``simulate`` is compiled inside), the record is read on the host and
 a plain ``ValueError`` carries rbjax's message. Traced by a caller's ``jax.jit``
@@ -34,7 +34,7 @@ import numpy as np
 
 from ._methods import Method
 from ._pytree import core_ndim_of
-from ._quantities import angular_velocity, kinetic_energy
+from ._quantities import body_angular_velocity, kinetic_energy
 from ._state import MatrixState, State, quat_tolerance
 
 __all__ = ["Checks", "resolve", "init_record", "after_step", "after_save", "raise_on_failure"]
@@ -60,13 +60,13 @@ class Checks:
             (``MatrixState``) exceeds this; ``None`` means
             :func:`rbjax._state.quat_tolerance` of the state's dtype (``1e-6`` in
             float64, ``~1.5e-5`` in float32), the tolerance applied to inputs.
-        max_turn: fail when a body's ``dt·|ω|`` (rad per step, world ``ω`` after
-            a step) exceeds this. The default ``π``: a step that turns a body by
+        max_turn: fail when a body's ``dt·|ω|`` (rad per step, ``ω`` at a saved
+            frame) exceeds this. The default ``π``: a step that turns a body by
             more than half a turn no longer follows its attitude, whatever the
             method (see :class:`rbjax.StepSizeWarning`, which tests the start
-            state of an eager run; this tests every step, also under ``jit``,
-            so it sees a body that torques spin up). ``None`` turns it off, for
-            a study of the methods themselves at such steps.
+            state of an eager run; this tests every saved frame, also under
+            ``jit``, so it sees a body that torques spin up). ``None`` turns it
+            off, for a study of the methods themselves at such steps.
 
     Non-finite states (any NaN or inf in a changing field) always fail.
     ``checked=True`` means ``Checks()``. Hashable: it is part of the compiled
@@ -148,8 +148,8 @@ def _record(rec: dict, bad_kind: jax.Array, step: Any, steps: int) -> dict:
     }
 
 
-def after_step(rec: dict, state: Any, step: Any, checks: Checks, steps: int, dt: Any) -> dict:
-    """Test the state reached by step number ``step`` (1-based) of size ``dt`` for every body."""
+def after_step(rec: dict, state: Any, step: Any, checks: Checks, steps: int) -> dict:
+    """Test the state reached by step number ``step`` (1-based) for every body."""
     assert checks.quat_tol is not None  # resolve() fills it in
     batch = state.batch_shape
     consts = state.constant_fields
@@ -168,16 +168,19 @@ def after_step(rec: dict, state: Any, step: Any, checks: Checks, steps: int, dt:
         off = jnp.max(jnp.abs(gram), axis=(-1, -2)) > checks.quat_tol
     else:
         off = jnp.zeros(batch, bool)
-    fast = jnp.zeros(batch, bool)
-    if checks.max_turn is not None and isinstance(state, (State, MatrixState)):
-        turn = dt * jnp.linalg.norm(angular_velocity(state), axis=-1)
-        fast = turn > jnp.asarray(checks.max_turn, turn.dtype)
-    kind = jnp.where(nonfinite, 0, jnp.where(off, 1, jnp.where(fast, 3, len(_KINDS))))
+    kind = jnp.where(nonfinite, 0, jnp.where(off, 1, len(_KINDS)))
     return _record(rec, kind, step, steps)
 
 
-def after_save(rec: dict, state: Any, step: Any, checks: Checks, steps: int) -> dict:
-    """Test the saved frame at step ``step`` for an energy jump; update the running maximum."""
+def after_save(rec: dict, state: Any, step: Any, checks: Checks, steps: int, dt: Any) -> dict:
+    """Test the saved frame at step ``step`` for a turn past ``max_turn`` per step of ``dt`` and
+    for an energy jump; update the running maximum."""
+    if checks.max_turn is not None and isinstance(state, (State, MatrixState)):
+        # at the saved frames, not every step: |ω| costs a rotation and a matvec per body (measured,
+        # benchmarks/checked_cost.py: every step took a quarter to a third of the checked run's rate)
+        turn = dt * jnp.linalg.norm(body_angular_velocity(state), axis=-1)  # body frame: the same norm
+        fast = jnp.broadcast_to(turn > jnp.asarray(checks.max_turn, turn.dtype), state.batch_shape)
+        rec = _record(rec, jnp.where(fast, 3, len(_KINDS)), step, steps)
     if checks.energy_factor is None:
         return rec
     energy = jnp.broadcast_to(kinetic_energy(state), state.batch_shape)

@@ -163,9 +163,9 @@ def simulate(
         t0: start time (s); default ``state.time``, so ``simulate(traj[-1], ...)``
             continues a run where it ended.
         checked: ``True`` or an :class:`rbjax.Checks` to test every step for a
-            non-finite state, an orientation off the unit sphere or a body turning
-            more than half a turn per step (``dt·|ω| > π``), and every saved
-            frame for an energy jump, raising an error that names the step and the
+            non-finite state or an orientation off the unit sphere, and every saved
+            frame for a body turning more than half a turn per step
+            (``dt·|ω| > π``) and for an energy jump, raising an error that names the step and the
             body's batch index (works under ``jit``; see :class:`rbjax.Checks`);
             a force model's traced body indices and coefficient signs are tested
             too. ``False`` (default) compiles no checks at all.
@@ -366,6 +366,10 @@ def _simulate(
         # the inverse inertia, once per call, in the scan's layout (contiguous rows per component)
         with batch_last(soa):
             consts_soa["body"] = lift(prepare)(consts_soa["body"])
+    # checked mode reads the batch-first state; its body prepared once too (|ω| every step)
+    consts_checked = consts
+    if checks is not None and "body" in consts:
+        consts_checked = {**consts, "body": lift(prepare)(consts["body"])}
     # the time rides outside the carry too: one scalar per step, not one per body
     # wrapped here, not by the caller: force_fn is static, and a new wrapper per call would recompile;
     # it checks the callable's output while tracing and casts it to the state's dtype
@@ -429,7 +433,7 @@ def _simulate(
         with batch_last(soa):
             new = split_constants(step_fn(s, step_forces(f), t0 + (k0 + k).astype(dtype) * dt, dt))[0]
         if checks is not None:
-            rec = _checked.after_step(rec, replace(to_aos(new), **consts), k + 1, checks, steps, dt)
+            rec = _checked.after_step(rec, replace(to_aos(new), **consts_checked), k + 1, checks, steps)
         return (new, rec), None
 
     # checkpoint segments inside a saved chunk, or whole chunks grouped into segments
@@ -439,7 +443,7 @@ def _simulate(
     def advance_jax(carry, xs):
         (dyn, rec), _ = checkpointed_scan(one, carry, xs, inner)
         if checks is not None:
-            rec = _checked.after_save(rec, replace(to_aos(dyn), **consts), xs[0][-1] + 1, checks, steps)
+            rec = _checked.after_save(rec, replace(to_aos(dyn), **consts_checked), xs[0][-1] + 1, checks, steps, dt)
         return dyn, rec
 
     if native:

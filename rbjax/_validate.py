@@ -28,7 +28,7 @@ from . import _methods
 from ._math import broadcasts_to
 from ._methods import Method
 from ._pytree import data_fields, is_rbjax_dataclass, new_unchecked, replace
-from ._quantities import angular_velocity
+from ._quantities import body_angular_velocity
 from ._state import AnyState, ForceLike, Forces, MatrixState, ParticleState, State
 
 __all__ = [
@@ -163,8 +163,8 @@ def _turn_bound(state: State, dt: float) -> np.ndarray:
 
 @jax.jit
 def _turn_per_step(state: Any, dt: Array) -> Array:
-    """``dt·|ω|`` per body, ``(*B,)``, with ``ω`` the world angular velocity (:func:`rbjax.angular_velocity`)."""
-    return dt * jnp.linalg.norm(angular_velocity(state), axis=-1)
+    """``dt·|ω|`` per body, ``(*B,)``; ``|ω|`` from the body-frame rate (the same norm, one rotation fewer)."""
+    return dt * jnp.linalg.norm(body_angular_velocity(state), axis=-1)
 
 
 def check_state(state: Any, fn: str) -> None:
