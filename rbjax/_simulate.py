@@ -366,7 +366,7 @@ def _simulate(
         # the inverse inertia, once per call, in the scan's layout (contiguous rows per component)
         with batch_last(soa):
             consts_soa["body"] = lift(prepare)(consts_soa["body"])
-    # checked mode reads the batch-first state; its body prepared once too (|ω| every step)
+    # checked mode reads the batch-first state: its body prepared once too (|ω| and the energy at each frame)
     consts_checked = consts
     if checks is not None and "body" in consts:
         consts_checked = {**consts, "body": lift(prepare)(consts["body"])}

@@ -85,8 +85,8 @@ def check_count(name: str, value: Any, minimum: int) -> int:
 class StepSizeWarning(RuntimeWarning):
     """A step turns a body by more than half a turn: the attitude a run returns is not to be trusted.
 
-    Given by :func:`rbjax.simulate`, :func:`rbjax.simulate_chunked` and
-    :func:`rbjax.step` when, at the start state, ``dt·|ω| > π`` (rad) for some
+    Given by :func:`rbjax.simulate`, :func:`rbjax.simulate_chunked`,
+    :func:`rbjax.simulate_truncated` and :func:`rbjax.step` when, at the start state, ``dt·|ω| > π`` (rad) for some
     body. Then the attitudes a step method samples cannot be told from those of
     a slower turn the other way, and an explicit method's local error, a power
     series in ``dt·|ω|``, no longer shrinks: ``"euler"`` returns finite unit
