@@ -30,7 +30,7 @@ from ._force_model import (
     is_concrete,
     rigid_only,
 )
-from ._math import cross, matvec3, quat_rotate, safe_norm, scale3
+from ._math import cross, matvec3, quat_rotate_unchecked, safe_norm, scale3
 from ._pytree import field, pytree_dataclass
 from ._quantities import angular_velocity
 from ._state import AnyState, Forces, MatrixState, ParticleState, RigidState, State
@@ -56,7 +56,7 @@ def _to_world(state: AnyState, idx: Array, point: Array) -> Array:
     """Body-frame vectors ``p`` on bodies ``idx`` in the world frame: ``R p``."""
     p = cast_to(point, state)
     if isinstance(state, State):
-        return quat_rotate(_gather(state.orientation, idx), p)
+        return quat_rotate_unchecked(_gather(state.orientation, idx), p)
     if isinstance(state, MatrixState):
         return matvec3(_gather(state.rotation, idx), p)
     raise ValueError("a body-frame attachment point needs rigid bodies; ParticleState has no rotation")
@@ -353,4 +353,4 @@ class _OneThrusterPerBody(PerBodyForce):
 
 def _one_to_world(state: RigidState, p: Array) -> Array:
     """``R p`` for one body."""
-    return quat_rotate(state.orientation, p) if isinstance(state, State) else matvec3(state.rotation, p)
+    return quat_rotate_unchecked(state.orientation, p) if isinstance(state, State) else matvec3(state.rotation, p)

@@ -9,14 +9,12 @@ from __future__ import annotations
 
 from typing import Any
 
-import jax
-import jax.core
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
 from jaxtyping import Float
 
-from ._math import array_arg, skew
+from ._math import array_arg, check_rotations, is_concrete, skew
 from ._pytree import field, new_unchecked, pytree_dataclass
 from ._trajectory import BatchIndexing
 from ._typing import ArrayLike, array_like
@@ -81,20 +79,6 @@ def finite_float(owner: str, name: str, x: Any) -> Array:
     if is_concrete(a) and not np.all(np.isfinite(np.asarray(a))):
         raise ValueError(f"{owner}: {name} must be finite, got non-finite entries")
     return a
-
-
-def is_concrete(*xs: Any) -> bool:
-    """Whether the values of ``xs`` can be read on this host (and so checked before tracing).
-
-    A ``jax.Array`` spread over several processes (not fully addressable) has no
-    host value here: like a traced one, it is checked only by ``checked`` mode.
-    """
-    return all(
-        isinstance(x, (np.ndarray, np.generic, float, int, jax.Array))
-        and not isinstance(x, jax.core.Tracer)
-        and (not isinstance(x, jax.Array) or x.is_fully_addressable)
-        for x in xs
-    )
 
 
 def inverse_3x3(A: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 3 3"]:
@@ -391,11 +375,16 @@ def rotate_inertia(
 ) -> Float[Array, "... 3 3"]:
     """Express an inertia tensor in a rotated frame: ``I' = R I Rᵀ``.
 
-    With ``R`` body to world this is the notes' world inertia ``I_w = R I_L R⁻¹``.
-    ``inertia``, ``rotation``: ``(..., 3, 3)``.
+    With ``R`` body to world this is the notes' world inertia ``I_w = R I_L R⁻¹``
+    (kg m², in the frame ``R`` maps into). ``inertia``, ``rotation``: ``(..., 3, 3)``,
+    broadcast against each other. ``Rᵀ`` stands for ``R⁻¹``, so ``R`` must be
+    orthogonal: a concrete ``R`` with ``max |RᵀR - 1|`` beyond ``max(1e-6, 128 eps)``
+    raises ``ValueError`` (a reflection, ``det R = -1``, is allowed: the inertia of
+    the mirrored body); under ``jit`` it is not checked.
     """
     I = array_arg("rotate_inertia", "inertia", inertia, (3, 3))
     R = array_arg("rotate_inertia", "rotation", rotation, (3, 3))
+    check_rotations("rotate_inertia", "rotation", R, "; project a near-rotation with rb.orthonormalize", proper=False)
     try:
         jnp.broadcast_shapes(I.shape[:-2], R.shape[:-2])
     except ValueError:

@@ -32,10 +32,11 @@ import jax.core
 import jax.numpy as jnp
 import numpy as np
 
+from ._math import quat_tolerance
 from ._methods import Method
 from ._pytree import core_ndim_of
 from ._quantities import body_angular_velocity, kinetic_energy
-from ._state import MatrixState, State, quat_tolerance
+from ._state import MatrixState, State
 
 __all__ = ["Checks", "resolve", "init_record", "after_step", "after_save", "raise_on_failure"]
 

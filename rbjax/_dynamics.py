@@ -20,7 +20,7 @@ from jax import Array
 
 from ._batching import lift
 from ._body import inertia_of
-from ._math import cross, matmul3, matvec3, over, pure_quat_multiply, quat_conjugate, quat_rotate, skew
+from ._math import cross, matmul3, matvec3, over, pure_quat_multiply, quat_conjugate, quat_rotate_unchecked, skew
 from ._pytree import replace
 from ._state import AnyState, Forces, ParticleState, State, StateT
 
@@ -29,8 +29,9 @@ __all__ = ["derivative"]
 
 def omega_world(s: State) -> Array:
     # ω = I_w⁻¹ L = R I_L⁻¹ Rᵀ L, evaluated with quaternion rotations (no matrix)
-    return quat_rotate(
-        s.orientation, matvec3(s.body.inverse_inertia, quat_rotate(quat_conjugate(s.orientation), s.angular_momentum))
+    return quat_rotate_unchecked(
+        s.orientation,
+        matvec3(s.body.inverse_inertia, quat_rotate_unchecked(quat_conjugate(s.orientation), s.angular_momentum)),
     )
 
 

@@ -22,8 +22,8 @@ import numpy as np
 from jax import Array
 from jaxtyping import Float
 
-from ._body import TRIANGLE_RTOL, is_concrete
-from ._math import array_arg
+from ._body import TRIANGLE_RTOL
+from ._math import array_arg, is_concrete
 from ._typing import ArrayLike
 
 __all__ = ["inertia_from_params", "params_from_inertia", "second_moment"]

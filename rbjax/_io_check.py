@@ -21,9 +21,9 @@ from typing import Any
 
 import numpy as np
 
+from ._math import quat_tolerance
 from ._npz import TYPES
 from ._pytree import core_shape_of
-from ._state import quat_tolerance
 
 __all__ = ["check_arrays", "core_shape"]
 

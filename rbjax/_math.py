@@ -48,6 +48,7 @@ __all__ = [
 ]
 
 
+_NORMALISE = "; normalise it first with rb.quat_normalize(q)"
 _WHAT = {(3,): "3-vectors", (4,): "quaternions [w, x, y, z]", (3, 3): "3x3 matrices", (6,): "6-vectors"}
 
 
@@ -95,6 +96,75 @@ def broadcasts_to(shape: tuple[int, ...], want: tuple[int, ...]) -> bool:
         return jnp.broadcast_shapes(tuple(shape), tuple(want)) == tuple(want)
     except ValueError:
         return False
+
+
+def is_concrete(*xs: Any) -> bool:
+    """Whether the values of ``xs`` can be read on this host (and so checked before tracing).
+
+    A ``jax.Array`` spread over several processes (not fully addressable) has no
+    host value here: like a traced one, it is checked only by ``checked`` mode.
+    """
+    return all(
+        isinstance(x, (np.ndarray, np.generic, float, int, jax.Array))
+        and not isinstance(x, jax.core.Tracer)
+        and (not isinstance(x, jax.Array) or x.is_fully_addressable)
+        for x in xs
+    )
+
+
+def quat_tolerance(dtype: Any) -> float:
+    """Accepted ``|‖q‖ - 1|`` for an input quaternion (and ``max |RᵀR - 1|`` for a rotation): ``max(1e-6, 128 eps)``.
+
+    1e-6 in float64 admits quaternions typed or computed by hand to ~6 digits;
+    in float32 128 eps ≈ 1.5e-5 admits a normalised float32 quaternion that went
+    through a few operations.
+    """
+    return max(1e-6, 128 * float(np.finfo(dtype).eps))
+
+
+def _first_bad(bad: np.ndarray) -> str:
+    """`` at batch index (i, j)`` of the first ``True`` in ``bad``, or nothing for a single value."""
+    return f" at batch index {tuple(int(i) for i in np.argwhere(bad)[0])}" if bad.ndim else ""
+
+
+def check_unit_quaternions(fn: str, name: str, q: Array, remedy: str = "") -> None:
+    """``ValueError`` unless the concrete ``q`` ``(..., 4)`` are unit quaternions within :func:`quat_tolerance`.
+
+    Traced (or multi-process) values are not read: a compiled function is not
+    checked here, ``checked`` mode is the check there.
+    """
+    if not is_concrete(q) or q.size == 0:
+        return
+    err = np.abs(np.linalg.norm(np.asarray(q, np.float64), axis=-1) - 1)
+    tol = quat_tolerance(q.dtype)
+    bad = ~(err <= tol)  # NaN is bad too
+    if np.any(bad):
+        raise ValueError(
+            f"{fn}: {name} must be a unit quaternion [w, x, y, z]; |‖q‖ - 1| = {np.nanmax(np.where(bad, err, 0)):.3g}"
+            f"{_first_bad(bad)} exceeds the tolerance {tol:.3g}{remedy}"
+        )
+
+
+def check_rotations(fn: str, name: str, R: Array, remedy: str = "", proper: bool = True) -> None:
+    """``ValueError`` unless the concrete ``R`` ``(..., 3, 3)`` are orthogonal, ``RᵀR = 1`` within
+    :func:`quat_tolerance`, and (``proper``) rotations, ``det R > 0``. Traced values are not read
+    (as :func:`check_unit_quaternions`)."""
+    if not is_concrete(R) or R.size == 0:
+        return
+    R64 = np.asarray(R, np.float64)
+    err = np.max(np.abs(np.swapaxes(R64, -1, -2) @ R64 - np.eye(3)), axis=(-2, -1))
+    det = np.linalg.det(R64)
+    tol = quat_tolerance(R.dtype)
+    bad = ~(err <= tol) | (~(det > 0) if proper else False)
+    if np.any(bad):
+        at = tuple(np.argwhere(bad)[0]) if bad.ndim else ()
+        what = "a proper rotation matrix (RᵀR = 1, det R = +1)" if proper else "orthogonal (RᵀR = 1)"
+        if proper and not det[at] > 0:  # no rotation is near a reflection: orthonormalize cannot help
+            remedy = ": a reflection or a singular matrix, which no rotation approximates"
+        raise ValueError(
+            f"{fn}: {name} must be {what}; max |RᵀR - 1| = {err[at]:.3g}, det R = {det[at]:.3g}"
+            f"{_first_bad(bad)}, tolerance {tol:.3g}{remedy}"
+        )
 
 
 def _eps(x: Array) -> Array:
@@ -275,12 +345,8 @@ def quat_conjugate(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
     return jnp.stack([q[..., 0], -q[..., 1], -q[..., 2], -q[..., 3]], axis=-1)
 
 
-def quat_rotate(q: Float[ArrayLike, "... 4"], v: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3"]:
-    """Rotate ``(..., 3)`` vectors by unit quaternions: ``q ⊗ (0, v) ⊗ q*``.
-
-    Evaluated as ``v + w t + u × t`` with ``t = 2 u × v`` (``q = [w, u]``): 18
-    multiplies, no rotation matrix.
-    """
+def quat_rotate_unchecked(q: ArrayLike, v: ArrayLike) -> Array:
+    """:func:`quat_rotate` without the unit-norm check (the steps rotate by RK4 stage values, off the sphere)."""
     q, v = array_arg("quat_rotate", "q", q, (4,)), array_arg("quat_rotate", "v", v, (3,))
     _batches("quat_rotate", q=(q, 1), v=(v, 1))
     w, u = q[..., 0], (q[..., 1], q[..., 2], q[..., 3])
@@ -289,8 +355,23 @@ def quat_rotate(q: Float[ArrayLike, "... 4"], v: Float[ArrayLike, "... 3"]) -> F
     return jnp.stack([v[..., i] + w * t[i] + ut[i] for i in range(3)], axis=-1)
 
 
-def quat_normalize(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
-    """``q / ‖q‖`` for ``(..., 4)`` quaternions (finite gradient; ``q = 0`` is invalid)."""
+def quat_rotate(q: Float[ArrayLike, "... 4"], v: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3"]:
+    """Rotate ``(..., 3)`` vectors by unit quaternions: ``q ⊗ (0, v) ⊗ q*``.
+
+    Evaluated as ``v + w t + u × t`` with ``t = 2 u × v`` (``q = [w, u]``): 18
+    multiplies, no rotation matrix. The formula is a rotation only for
+    ``‖q‖ = 1``: a concrete ``q`` off the unit sphere by more than
+    ``max(1e-6, 128 eps)`` raises ``ValueError`` (normalise it with
+    :func:`quat_normalize`); under ``jit`` it is not checked. Frames: ``q``
+    body to world takes body-frame ``v`` to the world frame; units of ``v``.
+    """
+    q = array_arg("quat_rotate", "q", q, (4,))
+    check_unit_quaternions("quat_rotate", "q", q, _NORMALISE)
+    return quat_rotate_unchecked(q, v)
+
+
+def quat_normalize_unchecked(q: ArrayLike) -> Array:
+    """:func:`quat_normalize` without the check for zero or non-finite ``q`` (the steps' projection)."""
     q = array_arg("quat_normalize", "q", q, (4,))
     # explicit components, not a reduce: a reduction ends an XLA:CPU loop fusion
     w, x, y, z = _unstack(q)
@@ -298,24 +379,46 @@ def quat_normalize(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
     return jnp.stack([w * inv, x * inv, y * inv, z * inv], axis=-1)
 
 
-def quat_to_matrix(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 3 3"]:
-    """Rotation matrix ``R`` (body to world) of unit quaternions ``(..., 4)`` → ``(..., 3, 3)``.
+def quat_normalize(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
+    """``q / ‖q‖`` for ``(..., 4)`` quaternions ``[w, x, y, z]`` (finite gradient for ``q ≠ 0``).
 
-    ``R = (w² - u·u) 1 + 2 u uᵀ + 2 w ũ``. Columns of ``R`` are the body axes
-    expressed in the world frame, as in the notes.
+    ``q = 0`` has no direction: a concrete ``q`` with a zero-norm or non-finite
+    quaternion raises ``ValueError``; under ``jit`` it gives NaN there.
+    Dimensionless; returns ``(..., 4)``.
     """
+    q = array_arg("quat_normalize", "q", q, (4,))
+    if is_concrete(q) and q.size:
+        n = np.linalg.norm(np.asarray(q, np.float64), axis=-1)
+        bad = ~(np.isfinite(n) & (n > 0))
+        if np.any(bad):
+            worst = n[tuple(np.argwhere(bad)[0])] if bad.ndim else n
+            why = "a zero quaternion has no direction" if worst == 0 else "non-finite entries"
+            raise ValueError(f"quat_normalize: q must be finite and non-zero; ‖q‖ = {worst}{_first_bad(bad)} ({why})")
+    return quat_normalize_unchecked(q)
+
+
+def quat_to_matrix_unchecked(q: ArrayLike) -> Array:
+    """:func:`quat_to_matrix` without the unit-norm check."""
     q = array_arg("quat_to_matrix", "q", q, (4,))
     return jnp.stack([jnp.stack(row, axis=-1) for row in rotation_rows(_unstack(q))], axis=-2)
 
 
-def matrix_to_quat(R: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 4"]:
-    """Unit quaternion ``[w, x, y, z]`` with ``w ≥ 0`` of rotation matrices ``(..., 3, 3)``.
+def quat_to_matrix(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 3 3"]:
+    """Rotation matrix ``R`` (body to world) of unit quaternions ``(..., 4)`` → ``(..., 3, 3)``.
 
-    Shepperd's method: of the four candidate formulas, take the one whose
-    divisor ``4·max(w², x², y², z²)`` is largest, so the result is accurate for
-    every rotation, including half turns. The square roots of the unused
-    candidates are clamped, so gradients carry no NaN from branches not taken.
+    ``R = (w² - u·u) 1 + 2 u uᵀ + 2 w ũ``. Columns of ``R`` are the body axes
+    expressed in the world frame, as in the notes. The formula (written with
+    ``w² + u·u = 1``) is a rotation only for unit ``q``: a concrete ``q`` off the
+    sphere by more than ``max(1e-6, 128 eps)`` raises ``ValueError``; under
+    ``jit`` it is not checked.
     """
+    q = array_arg("quat_to_matrix", "q", q, (4,))
+    check_unit_quaternions("quat_to_matrix", "q", q, _NORMALISE)
+    return quat_to_matrix_unchecked(q)
+
+
+def matrix_to_quat_unchecked(R: ArrayLike) -> Array:
+    """:func:`matrix_to_quat` without the rotation check (the package's own, nearly orthogonal ``R``)."""
     R = array_arg("matrix_to_quat", "R", R, (3, 3))
     r00, r01, r02 = R[..., 0, 0], R[..., 0, 1], R[..., 0, 2]
     r10, r11, r12 = R[..., 1, 0], R[..., 1, 1], R[..., 1, 2]
@@ -336,7 +439,25 @@ def matrix_to_quat(R: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 4"]:
     k = jnp.argmax(four_sq, axis=-1)
     q = jnp.take_along_axis(cand, k[..., None, None], axis=-2)[..., 0, :]
     q = jnp.where(q[..., :1] < 0, -q, q)
-    return quat_normalize(q)
+    return quat_normalize_unchecked(q)
+
+
+def matrix_to_quat(R: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 4"]:
+    """Unit quaternion ``[w, x, y, z]`` with ``w ≥ 0`` of rotation matrices ``(..., 3, 3)``.
+
+    Shepperd's method: of the four candidate formulas, take the one whose
+    divisor ``4·max(w², x², y², z²)`` is largest, so the result is accurate for
+    every rotation, including half turns. The square roots of the unused
+    candidates are clamped, so gradients carry no NaN from branches not taken.
+    A concrete ``R`` that is not a proper rotation (``max |RᵀR - 1|`` beyond
+    ``max(1e-6, 128 eps)``, or ``det R ≤ 0``) raises ``ValueError``: the formulas
+    would return some unit quaternion, not the nearest rotation's. Project a
+    near-rotation with :func:`orthonormalize` first. Under ``jit`` it is not
+    checked. Frames: ``R`` body to world gives ``q`` body to world.
+    """
+    R = array_arg("matrix_to_quat", "R", R, (3, 3))
+    check_rotations("matrix_to_quat", "R", R, "; project a near-rotation with rb.orthonormalize(R) first")
+    return matrix_to_quat_unchecked(R)
 
 
 def quat_exp(rotvec: Float[ArrayLike, "... 3"]) -> Float[Array, "... 4"]:

@@ -21,11 +21,11 @@ from ._math import (
     cross,
     dot3,
     matmul3,
-    matrix_to_quat,
+    matrix_to_quat_unchecked,
     matvec3,
     quat_conjugate,
-    quat_rotate,
-    quat_to_matrix,
+    quat_rotate_unchecked,
+    quat_to_matrix_unchecked,
 )
 from ._pytree import new_unchecked
 from ._state import AnyState, MatrixState, ParticleState, RigidState, State
@@ -73,7 +73,7 @@ def angular_velocity(state: RigidState) -> Float[Array, "*B 3"]:
 
 def _one_body_angular_velocity(s: RigidState) -> Array:
     if isinstance(s, State):
-        return matvec3(s.body.inverse_inertia, quat_rotate(quat_conjugate(s.orientation), s.angular_momentum))
+        return matvec3(s.body.inverse_inertia, quat_rotate_unchecked(quat_conjugate(s.orientation), s.angular_momentum))
     return matvec3(jnp.swapaxes(s.rotation, -1, -2), s.angular_velocity)
 
 
@@ -84,7 +84,7 @@ def body_angular_velocity(state: RigidState) -> Float[Array, "*B 3"]:
 
 
 def _one_rotation(s: RigidState) -> Array:
-    return quat_to_matrix(s.orientation) if isinstance(s, State) else s.rotation
+    return quat_to_matrix_unchecked(s.orientation) if isinstance(s, State) else s.rotation
 
 
 def rotation_matrix(state: RigidState) -> Float[Array, "*B 3 3"]:
@@ -94,7 +94,7 @@ def rotation_matrix(state: RigidState) -> Float[Array, "*B 3 3"]:
 
 
 def _one_orientation(s: RigidState) -> Array:
-    return s.orientation if isinstance(s, State) else matrix_to_quat(s.rotation)
+    return s.orientation if isinstance(s, State) else matrix_to_quat_unchecked(s.rotation)
 
 
 def orientation(state: RigidState) -> Float[Array, "*B 4"]:

@@ -34,8 +34,9 @@ import numpy as np
 from jaxtyping import Float
 
 from . import _methods
-from ._body import Body, is_concrete
+from ._body import Body
 from ._force_model import ForceModel, ForceSum
+from ._math import is_concrete
 from ._methods import DEFAULT_METHOD, KINDS, Method
 from ._pytree import pytree_dataclass, static_field
 from ._simulate import simulate as _simulate_fn

@@ -16,8 +16,20 @@ import numpy as np
 from jax import Array
 from jaxtyping import Float
 
-from ._body import Body, as_float, finite_float, floats, inertia_of, is_concrete
-from ._math import array_arg, cross, matrix_to_quat, matvec3, quat_conjugate, quat_rotate, quat_to_matrix
+from ._body import Body, as_float, finite_float, floats, inertia_of
+from ._math import (
+    array_arg,
+    check_rotations,
+    check_unit_quaternions,
+    cross,
+    is_concrete,
+    matrix_to_quat_unchecked,
+    matvec3,
+    quat_conjugate,
+    quat_rotate_unchecked,
+    quat_to_matrix_unchecked,
+    quat_tolerance,
+)
 from ._pytree import core_shape_of, field, pytree_dataclass, replace
 from ._trajectory import BatchIndexing
 from ._typing import ArrayLike, array_like, optional_array_like
@@ -33,16 +45,6 @@ __all__ = [
     "quat_tolerance",
     "split_constants",
 ]
-
-
-def quat_tolerance(dtype: Any) -> float:
-    """Accepted ``|‖q‖ - 1|`` for an input quaternion: ``max(1e-6, 128 eps)``.
-
-    1e-6 in float64 admits quaternions typed or computed by hand to ~6 digits;
-    in float32 128 eps ≈ 1.5e-5 admits a normalised float32 quaternion that went
-    through a few operations.
-    """
-    return max(1e-6, 128 * float(np.finfo(dtype).eps))
 
 
 def _check_vectors(cls: str, **arrays: Array | None) -> None:
@@ -63,31 +65,6 @@ def _convert_and_check(obj: Any) -> None:
     names = [n for n in shapes if n != "time"]
     _convert(obj, *names)
     _check_vectors(type(obj).__name__, **{n: getattr(obj, n) for n in names if shapes[n]})
-
-
-def _check_unit_quaternion(cls: str, q: Array) -> None:
-    if not is_concrete(q):
-        return
-    err = np.abs(np.linalg.norm(np.asarray(q, dtype=np.float64), axis=-1) - 1)
-    tol = quat_tolerance(q.dtype)
-    if np.any(err > tol):
-        raise ValueError(
-            f"{cls}: orientation must be a unit quaternion [w, x, y, z]; |‖q‖ - 1| = "
-            f"{np.max(err):.3g} exceeds the tolerance {tol:.3g}"
-        )
-
-
-def _check_rotation(cls: str, R: Array, name: str = "rotation") -> None:
-    if not is_concrete(R):
-        return
-    R64 = np.asarray(R, dtype=np.float64)
-    err = np.max(np.abs(np.swapaxes(R64, -1, -2) @ R64 - np.eye(3)), initial=0.0)
-    tol = quat_tolerance(R.dtype)
-    if err > tol or np.any(np.linalg.det(R64) <= 0):
-        raise ValueError(
-            f"{cls}: {name} must be a proper rotation matrix (RᵀR = 1, det R = +1); "
-            f"max |RᵀR - 1| = {err:.3g}, tolerance {tol:.3g}"
-        )
 
 
 def _convert(obj: Any, *names: str) -> None:
@@ -256,9 +233,9 @@ class _RigidStateBase(_StateBase):
         if is_concrete(o) and not np.all(np.isfinite(np.asarray(o))):
             raise ValueError(f"{where}: orientation must be finite, got non-finite entries")
         if o.shape[-1:] == (4,):
-            _check_unit_quaternion(where, o)
+            check_unit_quaternions(where, "orientation", o)
         elif o.shape[-2:] == (3, 3):
-            _check_rotation(where, o, "orientation")
+            check_rotations(where, "orientation", o)
         else:
             raise ValueError(
                 f"{where}: orientation must end in (4,) (a unit quaternion [w, x, y, z]) or (3, 3) "
@@ -317,12 +294,12 @@ class State(_RigidStateBase):
 
     def __post_init__(self) -> None:
         _convert_and_check(self)
-        _check_unit_quaternion("State", self.orientation)
+        check_unit_quaternions("State", "orientation", self.orientation)
 
     @classmethod
     def _from_kinematics(cls, body: Body, x: Array, v: Array, o: Array, w: Array, t: Array) -> State:
-        q = o if o.shape[-1:] == (4,) else matrix_to_quat(o)
-        L = quat_rotate(q, matvec3(inertia_of(body), quat_rotate(quat_conjugate(q), w)))
+        q = o if o.shape[-1:] == (4,) else matrix_to_quat_unchecked(o)
+        L = quat_rotate_unchecked(q, matvec3(inertia_of(body), quat_rotate_unchecked(quat_conjugate(q), w)))
         bc = lambda a: jnp.broadcast_to(a, t.shape + a.shape[-1:])
         return cls(body, bc(x), bc(v), bc(q), bc(L), t)
 
@@ -350,11 +327,11 @@ class MatrixState(_RigidStateBase):
 
     def __post_init__(self) -> None:
         _convert_and_check(self)
-        _check_rotation("MatrixState", self.rotation)
+        check_rotations("MatrixState", "rotation", self.rotation)
 
     @classmethod
     def _from_kinematics(cls, body: Body, x: Array, v: Array, o: Array, w: Array, t: Array) -> MatrixState:
-        R = quat_to_matrix(o) if o.shape[-1:] == (4,) else o
+        R = quat_to_matrix_unchecked(o) if o.shape[-1:] == (4,) else o
         bc = lambda a: jnp.broadcast_to(a, t.shape + a.shape[-1:])
         return cls(body, bc(x), bc(v), jnp.broadcast_to(R, t.shape + (3, 3)), bc(w), t)
 

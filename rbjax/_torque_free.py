@@ -71,7 +71,7 @@ from jaxtyping import Float
 
 from . import _elliptic as ell
 from ._batching import lift
-from ._math import matrix_to_quat, quat_conjugate, quat_exp, quat_multiply, quat_rotate
+from ._math import matrix_to_quat_unchecked, quat_conjugate, quat_exp, quat_multiply, quat_rotate_unchecked
 from ._pytree import new_unchecked
 from ._quantities import to_matrix_state, to_state
 from ._state import MatrixState, RigidStateT, State
@@ -109,7 +109,7 @@ def _setup(moments: Array, axes: Array, q0: Array, L: Array) -> dict[str, Array]
     """Per-body constants of the motion (one body) from principal ``moments`` (3,), ascending,
     ``axes`` (3, 3) as columns (body frame), ``q0`` (4,) and world ``L`` (3,)."""
     dtype = q0.dtype
-    m_body = quat_rotate(quat_conjugate(q0), L)
+    m_body = quat_rotate_unchecked(quat_conjugate(q0), L)
     m_p = m_body @ axes  # principal-frame momentum
     M2 = jnp.sum(m_p * m_p)
     I1, I2, I3 = moments[0], moments[1], moments[2]
@@ -179,7 +179,7 @@ def _setup(moments: Array, axes: Array, q0: Array, L: Array) -> dict[str, Array]
     psi_rate_eq = (two_e + M * mc / Jc) / (M + mc)
 
     frame = jnp.stack([ea, eb, ec], axis=1)  # principal (relabelled) -> body
-    p = matrix_to_quat(frame)
+    p = matrix_to_quat_unchecked(frame)
     u0 = jnp.stack([ma, mb, mc]) / M
     c = dict(
         steady=steady,
@@ -269,7 +269,7 @@ def _orientation_at(c: dict[str, Array], t: Array) -> Array:
     # dq = q(t) ⊗ (0, ½ t dω_b), dω_b = d(I⁻¹) m₀. The second factor below is
     # 1 by value and carries exactly that derivative.
     w_b, w_b0 = c["omega_body"], c["omega_body_fixed_inertia"]
-    q_steady = quat_multiply(quat_exp(quat_rotate(c["q0"], w_b0) * t), c["q0"])
+    q_steady = quat_multiply(quat_exp(quat_rotate_unchecked(c["q0"], w_b0) * t), c["q0"])
     turn = 0.5 * t * (w_b - w_b0)  # zero by value
     q_steady = quat_multiply(q_steady, jnp.concatenate([jnp.ones_like(turn[:1]), turn]))
     return jnp.where(c["steady"], q_steady, q)

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._animate import ellipsoid_mesh, frames_of, half_extents, pick
-from ._math import matrix_to_quat
+from ._math import matrix_to_quat_unchecked
 
 __all__ = ["Viewer", "view"]
 
@@ -123,7 +123,7 @@ def view(
         grid = np.array([[(j % cols) * spacing, (j // cols) * spacing, 0.0] for j in range(n)])
         pos = pos + (grid - grid.mean(0))[None]
     # (T, N, 4): the drawn solid's principal frame to world; viser takes [w, x, y, z] as rbjax does
-    wxyz = np.asarray(matrix_to_quat(jnp.asarray(R @ axes[None])), np.float64)
+    wxyz = np.asarray(matrix_to_quat_unchecked(jnp.asarray(R @ axes[None])), np.float64)
     longest = np.argmax(half, -1)
     tip_body = axes[np.arange(n), :, longest] * half[np.arange(n), longest][:, None]
     tips = pos + np.einsum("tnij,nj->tni", R, tip_body)

@@ -1,5 +1,7 @@
 """Math helpers against independent references (numpy, scipy.spatial.transform)."""
 
+import re
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -156,3 +158,78 @@ def test_float32_stays_float32():
         assert out.dtype == jnp.float32
     # float32 rotation accuracy is a few epsilons
     np.testing.assert_allclose(rb.quat_rotate(q, v), [1, 1, 1], atol=8 * np.finfo(np.float32).eps)
+
+
+# The helpers whose formulas hold only on the rotation group: given a concrete value off it they
+# raise (before, each returned a finite answer that was no rotation, without a word). Off by
+# 1e-3 is 1000x quat_tolerance in float64 and ~70x in float32, and far above what a normalised
+# input carries (a few eps).
+_OFF = 1e-3
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+@pytest.mark.parametrize("shape", BATCH_SHAPES)
+def test_quaternion_helpers_refuse_a_quaternion_off_the_unit_sphere(shape, dtype):
+    rng = np.random.default_rng(11)
+    q = _rand_quat(rng, shape).astype(dtype)
+    v = rng.normal(size=shape + (3,)).astype(dtype)
+    # within tolerance (a normalised input in its own precision) they run and rotate
+    np.testing.assert_allclose(
+        np.asarray(rb.quat_rotate(q, v)).reshape(-1, 3),
+        _scipy_rot(q).apply(np.asarray(v, np.float64).reshape(-1, 3)),
+        atol=32 * float(jnp.finfo(dtype).eps),
+    )
+    bad = np.array(q).reshape(-1, 4)
+    bad[-1] *= 1 + _OFF  # the last body, named by its batch index
+    bad = bad.reshape(q.shape)
+    where = "" if shape == () else " at batch index " + re.escape(str(tuple(n - 1 for n in shape)))
+    for fn, args in [(rb.quat_rotate, (bad, v)), (rb.quat_to_matrix, (bad,))]:
+        with pytest.raises(
+            ValueError, match=rf"{fn.__name__}: q must be a unit quaternion.* = 0.00(1|0999){where} .*quat_normalize"
+        ):
+            fn(*args)
+    # under jit the value is not known: no check (simulate's checked mode is the check there)
+    assert np.all(np.isfinite(np.asarray(jax.jit(rb.quat_rotate)(bad, v))))
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_matrix_to_quat_refuses_what_is_not_a_rotation(dtype):
+    R = Rotation.random(4, random_state=3).as_matrix()
+    # a rotation rounded to the dtype passes and round-trips
+    q = rb.matrix_to_quat(jnp.asarray(R, dtype))
+    np.testing.assert_allclose(rb.quat_to_matrix(q), R, atol=16 * float(jnp.finfo(dtype).eps))
+    sheared = R.copy()
+    sheared[2] = sheared[2] @ (np.eye(3) + _OFF * np.triu(np.ones((3, 3)), 1))
+    with pytest.raises(
+        ValueError, match=r"matrix_to_quat: R must be a proper rotation.* at batch index \(2,\).*orthonormalize"
+    ):
+        rb.matrix_to_quat(jnp.asarray(sheared, dtype))
+    # a reflection is orthogonal but no rotation: the message says orthonormalize cannot fix it
+    with pytest.raises(ValueError, match=r"det R = -1.*reflection"):
+        rb.matrix_to_quat(jnp.asarray(-np.eye(3), dtype))
+    # the remedy the message names works on the sheared matrices
+    q = rb.matrix_to_quat(rb.orthonormalize(jnp.asarray(sheared)))
+    np.testing.assert_allclose(rb.quat_to_matrix(q)[:2], R[:2], atol=1e-12)
+
+
+def test_rotate_inertia_needs_an_orthogonal_matrix_and_takes_a_reflection():
+    I = np.diag([1.0, 2.0, 3.0])
+    R = Rotation.from_rotvec([0.3, -0.2, 0.9]).as_matrix()
+    # I' = R I Rᵀ keeps the eigenvalues (principal moments) of I
+    np.testing.assert_allclose(np.linalg.eigvalsh(rb.rotate_inertia(I, R)), [1, 2, 3], atol=1e-13)
+    # a mirror image: still R I Rᵀ, the inertia of the mirrored body
+    P = np.diag([1.0, 1.0, -1.0]) @ R
+    np.testing.assert_allclose(rb.rotate_inertia(I, P), P @ I @ P.T, atol=1e-14)
+    with pytest.raises(ValueError, match=r"rotate_inertia: rotation must be orthogonal.*orthonormalize"):
+        rb.rotate_inertia(I, 1.01 * R)
+
+
+def test_quat_normalize_refuses_a_zero_or_non_finite_quaternion():
+    q = np.array([[2.0, 0, 0, 0], [0, 0, 0, 0], [1, 1, 1, 1]])
+    np.testing.assert_allclose(rb.quat_normalize(q[[0, 2]]), [[1, 0, 0, 0], [0.5, 0.5, 0.5, 0.5]], atol=TOL)
+    with pytest.raises(
+        ValueError, match=r"quat_normalize: q must be finite and non-zero; ‖q‖ = 0.0 at batch index \(1,\)"
+    ):
+        rb.quat_normalize(q)
+    with pytest.raises(ValueError, match=r"non-finite"):
+        rb.quat_normalize([np.nan, 0, 0, 1])

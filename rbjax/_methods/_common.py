@@ -12,7 +12,15 @@ from jax import Array
 from jax.extend.core import Literal
 
 from .._batching import lift
-from .._math import cross, dot3, kick3, matrix_to_quat, orthonormalize_unchecked, quat_multiply, quat_normalize
+from .._math import (
+    cross,
+    dot3,
+    kick3,
+    matrix_to_quat_unchecked,
+    orthonormalize_unchecked,
+    quat_multiply,
+    quat_normalize_unchecked,
+)
 from .._pytree import replace
 from .._quantities import to_matrix_state, to_state
 from .._state import Forces, MatrixState, State
@@ -82,7 +90,7 @@ def principal_frame(inertia: Array) -> tuple[Array, Array, Array]:
     e0 = 1 / d0
     split = tiny & ~jnp.eye(3, dtype=bool)
     w = jnp.where(split, -(M - jax.lax.stop_gradient(M)) * (e0[:, None] * e0[None, :]), 0.0)
-    return d, matrix_to_quat(P), w
+    return d, matrix_to_quat_unchecked(P), w
 
 
 @jax.custom_jvp
@@ -121,7 +129,7 @@ def batch(kernel):
 
 def _project_one(s):
     if isinstance(s, State):
-        return replace(s, orientation=quat_normalize(s.orientation))
+        return replace(s, orientation=quat_normalize_unchecked(s.orientation))
     if isinstance(s, MatrixState):
         return replace(s, rotation=orthonormalize_unchecked(s.rotation))
     return s

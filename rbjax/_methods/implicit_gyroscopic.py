@@ -28,8 +28,8 @@ from .._math import (
     quat_conjugate,
     quat_exp,
     quat_multiply,
-    quat_normalize,
-    quat_rotate,
+    quat_normalize_unchecked,
+    quat_rotate_unchecked,
     skew,
 )
 from .._pytree import replace
@@ -42,15 +42,15 @@ def implicit_gyroscopic_state(s: State, f: Forces, dt) -> State:
     """One implicit-gyroscopic step of one body in the ``(x, v, q, L)`` form."""
     v = s.velocity if f.force is None else kick3(s.velocity, f.force, s.body.mass, dt)
     q, I = s.orientation, s.body.inertia
-    pi = quat_rotate(quat_conjugate(q), s.angular_momentum)  # I_L ω₀
+    pi = quat_rotate_unchecked(quat_conjugate(q), s.angular_momentum)  # I_L ω₀
     w0 = matvec3(s.body.inverse_inertia, pi)
     rhs = cross(w0, pi)
     if f.torque is not None:
-        rhs = rhs - quat_rotate(quat_conjugate(q), f.torque)
+        rhs = rhs - quat_rotate_unchecked(quat_conjugate(q), f.torque)
     J = I + dt * (matmul3(skew(w0), I) - skew(pi))
     w1 = w0 - solve3(J, dt * rhs)
-    q = quat_normalize(quat_multiply(q, quat_exp(w1 * dt)))
-    L = quat_rotate(q, matvec3(I, w1))
+    q = quat_normalize_unchecked(quat_multiply(q, quat_exp(w1 * dt)))
+    L = quat_rotate_unchecked(q, matvec3(I, w1))
     return replace(s, position=s.position + v * dt, velocity=v, orientation=q, angular_momentum=L)
 
 

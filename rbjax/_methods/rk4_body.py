@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 
 from .._batching import lift
-from .._math import cross, matvec3, over, quat_conjugate, quat_multiply, quat_rotate
+from .._math import cross, matvec3, over, quat_conjugate, quat_multiply, quat_rotate_unchecked
 from .._pytree import replace
 from .._state import Forces, State
 from ._common import project, rigid_steps
@@ -44,11 +44,11 @@ _A, _B, _C = CLASSICAL_RK4
 
 # The stages carry π (body frame) in the ``angular_momentum`` field of a State.
 def _to_body(s: State) -> State:
-    return replace(s, angular_momentum=quat_rotate(quat_conjugate(s.orientation), s.angular_momentum))
+    return replace(s, angular_momentum=quat_rotate_unchecked(quat_conjugate(s.orientation), s.angular_momentum))
 
 
 def _to_world(s: State) -> State:
-    return replace(s, angular_momentum=quat_rotate(s.orientation, s.angular_momentum))
+    return replace(s, angular_momentum=quat_rotate_unchecked(s.orientation, s.angular_momentum))
 
 
 def _body_derivative(s: State, f: Forces) -> State:
@@ -57,7 +57,7 @@ def _body_derivative(s: State, f: Forces) -> State:
     w = matvec3(s.body.inverse_inertia, pi)
     dpi = cross(pi, w)
     if f.torque is not None:
-        dpi = dpi + quat_rotate(quat_conjugate(q), f.torque)
+        dpi = dpi + quat_rotate_unchecked(quat_conjugate(q), f.torque)
     a = jnp.zeros_like(s.velocity) if f.force is None else over(f.force, s.body.mass)
     dq = 0.5 * quat_multiply(q, jnp.concatenate([jnp.zeros_like(w[:1]), w]))
     return replace(s, position=s.velocity, velocity=a, orientation=dq, angular_momentum=dpi)

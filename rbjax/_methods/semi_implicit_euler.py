@@ -32,9 +32,9 @@ from .._math import (
     quat_conjugate,
     quat_exp,
     quat_multiply,
-    quat_normalize,
-    quat_rotate,
-    quat_to_matrix,
+    quat_normalize_unchecked,
+    quat_rotate_unchecked,
+    quat_to_matrix_unchecked,
 )
 from .._pytree import replace
 from .._state import Forces, MatrixState, ParticleState, State
@@ -46,8 +46,10 @@ def semi_implicit_state(s: State, f: Forces, dt) -> State:
     """One semi-implicit Euler step of one body in the ``(x, v, q, L)`` form."""
     s = kick(s, f, dt)
     q = s.orientation
-    w = quat_rotate(q, matvec3(s.body.inverse_inertia, quat_rotate(quat_conjugate(q), s.angular_momentum)))
-    q = quat_normalize(quat_multiply(quat_exp(w * dt), q))
+    w = quat_rotate_unchecked(
+        q, matvec3(s.body.inverse_inertia, quat_rotate_unchecked(quat_conjugate(q), s.angular_momentum))
+    )
+    q = quat_normalize_unchecked(quat_multiply(quat_exp(w * dt), q))
     return replace(s, position=s.position + s.velocity * dt, orientation=q)
 
 
@@ -60,7 +62,7 @@ def semi_implicit_matrix(s: MatrixState, f: Forces, dt) -> MatrixState:
         L = L + f.torque * dt
     w = matvec3(R, matvec3(I_inv, matvec3(R.T, L)))
     # one Newton–Schulz pass stops round-off in the product from accumulating
-    R = orthonormalize_unchecked(matmul3(quat_to_matrix(quat_exp(w * dt)), R), iterations=1)
+    R = orthonormalize_unchecked(matmul3(quat_to_matrix_unchecked(quat_exp(w * dt)), R), iterations=1)
     w = matvec3(R, matvec3(I_inv, matvec3(R.T, L)))
     return replace(s, position=s.position + v * dt, velocity=v, rotation=R, angular_velocity=w)
 

@@ -31,7 +31,7 @@ import jax.numpy as jnp
 
 from .._batching import lift
 from .._dynamics import omega_world
-from .._math import cross, dot3, matmul3, matvec3, over, pure_quat_multiply, quat_normalize, skew
+from .._math import cross, dot3, matmul3, matvec3, over, pure_quat_multiply, quat_normalize_unchecked, skew
 from .._pytree import replace
 from .._state import Forces, MatrixState, State
 from ._common import project
@@ -71,7 +71,7 @@ def omega_of(s: State, kind: str) -> Any:
         return _axisym_inv(s.body, _axis_from_quat(s.orientation), s.angular_momentum)
     # q̂ materialised: fused into its uses, its 1/‖q‖ is recomputed in every component of both
     # rotations and of q̇, many times the cost of the step (docs/performance.md, "Measured reasons")
-    q_hat = jax.lax.optimization_barrier(quat_normalize(s.orientation))
+    q_hat = jax.lax.optimization_barrier(quat_normalize_unchecked(s.orientation))
     return omega_world(replace(s, orientation=q_hat))
 
 

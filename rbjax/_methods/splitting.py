@@ -77,7 +77,7 @@ import jax
 import jax.numpy as jnp
 
 from .._batching import lift
-from .._math import dot3, kick3, quat_conjugate, quat_multiply, quat_normalize, quat_rotate
+from .._math import dot3, kick3, quat_conjugate, quat_multiply, quat_normalize_unchecked, quat_rotate_unchecked
 from .._pytree import replace
 from .._state import ParticleState, State
 from ._common import degenerate_flow, kick, principal_frame, rigid_steps
@@ -140,7 +140,7 @@ def free_rotor(q, L, inertia, h):
     e = 1 / d  # loop-invariant: hoisted out of simulate's scan with the principal frame
     k = jnp.stack([e[0] - e[1], e[1] * 0, e[2] - e[1]])  # k[1] unused: H₂ is inside H_L
     qp = quat_multiply(q, p)  # principal frame -> world
-    m = quat_rotate(quat_conjugate(qp), L)
+    m = quat_rotate_unchecked(quat_conjugate(qp), L)
     # A barrier after each sub-step: chained scalar components made XLA:CPU fuse
     # the sub-steps into one kernel that recomputed each sub-step for each of
     # its consumers (3ⁿ times the work: 125 ms instead of ~1 ms per step of 10⁴
@@ -153,7 +153,7 @@ def free_rotor(q, L, inertia, h):
             qp, m = degenerate_flow(qp, m, w, h / 2)
     # H_L commutes with H₁ and H₃, so its two half-steps are one full turn
     qp = quat_multiply(_turn_about_momentum(L, e[1], h), qp)
-    return quat_normalize(quat_multiply(qp, quat_conjugate(p)))
+    return quat_normalize_unchecked(quat_multiply(qp, quat_conjugate(p)))
 
 
 def free_rotor_of_kind(q, L, body, h, kind: str):
@@ -179,7 +179,7 @@ def free_rotor_of_kind(q, L, body, h, kind: str):
         q = jnp.stack([w * c2 - z * s2, x * c2 + y * s2, y * c2 - x * s2, z * c2 + w * s2])  # q ⊗ (c2, s2 e_z)
     elif kind != "isotropic":
         raise ValueError(f"free_rotor_of_kind: kind must be 'isotropic' or 'axisymmetric', got {kind!r}")
-    return quat_normalize(quat_multiply(_turn_about_momentum(L, e, h), q))
+    return quat_normalize_unchecked(quat_multiply(_turn_about_momentum(L, e, h), q))
 
 
 def splitting_of_kind(state, force_fn, t, dt, kind: str, torque_free: bool):

@@ -10,8 +10,8 @@ import jax
 import jax.core
 import numpy as np
 
+from .._math import quat_tolerance
 from .._rotations_np import CONJ, np_qlog, np_qmul
-from .._state import quat_tolerance
 from ._robust import LOSSES
 
 

@@ -16,7 +16,7 @@ from jax import Array
 from .. import _methods
 from .._body import Body, inverse_3x3
 from .._inertia_param import inertia_from_params
-from .._math import matvec3, quat_conjugate, quat_exp, quat_log, quat_multiply, quat_rotate
+from .._math import matvec3, quat_conjugate, quat_exp, quat_log, quat_multiply, quat_rotate_unchecked
 from .._pytree import new_unchecked
 from .._state import Forces, State
 from ._flow import flow
@@ -51,7 +51,7 @@ def _start(x, d, *, n_theta, scale_fixed):
     one = jnp.ones((), I.dtype)
     body = new_unchecked(Body, mass=one, inertia=I, _inverse=inverse_3x3(I))
     zero = jnp.zeros(3, I.dtype)
-    L0 = quat_rotate(q0, matvec3(I, w0))
+    L0 = quat_rotate_unchecked(q0, matvec3(I, w0))
     return new_unchecked(
         State, body=body, position=zero, velocity=zero, orientation=q0, angular_momentum=L0, time=zero[0]
     )
@@ -64,7 +64,7 @@ def _observe(q, L, inv, o, c):
     ``inv``: body-frame ``I⁻¹``; ``o``: the sample (``q_meas``, ``w_meas``,
     ``weight``); ``c``: the segment's inverse noise levels (``wq``, ``ww``).
     """
-    w = matvec3(inv, quat_rotate(quat_conjugate(q), L))
+    w = matvec3(inv, quat_rotate_unchecked(quat_conjugate(q), L))
     r_q = o["weight"] * c["wq"] * quat_log(quat_multiply(quat_conjugate(q), o["q_meas"]))
     return r_q, o["weight"] * c["ww"] * (w - o["w_meas"]), w
 
@@ -109,7 +109,7 @@ def _segments(X, seg, *, layout: Layout, scale_fixed, method, substeps, use_rate
 
             def body(st, t):
                 tb = jnp.stack([jnp.interp(t, ts, tau_b[:, i]) for i in range(3)])
-                return Forces(torque=quat_rotate(st.orientation, tb))
+                return Forces(torque=quat_rotate_unchecked(st.orientation, tb))
 
             return body
         return lambda st, t: Forces()
