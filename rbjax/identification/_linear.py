@@ -13,6 +13,8 @@ import numpy as np
 from jax import Array
 from jaxtyping import Float
 
+from .._body import TRIANGLE_RTOL
+from .._math import quat_tolerance
 from .._rotations_np import np_qmat
 from .._typing import ArrayLike
 
@@ -162,6 +164,34 @@ def initial_inertia_estimate(MtM, Mtb, scale, torque_free):
     return np.trace(sigma) * np.eye(3) - sigma
 
 
+def _linear_inputs(times, body_rates, orientations, torques):
+    """The arrays of :func:`fit_inertia_linear` as float64, or ``ValueError`` naming the argument."""
+    fn = "fit_inertia_linear"
+    t = np.asarray(times, np.float64)
+    if t.ndim != 1 or t.size < 3:
+        raise ValueError(f"{fn}: times must be a 1-D array of at least 3 sample times (s), got shape {t.shape}")
+    if not np.all(np.isfinite(t)) or not np.all(np.diff(t) > 0):
+        raise ValueError(f"{fn}: times must be finite and strictly increasing")
+    arrays = {"body_rates": (body_rates, 3), "orientations": (orientations, 4), "torques": (torques, 3)}
+    out = []
+    for name, (a, width) in arrays.items():
+        if a is None:
+            out.append(None)
+            continue
+        a = np.asarray(a, np.float64)
+        if a.shape != (t.size, width):
+            raise ValueError(f"{fn}: {name} must have shape (T, {width}) = ({t.size}, {width}), got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{fn}: {name} must be finite")
+        out.append(a)
+    w, q, tau = out
+    if tau is not None and q is None:
+        raise ValueError(f"{fn}: world-frame torques need orientations (T, 4) to turn them into the body frame")
+    if q is not None and np.max(np.abs(np.linalg.norm(q, axis=-1) - 1)) > quat_tolerance(np.float64):
+        raise ValueError(f"{fn}: orientations must be unit quaternions [w, x, y, z]; normalise them first")
+    return t, w, q, tau
+
+
 def fit_inertia_linear(
     times: Float[ArrayLike, " T"],
     body_rates: Float[ArrayLike, "T 3"],
@@ -177,19 +207,55 @@ def fit_inertia_linear(
     ``torques`` ``(T, 3)`` (N m, needs ``orientations`` to rotate them into the
     body frame) the absolute inertia (kg m²). Fast and simple, but
     differentiating noisy rates amplifies the noise by ``1/dt``: use it as a
-    start or a check, :func:`fit_inertia` for accuracy. Not guaranteed
-    physically consistent. Returns ``(3, 3)``.
+    start or a check, :func:`fit_inertia` for accuracy (and an uncertainty).
+    Returns ``(3, 3)``, body frame.
+
+    Raises ``ValueError`` for bad shapes or values, for rates that leave
+    the inertia undetermined (relative singular values of the column-scaled
+    system below ``1e-3`` beyond the one null direction, the scale, of the
+    torque-free problem), and for an estimate that no body has (a principal
+    moment ``≤ 0`` or ``I₁ + I₂ < I₃``): least squares on differentiated
+    noisy rates, rates in deg/s or in the world frame, or unmodelled torques
+    can give one. An estimate that is physical is not tested against the
+    data's noise (deg/s rates may still give one): :func:`fit_inertia` is.
     """
-    t = np.asarray(times, np.float64)
-    w = np.asarray(body_rates, np.float64)
+    t, w, q, tau = _linear_inputs(times, body_rates, orientations, torques)
     wd = np.gradient(w, t, axis=0)
     A = _regressor(wd) + np.cross(w[:, None, :], np.swapaxes(_regressor(w), -1, -2)).swapaxes(-1, -2)
     A = A.reshape(-1, 6)
-    if torques is None:
+    _check_excitation(A, torque_free=tau is None)
+    if tau is None:
         x = np.linalg.svd(A, full_matrices=False)[2][-1]
         I = _entries_to_matrix(x)
-        return jnp.asarray(I / np.trace(I))
-    R = np_qmat(np.asarray(orientations, np.float64))
-    tau_b = np.einsum("tji,tj->ti", R, np.asarray(torques, np.float64))  # Rᵀ τ
-    x = np.linalg.lstsq(A, tau_b.reshape(-1), rcond=None)[0]
-    return jnp.asarray(_entries_to_matrix(x))
+        I = I / np.trace(I)
+    else:
+        assert q is not None  # _linear_inputs: torques come with orientations
+        tau_b = np.einsum("tji,tj->ti", np_qmat(q), tau)  # Rᵀ τ
+        I = _entries_to_matrix(np.linalg.lstsq(A, tau_b.reshape(-1), rcond=None)[0])
+    moments = np.linalg.eigvalsh(I)  # ascending; the triangle test as Body's
+    if not (moments[0] > 0 and moments[0] + moments[1] - moments[2] >= -TRIANGLE_RTOL * np.sum(moments)):
+        raise ValueError(
+            "fit_inertia_linear: the least-squares estimate has principal moments "
+            f"{np.array2string(moments, precision=3)}, which no body has (each must be > 0 and I₁ + I₂ ≥ I₃). "
+            "Differentiated noisy rates, rates in deg/s or in the world frame, or unmodelled torques give such "
+            "estimates; rb.fit_inertia fits the motion itself and reports its uncertainty"
+        )
+    return jnp.asarray(I)
+
+
+_EXCITATION_TOL = 1e-3
+
+
+def _check_excitation(A: np.ndarray, torque_free: bool) -> None:
+    """``ValueError`` unless ``A x = b`` determines the six entries (up to scale when torque-free)."""
+    norms = np.linalg.norm(A, axis=0)
+    sv = np.linalg.svd(A / np.where(norms > 0, norms, 1.0), compute_uv=False)
+    rel = sv / sv[0]
+    determined = rel[4 if torque_free else 5] >= _EXCITATION_TOL
+    if not determined:
+        raise ValueError(
+            "fit_inertia_linear: too little excitation to identify the inertia: relative singular values "
+            f"{np.array2string(rel, precision=2)} (threshold {_EXCITATION_TOL:g}"
+            + (", beyond the scale, which torque-free data never fix)" if torque_free else ")")
+            + ". Record a tumble that excites all three axes (e.g. spin near, not on, a principal axis)"
+        )
