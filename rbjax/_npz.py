@@ -68,6 +68,8 @@ def write_atomic(path: Path, write: Callable[[IO[bytes]], object]) -> None:
     temporary ``<name>.*.tmp`` is removed on any error, left behind only if
     the process dies).
     """
+    if not path.parent.is_dir():  # else mkstemp's error names the temporary file, not the user's path
+        raise FileNotFoundError(f"save: the folder {path.parent} of {path.name} does not exist; create it first")
     fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
@@ -178,7 +180,9 @@ def read_npz(path: Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     except FileNotFoundError:
         raise ValueError(f"load: {path} does not exist") from None
     except Exception as e:  # noqa: BLE001  (zipfile, zlib, numpy and OS errors alike: the file is unreadable)
-        raise ValueError(f"load: cannot read {path} as an .npz archive (truncated or corrupted?): {e}") from None
+        # numpy reads a file without the zip signature as a pickle and suggests allow_pickle: not a remedy here
+        why = "it is not a zip archive" if "pickled" in str(e) else e
+        raise ValueError(f"load: cannot read {path} as an .npz archive (truncated or corrupted?): {why}") from None
     if not isinstance(z, np.lib.npyio.NpzFile):
         raise ValueError(f"load: {path} is a single .npy array, not an rbjax .npz file")
     with z:

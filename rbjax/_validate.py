@@ -76,6 +76,11 @@ def check_dt(dt: Any, name: str = "dt", *, positive: bool = True) -> None:
 
 def check_count(name: str, value: Any, minimum: int) -> int:
     """``value`` as an int; ``ValueError`` unless it is an int (not a bool) ``>= minimum``."""
+    if isinstance(value, jax.core.Tracer):  # a count sets a shape or a loop's length: it must be known to trace
+        raise TypeError(
+            f"{name} must be a Python int, known before tracing (it sets the run's length and shapes), got a "
+            f"traced value {value!r}; mark it static (jax.jit(..., static_argnames=...)) or close over it"
+        )
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < minimum:
         kind = "non-negative" if minimum == 0 else f">= {minimum}" if minimum > 1 else "positive"
         raise ValueError(f"{name} must be a {kind} int, got {value!r}")

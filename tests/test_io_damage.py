@@ -47,6 +47,17 @@ def test_truncated_and_corrupted_files_name_the_path(tmp_path):
         rb.load(bad)
     with pytest.raises(ValueError, match=r"load: .*nothere\.npz does not exist"):
         rb.load(tmp_path / "nothere.npz")
+    # a text file is no zip archive; numpy's own advice (allow_pickle) is not passed on
+    text = tmp_path / "notes.npz"
+    text.write_text("hello")
+    with pytest.raises(ValueError, match=r"load: .*notes\.npz as an \.npz archive .*: it is not a zip archive$"):
+        rb.load(text)
+
+
+def test_save_into_a_missing_folder_names_the_folder(tmp_path):
+    with pytest.raises(FileNotFoundError, match=r"save: the folder .*nowhere of state\.npz does not exist"):
+        rb.save(tmp_path / "nowhere" / "state.npz", _traj())
+    assert list(tmp_path.iterdir()) == []  # nothing written, no temporary file left
 
 
 def test_a_missing_array_is_named(tmp_path):

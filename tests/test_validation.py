@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -61,6 +62,16 @@ def test_bad_dt_names_dt(dt, error, match):
 def test_bad_steps_are_refused(steps):
     with pytest.raises(ValueError, match=r"steps must be a non-negative int, got"):
         rb.simulate(_state(), None, 0.1, steps)
+
+
+def test_traced_steps_are_refused_with_the_remedy():
+    # steps sets the trajectory's length: under jit it must be static, not a traced int
+    run = jax.jit(lambda n: rb.simulate(_state(), None, 0.1, n))
+    with pytest.raises(TypeError, match=r"steps must be a Python int, known before tracing.*static_argnames"):
+        run(3)
+    # the remedy the message names
+    static = jax.jit(lambda s, n: rb.simulate(s, None, 0.1, n), static_argnames="n")
+    np.testing.assert_array_equal(static(_state(), n=3).time, rb.simulate(_state(), None, 0.1, 3).time)
 
 
 def test_bad_save_every_t0_and_state():
