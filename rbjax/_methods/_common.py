@@ -27,11 +27,15 @@ from .._state import Forces, MatrixState, State
 from ._registry import StepFn
 
 
+def kicked_velocity(s: State, f: Forces, h) -> Array:
+    """``v + F/m h`` (world frame, m/s): the velocity after a kick by the force (``v`` without one)."""
+    return s.velocity if f.force is None else kick3(s.velocity, f.force, s.body.mass, h)
+
+
 def kick(s: State, f: Forces, h) -> State:
     """``v += F/m h``, ``L += τ h`` (world frame): the exact flow of constant forces."""
-    v = s.velocity if f.force is None else kick3(s.velocity, f.force, s.body.mass, h)
     L = s.angular_momentum if f.torque is None else s.angular_momentum + f.torque * h
-    return replace(s, velocity=v, angular_momentum=L)
+    return replace(s, velocity=kicked_velocity(s, f, h), angular_momentum=L)
 
 
 def solve3(A: Array, b: Array) -> Array:

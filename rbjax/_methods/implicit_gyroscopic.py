@@ -22,7 +22,6 @@ from __future__ import annotations
 
 from .._math import (
     cross,
-    kick3,
     matmul3,
     matvec3,
     quat_conjugate,
@@ -34,13 +33,13 @@ from .._math import (
 )
 from .._pytree import replace
 from .._state import Forces, State
-from ._common import batch, rigid_steps, solve3
+from ._common import batch, kicked_velocity, rigid_steps, solve3
 from ._registry import Method, register
 
 
 def implicit_gyroscopic_state(s: State, f: Forces, dt) -> State:
     """One implicit-gyroscopic step of one body in the ``(x, v, q, L)`` form."""
-    v = s.velocity if f.force is None else kick3(s.velocity, f.force, s.body.mass, dt)
+    v = kicked_velocity(s, f, dt)
     q, I = s.orientation, s.body.inertia
     pi = quat_rotate_unchecked(quat_conjugate(q), s.angular_momentum)  # I_L ω₀
     w0 = matvec3(s.body.inverse_inertia, pi)
