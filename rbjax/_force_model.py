@@ -91,10 +91,28 @@ class ForceModel:
 
     def __add__(self, other: ForceModel) -> ForceSum:
         if not isinstance(other, ForceModel):
+            _refuse_sum(self, other)
             return NotImplemented
         a = self.terms if isinstance(self, ForceSum) else (self,)
         b = other.terms if isinstance(other, ForceSum) else (other,)
         return ForceSum(a + b)
+
+    def __radd__(self, other: Any) -> ForceSum:
+        _refuse_sum(other, self)
+        return NotImplemented
+
+
+def _refuse_sum(a: Any, b: Any) -> None:
+    """``TypeError`` naming the remedy when a force model is added to a plain function or a ``Forces``."""
+    other = b if isinstance(a, ForceModel) else a
+    what = "Forces arrays" if type(other).__name__ == "Forces" else "a function" if callable(other) else None
+    if what is None:
+        return  # Python's own TypeError names the two types
+    fix = "rb.ConstantForce(force=..., torque=...)" if what == "Forces arrays" else "rb.CustomForce(fn)"
+    raise TypeError(
+        f"cannot add {what} to a force model ({type(a).__name__} + {type(b).__name__}): wrap it as {fix}, "
+        "which is a force model, and add that"
+    )
 
 
 class PerBodyForce(ForceModel):

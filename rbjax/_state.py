@@ -459,6 +459,9 @@ class Forces:
         return cls(force=jnp.broadcast_to(m[..., None] * g, state.position.shape))
 
     def __add__(self, other: Forces) -> Forces:
+        if not isinstance(other, Forces):  # a force model's __radd__ says how to combine the two
+            return NotImplemented
+
         def add(a: Array | None, b: Array | None) -> Array | None:
             if a is None:
                 return b

@@ -338,3 +338,21 @@ def test_one_thruster_per_body_is_lifted_and_matches_the_scatter_path(method, dt
         a, b = np.asarray(getattr(lifted, f), np.float64), np.asarray(getattr(batch, f), np.float64)
         scale = max(1.0, float(np.max(np.abs(b))))
         np.testing.assert_allclose(a, b, rtol=0, atol=8 * steps * eps * scale, err_msg=f)
+
+
+def test_adding_a_function_or_forces_arrays_to_a_model_names_the_wrapper():
+    law = lambda s, t: rb.Forces(force=jnp.ones_like(s.position))
+    for make in (lambda: rb.Gravity() + law, lambda: law + rb.Gravity()):
+        with pytest.raises(TypeError, match=r"cannot add a function to a force model .*rb\.CustomForce\(fn\)"):
+            make()
+    arrays = rb.Forces(force=jnp.ones(3))
+    for make in (lambda: rb.Gravity() + arrays, lambda: arrays + rb.Gravity()):
+        with pytest.raises(TypeError, match=r"cannot add Forces arrays to a force model .*rb\.ConstantForce"):
+            make()
+    # the wrapped forms add, and act as the sum of their parts: a unit force on a unit mass
+    # under gravity g gains velocity (1 + g) dt per step
+    s = rb.State.create(rb.sphere(1.0, 0.1))
+    g = np.array([0.0, 0.0, -9.81])
+    for total in (rb.Gravity() + rb.CustomForce(law), rb.Gravity() + rb.ConstantForce(force=jnp.ones(3))):
+        v = np.asarray(rb.simulate(s, total, 0.1, 3, "semi_implicit_euler").velocity[-1])
+        np.testing.assert_allclose(v, 0.3 * (1.0 + g), rtol=1e-6)
