@@ -97,6 +97,28 @@ def frames_of(traj: Any) -> dict[str, Any]:
     return {"pos": pos, "R": R, "L": L, "mass": mass, "inertia": inertia, "time": times}
 
 
+def check_numbers(fn: str, **numbers: tuple[Any, str]) -> None:
+    """``TypeError``/``ValueError`` in ``fn``'s name unless each ``name=(value, rule)`` holds.
+
+    Rules: ``"int>=0"``, ``"int>=1"``, ``">0"`` (a finite real number), ``">0|None"``,
+    ``">=0|None"``, ``"port"`` (an int in 0..65535).
+    """
+    for name, (value, rule) in numbers.items():
+        if value is None and rule.endswith("|None"):
+            continue
+        whole = rule.startswith("int") or rule == "port"
+        kinds = (int, np.integer) if whole else (int, float, np.integer, np.floating)
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, kinds):
+            raise TypeError(f"{fn}: {name} must be {'an int' if whole else 'a real number'}, got {value!r}")
+        low = {"int>=0": 0, "int>=1": 1, "port": 0}.get(rule)
+        if low is not None:
+            if value < low or (rule == "port" and value > 65535):
+                span = "in 0..65535" if rule == "port" else f">= {low}"
+                raise ValueError(f"{fn}: {name} must be {span}, got {value!r}")
+        elif not np.isfinite(value) or value < 0 or (rule.startswith(">0") and value == 0):
+            raise ValueError(f"{fn}: {name} must be finite and {rule.split('|')[0]}, got {value!r}")
+
+
 def pick(n: int, bodies: int | Sequence[int] | None) -> np.ndarray:
     if bodies is None:
         bodies = min(n, 9)
@@ -177,6 +199,15 @@ def animate(
     """
     if shape not in ("box", "ellipsoid"):
         raise ValueError(f"rbjax.animate: shape must be 'box' or 'ellipsoid', got {shape!r}")
+    check_numbers(
+        "rbjax.animate",
+        dt=(dt, ">0|None"),
+        max_frames=(max_frames, "int>=1"),
+        fps=(fps, "int>=1"),
+        trail=(trail, "int>=0"),
+        dpi=(dpi, "int>=1"),
+        panel_size=(panel_size, ">0"),
+    )
     path = Path(path)
     if path.suffix.lower() not in (".gif", ".mp4"):
         raise ValueError(f"rbjax.animate: path must end in .gif or .mp4, got {path.name!r}")

@@ -18,7 +18,7 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
-from ._animate import ellipsoid_mesh, frames_of, half_extents, pick
+from ._animate import check_numbers, ellipsoid_mesh, frames_of, half_extents, pick
 from ._math import matrix_to_quat_unchecked
 
 __all__ = ["Viewer", "view"]
@@ -106,6 +106,15 @@ def view(
         raise ImportError("rbjax.view needs viser: pip install 'rbjax[viewer]'") from e
     if shape not in ("box", "ellipsoid"):
         raise ValueError(f"rbjax.view: shape must be 'box' or 'ellipsoid', got {shape!r}")
+    # checked here: viser's server thread would die on them with the call left waiting
+    check_numbers(
+        "rbjax.view",
+        dt=(dt, ">0|None"),
+        port=(port, "port"),
+        trail=(trail, "int>=0"),
+        fps=(fps, ">0"),
+        spacing=(spacing, ">=0|None"),
+    )
 
     data = frames_of(traj)
     idx = pick(data["pos"].shape[1], bodies)

@@ -76,6 +76,32 @@ def test_ellipsoid_and_bad_arguments(traj, tmp_path):
         rb.animate(traj, tmp_path / "x.gif", bodies=[5])
 
 
+@pytest.mark.parametrize(
+    "kwargs, error, match",
+    [
+        (dict(max_frames=0), ValueError, r"max_frames must be >= 1, got 0"),  # was ZeroDivisionError
+        (dict(fps=0), ValueError, r"fps must be >= 1"),
+        (dict(trail=-1), ValueError, r"trail must be >= 0"),
+        (dict(panel_size=float("nan")), ValueError, r"panel_size must be finite and >0"),
+        (dict(dt=0.0), ValueError, r"dt must be finite and >0"),
+        (dict(dpi=80.5), TypeError, r"dpi must be an int"),
+    ],
+)
+def test_animate_names_a_bad_number(traj, tmp_path, kwargs, error, match):
+    with pytest.raises(error, match=r"rbjax\.animate: " + match):
+        rb.animate(traj, tmp_path / "x.gif", **kwargs)
+    assert not (tmp_path / "x.gif").exists()
+
+
+def test_view_refuses_a_bad_port_before_starting_a_server(traj):
+    # viser's server thread died on port=-1 with the call left waiting for it
+    pytest.importorskip("viser")
+    with pytest.raises(ValueError, match=r"rbjax\.view: port must be in 0\.\.65535, got -1"):
+        rb.view(traj, port=-1)
+    with pytest.raises(ValueError, match=r"rbjax\.view: fps must be finite and >0"):
+        rb.view(traj, fps=0.0)
+
+
 @pytest.mark.slow
 def test_demo_writes_the_gif_next_to_the_png(tmp_path, capsys):
     from rbjax._cli import main
