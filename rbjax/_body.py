@@ -355,10 +355,17 @@ def parallel_axis(
     """Inertia about a point displaced by ``offset`` from the centre of mass.
 
     ``I_p = I_c + m (‖d‖² 1 - d dᵀ)``, all in the same frame (Steiner's theorem).
-    ``inertia``: ``(..., 3, 3)``, ``mass``: ``(...)``, ``offset``: ``(..., 3)``.
+    ``inertia``: ``(..., 3, 3)`` (kg m², about the centre of mass), ``mass``: ``(...)``
+    (kg, > 0: the body's), ``offset``: ``(..., 3)`` (m). A concrete ``mass ≤ 0`` raises
+    ``ValueError``; to take a part (a hole) away, subtract its own ``parallel_axis``.
     """
     I = array_arg("parallel_axis", "inertia", inertia, (3, 3))
     m, d = array_arg("parallel_axis", "mass", mass), array_arg("parallel_axis", "offset", offset, (3,))
+    if is_concrete(m) and not np.all(np.asarray(m) > 0):
+        raise ValueError(
+            f"parallel_axis: mass must be > 0 (kg, the body's), got {np.asarray(m).min():.4g}; to take a part "
+            "away (a hole), subtract its own parallel_axis result"
+        )
     try:
         jnp.broadcast_shapes(I.shape[:-2], m.shape, d.shape[:-1])
     except ValueError:

@@ -179,3 +179,19 @@ def test_collinear_particles_raise():
         rb.from_particles([1.0, 1.0, 1.0], [[0, 0, 0], [0, 0, 1.0], [0, 0, 2.0]])
     with pytest.raises(ValueError, match="mass"):
         rb.from_particles([1.0, -1.0], [[0, 0, 0], [1.0, 0, 0]])
+
+
+def test_parallel_axis_needs_the_bodys_positive_mass_and_subtracts_a_hole():
+    # a solid cube of side 2 (mass 8) less a unit cube (mass 1) whose centre sits at d = (0.5, 0.5, 0.5):
+    # about the big cube's centre, I = I_big - (I_small + m (|d|² 1 - d dᵀ)), against the same body
+    # built from particles (a 2x2x2 grid of unit cells, one cell removed, each cell a unit-mass cube)
+    with pytest.raises(ValueError, match=r"parallel_axis: mass must be > 0 .*subtract its own parallel_axis"):
+        rb.parallel_axis(np.eye(3), -1.0, np.array([0.5, 0.5, 0.5]))
+    cell = rb.box(1.0, np.ones(3)).inertia  # a unit cube about its centre: 1/6 on the diagonal
+    d = np.array([0.5, 0.5, 0.5])
+    big = rb.box(8.0, 2 * np.ones(3)).inertia
+    holed = big - rb.parallel_axis(cell, 1.0, d)
+    centres = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
+    kept = centres[np.any(centres != d, axis=1)]
+    direct = sum(rb.parallel_axis(cell, 1.0, c) for c in kept)
+    np.testing.assert_allclose(holed, direct, rtol=1e-12)  # float64 (the suite runs x64): sums of O(1) terms
