@@ -199,15 +199,8 @@ def animate(
     """
     if shape not in ("box", "ellipsoid"):
         raise ValueError(f"rbjax.animate: shape must be 'box' or 'ellipsoid', got {shape!r}")
-    check_numbers(
-        "rbjax.animate",
-        dt=(dt, ">0|None"),
-        max_frames=(max_frames, "int>=1"),
-        fps=(fps, "int>=1"),
-        trail=(trail, "int>=0"),
-        dpi=(dpi, "int>=1"),
-        panel_size=(panel_size, ">0"),
-    )
+    check_numbers("rbjax.animate", dt=(dt, ">0|None"), max_frames=(max_frames, "int>=1"), fps=(fps, "int>=1"))
+    check_numbers("rbjax.animate", trail=(trail, "int>=0"), dpi=(dpi, "int>=1"), panel_size=(panel_size, ">0"))
     path = Path(path)
     if path.suffix.lower() not in (".gif", ".mp4"):
         raise ValueError(f"rbjax.animate: path must end in .gif or .mp4, got {path.name!r}")

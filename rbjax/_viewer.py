@@ -107,14 +107,8 @@ def view(
     if shape not in ("box", "ellipsoid"):
         raise ValueError(f"rbjax.view: shape must be 'box' or 'ellipsoid', got {shape!r}")
     # checked here: viser's server thread would die on them with the call left waiting
-    check_numbers(
-        "rbjax.view",
-        dt=(dt, ">0|None"),
-        port=(port, "port"),
-        trail=(trail, "int>=0"),
-        fps=(fps, ">0"),
-        spacing=(spacing, ">=0|None"),
-    )
+    check_numbers("rbjax.view", dt=(dt, ">0|None"), port=(port, "port"), trail=(trail, "int>=0"))
+    check_numbers("rbjax.view", fps=(fps, ">0"), spacing=(spacing, ">=0|None"))
 
     data = frames_of(traj)
     idx = pick(data["pos"].shape[1], bodies)
