@@ -8,7 +8,7 @@ timed calls after the first (whose time, compile included, is reported too), blo
 final state (blocking on one field lets XLA drop the rotation from a force-free run).
 
     python benchmarks/forces_throughput.py [--methods euler,rk4,rk4_body,splitting] [--n 100000]
-        [--json results/forces.json] [--md results/forces.md]
+        [--forces "none,gravity+quadratic drag"] [--json results/forces.json] [--md results/forces.md]
 """
 
 from __future__ import annotations
@@ -64,16 +64,20 @@ def main() -> None:
     ap.add_argument("--methods", default="euler,rk4,rk4_body,splitting")
     ap.add_argument("--n", type=int, default=100_000)
     ap.add_argument("--steps", type=int, default=100)
+    ap.add_argument("--forces", default=",".join(FORCES), help="comma-separated, of: " + ", ".join(FORCES))
     ap.add_argument("--json", default=None)
     ap.add_argument("--md", default=None)
     args = ap.parse_args()
     n = args.n
+    names = args.forces.split(",")
+    if "none" not in names or any(name not in FORCES for name in names):
+        ap.error(f"--forces: 'none' (the reference) and names among {FORCES}")
     body = rb.box(mass=jnp.ones(n), size=jnp.tile(jnp.array([0.1, 0.2, 0.4]), (n, 1)))
     w = jax.random.normal(jax.random.PRNGKey(0), (n, 3))
     state = rb.State.create(body, angular_velocity=w, velocity=jnp.zeros((n, 3)))
     rows = []
     for method in args.methods.split(","):
-        for name in FORCES:
+        for name in names:
             for native in (False, None):
                 row = measure(state, method, name, native, args.steps)
                 rows.append(row)
@@ -90,7 +94,7 @@ def main() -> None:
             "|---|---|---:|---:|---:|---:|---:|",
         ]
         for method in args.methods.split(","):
-            for name in FORCES:
+            for name in names:
                 j, d = r[(method, name, "jax")], r[(method, name, "default")]
                 j0, d0 = r[(method, "none", "jax")], r[(method, "none", "default")]
                 out.append(

@@ -7,7 +7,17 @@ The stages integrate ``(x, v, q, π)`` with
 * ``q̇ = ½ q ⊗ (0, ω)`` (body-frame rate on the right);
 
 by the classical tableau, forces evaluated at each stage on the world-frame
-state ``L = R π``; afterwards ``q`` is normalised and ``L = R(q) π``.
+state ``(q̂, L = R(q̂) π)`` with ``q̂ = q/|q|``; afterwards ``q`` is normalised
+and ``L = R(q) π``.
+
+Why forces see ``q̂``. At an RK4 stage ``|q| ≠ 1`` (by ``O(h²)``), and ``R(q)`` is
+``|q|²`` times a rotation. Any smooth continuation of the right-hand side off
+``|q| = 1`` keeps the order, so the choice is free; with ``q̂`` a force law sees
+what a :class:`~rbjax.State` promises (a unit quaternion), and a law that
+turns with the body costs nothing to turn back: ``ω = R̂ ω_b``, so drag
+``-(b_r + c_r|ω|) ω`` is ``-(b_r + c_r|ω_b|) ω_b`` in the body frame, and a
+thruster's torque ``R̂ᵀ (R̂ p × R̂ f) = p × f``. The native kernel uses this: with
+gravity and drag its stages need no rotation at all (rbjax/_native/steps.h).
 
 Why a second RK4. ``"rk4"`` integrates the notes' world-frame loop ``(q, L)``,
 where ``ω = R I_L⁻¹ Rᵀ L`` depends on the attitude: its local error couples the
@@ -30,7 +40,7 @@ import jax
 import jax.numpy as jnp
 
 from .._batching import lift
-from .._math import cross, matvec3, over, quat_conjugate, quat_multiply, quat_rotate_unchecked
+from .._math import cross, matvec3, over, quat_conjugate, quat_multiply, quat_normalize_unchecked, quat_rotate_unchecked
 from .._pytree import replace
 from .._state import Forces, State
 from ._common import project, rigid_steps
@@ -51,20 +61,29 @@ def _to_world(s: State) -> State:
     return replace(s, angular_momentum=quat_rotate_unchecked(s.orientation, s.angular_momentum))
 
 
-def _body_derivative(s: State, f: Forces) -> State:
-    """``(ẋ, v̇, q̇, π̇)`` of one body, stored in a State's fields (π̇ in ``angular_momentum``)."""
+def _to_unit_world(s: State) -> State:
+    q = quat_normalize_unchecked(s.orientation)
+    return replace(s, orientation=q, angular_momentum=quat_rotate_unchecked(q, s.angular_momentum))
+
+
+def _body_derivative(s: State, f: Forces, world: State) -> State:
+    """``(ẋ, v̇, q̇, π̇)`` of one body, stored in a State's fields (π̇ in ``angular_momentum``).
+
+    ``f`` acts on ``world``, the stage's world state of :func:`_world_for_forces`, whose
+    orientation is ``q/|q|``: its torque is turned back into the body frame by that rotation.
+    """
     q, pi = s.orientation, s.angular_momentum
     w = matvec3(s.body.inverse_inertia, pi)
     dpi = cross(pi, w)
     if f.torque is not None:
-        dpi = dpi + quat_rotate_unchecked(quat_conjugate(q), f.torque)
+        dpi = dpi + quat_rotate_unchecked(quat_conjugate(world.orientation), f.torque)
     a = jnp.zeros_like(s.velocity) if f.force is None else over(f.force, s.body.mass)
     dq = 0.5 * quat_multiply(q, jnp.concatenate([jnp.zeros_like(w[:1]), w]))
     return replace(s, position=s.velocity, velocity=a, orientation=dq, angular_momentum=dpi)
 
 
 def _world_for_forces(y: State) -> State:
-    """The world-frame stage state that the forces see, its ``L = R π`` computed into memory.
+    """The world-frame stage state ``(q̂, L = R(q̂) π)`` that the forces see, ``L`` computed into memory.
 
     A force law that reads ``ω`` (drag) turns ``L`` back into the body frame:
     fused, XLA:CPU emits the chain ``R I⁻¹ Rᵀ R Rᵀ L`` as scalar code with
@@ -72,7 +91,7 @@ def _world_for_forces(y: State) -> State:
     compiling them. When no force reads ``L`` the barrier's result is unused
     and XLA removes it (the force-free step compiles as before).
     """
-    w = lift(_to_world)(y)
+    w = lift(_to_unit_world)(y)
     return replace(w, angular_momentum=jax.lax.optimization_barrier(w.angular_momentum))
 
 
@@ -82,7 +101,8 @@ def rk4_body(state: State, force_fn, t, dt) -> State:
     ks = []
     for i in range(4):
         y = combine(y0, dt, _A[i], ks[:i])
-        ks.append(lift(_body_derivative)(y, force_fn(_world_for_forces(y), t + _C[i] * dt)))
+        world = _world_for_forces(y)
+        ks.append(lift(_body_derivative)(y, force_fn(world, t + _C[i] * dt), world))
     return lift(_to_world)(project(combine(y0, dt, _B, ks)))
 
 

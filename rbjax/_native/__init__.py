@@ -59,7 +59,7 @@ METHODS = dict(
     sorted(((m.name, m.native_code) for m in available().values() if m.native_code is not None), key=lambda p: p[1])
 )
 _TARGET = "rbjax_advance"
-_ABI = 2  # kernels.cc: rbjax_native_abi, the version of the call's operands and attributes
+_ABI = 3  # kernels.cc: rbjax_native_abi, the version of the call's operands and attributes
 _ISA = ("x86-64 baseline", "AVX2", "AVX-512")
 
 
@@ -281,6 +281,7 @@ def _parameters(forces: Any, batch: tuple[int, ...], dtype: Any) -> tuple[dict[s
     rows = max(acc[k].shape[0] for k in ("b", "br", "c", "cr"))
     drag = jnp.concatenate([jnp.broadcast_to(acc[k], (rows, 1)) for k in ("b", "br", "c", "cr")], axis=1)
     terms = (1 if used else 0) | (2 if used & {"c", "cr"} else 0) | (4 if "thrust" in used else 0)
+    terms |= 8 if "tau" in used else 0
     return {"F": acc["F"], "tau": acc["tau"], "g": acc["g"], "drag": drag, "thrust": acc["thrust"]}, terms
 
 
@@ -359,7 +360,7 @@ def _call(
             "drag": jnp.zeros((1, 4), dtype),
             "thrust": jnp.zeros((1, 6), dtype),
         }
-        terms = 1
+        terms = 1 | (8 if forces.torque is not None else 0)
     else:
         params, terms = _parameters(forces, batch, dtype)
     frame = _frames(body, shared, batch, n) if code == METHODS["splitting"] else jnp.zeros((1, 7), dtype)

@@ -16,7 +16,8 @@
 //
 // The `terms` attribute: bit 0, some force or torque acts (else v and L stay);
 // bit 1, quadratic drag is among them (two square roots per evaluation); bit 2, thrusters
-// (body-fixed force and torque sums, turned by R(q) at each evaluation).
+// (body-fixed force and torque sums, turned by R(q) at each evaluation); bit 3, a world torque
+// (constant or a time series), which rk4_body turns into the body frame (steps.h: body_forces).
 // The `series` attribute: 0, or `steps` when F and τ are a time series (V, steps, n, 3),
 // one slice per step (rbjax.simulate's forces of shape (steps, *B, 3)), held over its stages.
 
@@ -96,12 +97,12 @@ int isa() {
 
 template <typename T>
 inline void block_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], int n, T dt, int64_t steps,
-                        int64_t method, bool forces, bool quad, bool thrust) {
+                        int64_t method, bool forces, bool quad, bool turn) {
 #ifdef RBJAX_X86
-  if (isa() == 2) return avx512::block_steps<T>(B, k, frame, n, dt, steps, method, forces, quad, thrust);
-  if (isa() == 1) return avx2::block_steps<T>(B, k, frame, n, dt, steps, method, forces, quad, thrust);
+  if (isa() == 2) return avx512::block_steps<T>(B, k, frame, n, dt, steps, method, forces, quad, turn);
+  if (isa() == 1) return avx2::block_steps<T>(B, k, frame, n, dt, steps, method, forces, quad, turn);
 #endif
-  baseline::block_steps<T>(B, k, frame, n, dt, steps, method, forces, quad, thrust);
+  baseline::block_steps<T>(B, k, frame, n, dt, steps, method, forces, quad, turn);
 }
 
 // A per-body parameter of `comps` components, (V, n, comps) with n = N or 1 (shared).
@@ -129,6 +130,7 @@ struct Problem {
   const T* dt;                       // (V,)
   int64_t V, N, steps, method;
   bool forces, quad, thrust, series;  // series: F and τ hold one slice per step, held over the step's stages
+  bool turn;  // the steps' forces need R(q): thrusters, and for rk4_body a world torque too
 };
 
 template <typename T>
@@ -159,6 +161,9 @@ void run_block(const Problem<T>& P, int64_t vb, int64_t i0, int n) {
         k.fb[c][j] = fbtb[c][j];
         k.tb[c][j] = fbtb[3 + c][j];
       }
+  } else if (P.turn) {  // rk4_body with a world torque and no thrusters: zero sums
+    for (int c = 0; c < 3; ++c)
+      for (int j = 0; j < n; ++j) k.fb[c][j] = k.tb[c][j] = T(0);
   }
   for (int j = 0; j < n; ++j) {
     k.m[j] = m[0][j];
@@ -169,7 +174,7 @@ void run_block(const Problem<T>& P, int64_t vb, int64_t i0, int n) {
     k.cr[j] = drag[3][j];
   }
   if (!P.series) {
-    block_steps(B, k, frame, n, P.dt[vb], P.steps, P.method, P.forces, P.quad, P.thrust);
+    block_steps(B, k, frame, n, P.dt[vb], P.steps, P.method, P.forces, P.quad, P.turn);
   } else {
     // a time series: each step's F and τ into the block's constants, then that one step (the
     // block stays in L1 between the steps, as in the loop over steps of block_steps)
@@ -178,7 +183,7 @@ void run_block(const Problem<T>& P, int64_t vb, int64_t i0, int n) {
         P.F.load(vb, i0, n, 3, k.F, s);
         P.tau.load(vb, i0, n, 3, k.tau, s);
       }
-      block_steps(B, k, frame, n, P.dt[vb], 1, P.method, P.forces, P.quad, P.thrust);
+      block_steps(B, k, frame, n, P.dt[vb], 1, P.method, P.forces, P.quad, P.turn);
     }
   }
   for (int f = 0; f < 4; ++f)
@@ -233,6 +238,7 @@ ffi::Error advance_typed(ffi::ThreadPool& pool, ffi::AnyBuffer x, ffi::AnyBuffer
   P.forces = (terms & 1) != 0;
   P.quad = (terms & 2) != 0;
   P.thrust = (terms & 4) != 0;
+  P.turn = P.thrust || (method == kRk4Body && (terms & 8) != 0);
   P.series = series != 0;
   if (P.series && series != steps) return ffi::Error::InvalidArgument("a time series needs one slice per step");
   P.x0 = x.typed_data<T>();
@@ -294,8 +300,9 @@ extern "C" __attribute__((visibility("default"))) XLA_FFI_Error* RbjaxAdvance(XL
 
 // The version of the call's operands and attributes, which rbjax/_native/__init__.py checks on
 // load (_ABI there): a library built from an older kernels.cc is refused, not called wrongly.
-// 2: the thrusters' operand and the `series` attribute. (A library without this symbol is older.)
-extern "C" __attribute__((visibility("default"))) int rbjax_native_abi() { return 2; }
+// 2: the thrusters' operand and the `series` attribute. 3: `terms` bit 3 (a world torque), and
+// rk4_body's forces on the unit quaternion q/|q|. (A library without this symbol is older.)
+extern "C" __attribute__((visibility("default"))) int rbjax_native_abi() { return 3; }
 
 // The instruction set the steps run with here: 0 x86-64 baseline (or not x86), 1 AVX2, 2 AVX-512.
 extern "C" __attribute__((visibility("default"))) int rbjax_native_isa() { return rbjax_native::isa(); }

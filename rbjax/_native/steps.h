@@ -45,9 +45,10 @@ RBJAX_INLINE void matvec3(const T A[9], const T a[3], T out[3]) {
 
 // The matrix of quat_rotate(q, ·) for any q (unit or not, as the stages of RK4 see it):
 // a ↦ a + 2w (u × a) + 2 u × (u × a), i.e. R = 1 + 2w [u]ₓ + 2 [u]ₓ²; quat_rotate_back is Rᵀ.
+// With `two` = 2/|q|² it is the rotation of q/|q| (for q ≠ 0 of any norm).
 template <typename T>
-RBJAX_INLINE void rotation(const T q[4], T R[9]) {
-  const T x2 = T(2) * q[1], y2 = T(2) * q[2], z2 = T(2) * q[3];
+RBJAX_INLINE void rotation(const T q[4], T R[9], T two = T(2)) {
+  const T x2 = two * q[1], y2 = two * q[2], z2 = two * q[3];
   const T xx = q[1] * x2, yy = q[2] * y2, zz = q[3] * z2, xy = q[1] * y2, xz = q[1] * z2, yz = q[2] * z2;
   const T wx = q[0] * x2, wy = q[0] * y2, wz = q[0] * z2;
   R[0] = T(1) - (yy + zz);
@@ -446,10 +447,43 @@ void splitting_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], 
   }
 }
 
+// Force (world) and torque (body frame) on body j at an RK4 stage of rk4_body: the world state
+// the JAX step gives the forces is (q̂, L = R̂ π) with q̂ = q/|q| and R̂ = R(q)/|q|² its rotation
+// (rbjax/_methods/rk4_body.py: _world_for_forces), and the torque is turned back by R̂ᵀ. There
+// ω = R̂ ω_b, so |ω| = |ω_b| and a drag torque turned back is -(b_r + c_r |ω_b|) ω_b; a thruster
+// pushes with R̂ f_b and its torque turned back is R̂ᵀ cof(R̂) τ_b = τ_b (cof(R̂) = R̂ for a
+// rotation); the world torques (constant, time series) turn back as R̂ᵀ τ. The same map as
+// forces() followed by R̂ᵀ, regrouped: R̂ is built only with kTurn (thrusters or a world torque).
+template <typename T, bool kQuad, bool kTurn>
+RBJAX_INLINE void body_forces(const Consts<T>& k, int j, const T q[4], const T v[3], const T w[3], T F[3], T tb[3]) {
+  T sv = T(0), sw = -k.br[j];
+  if (kQuad) {
+    sv = -k.c[j] * norm3(v);
+    sw = sw + -k.cr[j] * norm3(w);
+  }
+#pragma GCC unroll 16
+  for (int c = 0; c < 3; ++c) {
+    F[c] = ((k.F[c][j] + k.m[j] * k.g[c][j]) + -k.b[j] * v[c]) + sv * v[c];
+    tb[c] = sw * w[c];
+  }
+  if (kTurn) {
+    T R[9], Fw[3], tw[3];
+    rotation(q, R, T(2) / (((q[0] * q[0] + q[1] * q[1]) + q[2] * q[2]) + q[3] * q[3]));
+    const T fb[3] = {k.fb[0][j], k.fb[1][j], k.fb[2][j]}, tau[3] = {k.tau[0][j], k.tau[1][j], k.tau[2][j]};
+    matvec3(R, fb, Fw);
+    matvec3_t(R, tau, tw);
+#pragma GCC unroll 16
+    for (int c = 0; c < 3; ++c) {
+      F[c] = F[c] + Fw[c];
+      tb[c] = (tb[c] + tw[c]) + k.tb[c][j];
+    }
+  }
+}
+
 // The body-frame right-hand side of rbjax/_methods/rk4_body.py (_body_derivative) for
-// y = (x, v, q, π): ẋ = v, v̇ = F/m, q̇ = ½ q ⊗ (0, ω), π̇ = π × ω + Rᵀ τ with ω = I_L⁻¹ π;
-// the forces see the world state (q, L = R π), as rk4_body's force_fn(world(y)) does.
-template <typename T, bool kForces, bool kQuad, bool kThrust>
+// y = (x, v, q, π): ẋ = v, v̇ = F/m, q̇ = ½ q ⊗ (0, ω), π̇ = π × ω + R̂ᵀ τ with ω = I_L⁻¹ π, the
+// forces as body_forces gives them.
+template <typename T, bool kForces, bool kQuad, bool kTurn>
 RBJAX_INLINE void body_derivative(const Consts<T>& k, int j, const T y[13], T d[13]) {
   T inv[9], w[3], p[4];
   load_inv(k, j, inv);
@@ -465,15 +499,8 @@ RBJAX_INLINE void body_derivative(const Consts<T>& k, int j, const T y[13], T d[
     d[3 + c] = T(0);
   }
   if (kForces) {
-    // the world state's ω = R I⁻¹ Rᵀ (R π), and Rᵀ τ, with R(q) built once
-    T R[9], Lw[3], b[3], a[3], ww[3], F[3], tau[3], tb[3];
-    rotation(q, R);
-    matvec3(R, pi, Lw);
-    matvec3_t(R, Lw, b);
-    matvec3(inv, b, a);
-    matvec3(R, a, ww);
-    forces<T, kQuad, kThrust>(k, j, q, y + 3, ww, F, tau);
-    matvec3_t(R, tau, tb);
+    T F[3], tb[3];
+    body_forces<T, kQuad, kTurn>(k, j, q, y + 3, w, F, tb);
 #pragma GCC unroll 16
     for (int c = 0; c < 3; ++c) {
       d[3 + c] = F[c] * k.inv_m[j];
@@ -487,8 +514,8 @@ RBJAX_INLINE void body_derivative(const Consts<T>& k, int j, const T y[13], T d[
 }
 
 // `steps` RK4 steps of the body-frame equations (rbjax/_methods/rk4_body.py): π = Rᵀ L, the
-// classical tableau as rk4_steps sums it, q normalised, then L = R(q) π.
-template <typename T, bool kForces, bool kQuad, bool kThrust>
+// classical tableau as rk4_steps sums it, q normalised, then L = R(q) π. kTurn: see body_forces.
+template <typename T, bool kForces, bool kQuad, bool kTurn>
 void rk4_body_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps) {
   const T half = T(0.5), sixth = T(1.0 / 6.0), third = T(1.0 / 3.0);
   for (int64_t s = 0; s < steps; ++s) {
@@ -499,16 +526,16 @@ void rk4_body_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t steps)
       quat_rotate_back(y + 6, st, y + 10);
 #pragma GCC unroll 16
       for (int c = 0; c < 3; ++c) y[c] = B.x[c][j];
-      body_derivative<T, kForces, kQuad, kThrust>(k, j, y, k1);
+      body_derivative<T, kForces, kQuad, kTurn>(k, j, y, k1);
 #pragma GCC unroll 16
       for (int c = 0; c < 13; ++c) st[c] = y[c] + dt * (half * k1[c]);
-      body_derivative<T, kForces, kQuad, kThrust>(k, j, st, k2);
+      body_derivative<T, kForces, kQuad, kTurn>(k, j, st, k2);
 #pragma GCC unroll 16
       for (int c = 0; c < 13; ++c) st[c] = y[c] + dt * (half * k2[c]);
-      body_derivative<T, kForces, kQuad, kThrust>(k, j, st, k3);
+      body_derivative<T, kForces, kQuad, kTurn>(k, j, st, k3);
 #pragma GCC unroll 16
       for (int c = 0; c < 13; ++c) st[c] = y[c] + dt * k3[c];
-      body_derivative<T, kForces, kQuad, kThrust>(k, j, st, k4);
+      body_derivative<T, kForces, kQuad, kTurn>(k, j, st, k4);
 #pragma GCC unroll 16
       for (int c = 0; c < 13; ++c) {
         y[c] = y[c] + dt * (((sixth * k1[c] + third * k2[c]) + third * k3[c]) + sixth * k4[c]);
@@ -660,9 +687,10 @@ void method_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], int
 
 template <typename T>
 void block_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], int n, T dt, int64_t steps,
-                 int64_t method, bool forces, bool quad, bool thrust) {
+                 int64_t method, bool forces, bool quad, bool turn) {
+  // turn: the forces need R(q) (thrusters; for rk4_body a world torque too): the kThrust/kTurn flag
   if (!forces) return method_steps<T, false, false, false>(B, k, frame, n, dt, steps, method);
-  if (thrust) {
+  if (turn) {
     if (!quad) return method_steps<T, true, false, true>(B, k, frame, n, dt, steps, method);
     return method_steps<T, true, true, true>(B, k, frame, n, dt, steps, method);
   }
