@@ -24,16 +24,15 @@ from __future__ import annotations
 
 import math
 
+from .._dynamics import omega_world
 from .._math import (
     kick3,
     matmul3,
     matvec3,
     orthonormalize_unchecked,
-    quat_conjugate,
     quat_exp,
     quat_multiply,
     quat_normalize_unchecked,
-    quat_rotate_unchecked,
     quat_to_matrix_unchecked,
 )
 from .._pytree import replace
@@ -45,11 +44,7 @@ from ._registry import Method, register
 def semi_implicit_state(s: State, f: Forces, dt) -> State:
     """One semi-implicit Euler step of one body in the ``(x, v, q, L)`` form."""
     s = kick(s, f, dt)
-    q = s.orientation
-    w = quat_rotate_unchecked(
-        q, matvec3(s.body.inverse_inertia, quat_rotate_unchecked(quat_conjugate(q), s.angular_momentum))
-    )
-    q = quat_normalize_unchecked(quat_multiply(quat_exp(w * dt), q))
+    q = quat_normalize_unchecked(quat_multiply(quat_exp(omega_world(s) * dt), s.orientation))
     return replace(s, position=s.position + s.velocity * dt, orientation=q)
 
 
