@@ -10,8 +10,8 @@ by the classical tableau, forces evaluated at each stage on the world-frame
 state ``(q̂, L = R(q̂) π)`` with ``q̂ = q/|q|``; afterwards ``q`` is normalised
 and ``L = R(q) π``.
 
-Why forces see ``q̂``. At an RK4 stage ``|q| ≠ 1`` (by ``O(h²)``), and ``R(q)`` is
-``|q|²`` times a rotation. Any smooth continuation of the right-hand side off
+Why forces see ``q̂``. At an RK4 stage ``|q| ≠ 1`` (by ``O(h²)``), and the map of
+``quat_rotate(q, ·)`` is then not a rotation. Any smooth continuation of the right-hand side off
 ``|q| = 1`` keeps the order, so the choice is free; with ``q̂`` a force law sees
 what a :class:`~rbjax.State` promises (a unit quaternion), and a law that
 turns with the body costs nothing to turn back: ``ω = R̂ ω_b``, so drag
