@@ -18,9 +18,9 @@ from jax import Array
 from jaxtyping import Float
 
 from ._batching import lift
-from ._math import broadcasts_to
+from ._math import broadcasts_to, quat_conjugate, quat_rotate_unchecked
 from ._pytree import pytree_dataclass, replace
-from ._state import AnyState, Forces, ParticleState, RigidState
+from ._state import AnyState, Forces, ParticleState, RigidState, State
 from ._typing import ArrayLike
 
 __all__ = ["ForceModel", "ForceSum"]
@@ -131,12 +131,57 @@ class PerBodyForce(ForceModel):
         body of batch shape ``()``, with this model's arrays for that body."""
         raise NotImplementedError
 
+    def on_body_in_body_frame(self, state: State, omega_body: Array, t: Float[ArrayLike, ""]) -> Forces:
+        """:meth:`on_body` with the torque in the body frame: ``(F, R(q)ᵀ τ)`` for one body.
+
+        ``state`` is a world-frame :class:`~rbjax.State` with a unit ``q``; ``omega_body`` is its
+        ``ω_b = R(q)ᵀ ω`` ``(3,)`` (rad/s), which a step on the body-frame equations has already
+        (``"rk4_body"``). This default turns :meth:`on_body`'s torque back; a law whose torque
+        turns with the body (drag: ``τ(R ω_b) = R τ(ω_b)``) overrides it and needs no rotation.
+        """
+        f = self.on_body(state, t)
+        if f.torque is None:
+            return f
+        return replace(f, torque=quat_rotate_unchecked(quat_conjugate(state.orientation), f.torque))
+
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         self.check(state)
         return lift(lambda model, s: model.on_body(s, t))(self, state)
 
     def as_per_body(self, state: AnyState) -> PerBodyForce | None:
         return self
+
+
+class PerBodyForces:
+    """The steps' force function when every term of a model is per body: ``fn(state, t) -> Forces``.
+
+    Called, it lifts the sum of the terms' :meth:`PerBodyForce.on_body` over the batch (world
+    frame), in the layout the step carries the state in. A method that evaluates its own
+    right-hand side one body at a time may read :attr:`terms` instead and lift the forces with
+    it (``"rk4_body"`` takes the torque in the body frame from
+    :meth:`PerBodyForce.on_body_in_body_frame`).
+    """
+
+    def __init__(self, terms: tuple[PerBodyForce, ...]) -> None:
+        self.terms = terms
+
+    def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
+        return lift(lambda s, *terms: sum_on_body(terms, s, t))(state, *self.terms)
+
+
+def sum_on_body(terms: tuple[PerBodyForce, ...], state: AnyState, t: Any, omega_body: Array | None = None) -> Forces:
+    """``Σ`` of the terms' forces on one body: world frame, or with the torque in the body frame
+    (:meth:`PerBodyForce.on_body_in_body_frame`; ``state`` a :class:`~rbjax.State`) when
+    ``omega_body`` is given."""
+    total = Forces()
+    for term in terms:
+        if omega_body is None:
+            total = total + term.on_body(state, t)
+        elif isinstance(state, State):
+            total = total + term.on_body_in_body_frame(state, omega_body, t)
+        else:  # pragma: no cover - only rk4_body asks, with a State
+            raise TypeError(f"sum_on_body: the body-frame form needs a State, got {type(state).__name__}")
+    return total
 
 
 def split_per_body(forces: ForceModel) -> tuple[tuple[PerBodyForce, ...], ForceModel | None]:

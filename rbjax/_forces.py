@@ -52,7 +52,7 @@ from ._force_model import (
 from ._math import broadcasts_to, norm3, scale3
 from ._pytree import field, pytree_dataclass, static_field
 from ._quantities import angular_velocity
-from ._state import AnyState, Forces
+from ._state import AnyState, Forces, State
 from ._typing import ArrayLike, array_like, optional_array_like
 
 __all__ = [
@@ -119,6 +119,21 @@ class _Drag(PerBodyForce):
         for name in ("linear", "angular"):
             check_fits(self, name, 0, state.batch_shape, "the batch shape")
 
+    def _law(self, state: AnyState, w: Array | None) -> Forces:
+        """The force from ``v`` and, when ``angular`` is given, the torque from ``w`` (one body)."""
+        raise NotImplementedError  # pragma: no cover - each drag writes its own
+
+    def on_body(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
+        if self.angular is None:
+            return self._law(state, None)
+        return self._law(
+            state, _materialised(angular_velocity(rigid_only(f"{type(self).__name__}(angular=...)", state)))
+        )
+
+    def on_body_in_body_frame(self, state: State, omega_body: Array, t: Float[ArrayLike, ""]) -> Forces:
+        # τ(R ω_b) = R τ(ω_b) (|R ω_b| = |ω_b|): in the body frame the law reads ω_b and turns nothing
+        return self._law(state, omega_body)
+
 
 @pytree_dataclass
 class LinearDrag(_Drag):
@@ -132,11 +147,10 @@ class LinearDrag(_Drag):
     linear: Float[Array, "*B"] = field(default=0.0, converter=array_like)
     angular: Float[Array, "*B"] | None = field(default=None, converter=optional_array_like)
 
-    def on_body(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
+    def _law(self, state: AnyState, w: Array | None) -> Forces:
         f = scale3(-cast_to(self.linear, state), state.velocity)
-        if self.angular is None:
+        if w is None:
             return Forces(force=f)
-        w = _materialised(angular_velocity(rigid_only("LinearDrag(angular=...)", state)))
         return Forces(force=f, torque=scale3(-cast_to(self.angular, state), w))
 
 
@@ -152,13 +166,11 @@ class QuadraticDrag(_Drag):
     linear: Float[Array, "*B"] = field(default=0.0, converter=array_like)
     angular: Float[Array, "*B"] | None = field(default=None, converter=optional_array_like)
 
-    def on_body(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
+    def _law(self, state: AnyState, w: Array | None) -> Forces:
         v = state.velocity
         f = scale3(-cast_to(self.linear, state) * norm3(v), v)
-        if self.angular is None:
+        if w is None:
             return Forces(force=f)
-        w = angular_velocity(rigid_only("QuadraticDrag(angular=...)", state))
-        w = _materialised(w)
         return Forces(force=f, torque=scale3(-cast_to(self.angular, state) * norm3(w), w))
 
 

@@ -15,7 +15,7 @@ from jaxtyping import Float
 from . import _checked, _methods, _native
 from ._batching import batch_last, batch_shape, lift, map_leaves, to_batch_first, to_batch_last
 from ._body import prepare
-from ._force_model import ForceModel, split_per_body, with_per_body_terms
+from ._force_model import ForceModel, PerBodyForces, split_per_body, with_per_body_terms
 from ._math import broadcasts_to
 from ._methods import DEFAULT_METHOD, Method
 from ._pytree import replace
@@ -393,17 +393,7 @@ def _simulate(
     # it with the step; the other terms of a sum (springs, ...) through the batch-level path,
     # which transposes the batch around every call
     per_body, rest = split_per_body(forces) if soa and isinstance(forces, ForceModel) else ((), None)
-    if per_body:
-        per_body = tuple(to_soa(term) for term in per_body)
-
-        def per_body_forces(state, t):
-            def on_body(s, *models):
-                total = Forces()
-                for model in models:
-                    total = total + model.on_body(s, t)
-                return total
-
-            return lift(on_body)(state, *per_body)
+    per_body_forces = PerBodyForces(tuple(to_soa(term) for term in per_body))
 
     # the steps' force function, chosen once; time-series forces give one per step, from its slice
     if series:

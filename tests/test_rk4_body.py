@@ -126,3 +126,53 @@ def test_forces_see_unit_quaternions_at_the_stages():
     # float64 round-off: |q|² - 1 ~ 1e-16 times 1e3 per evaluation, 200 evaluations
     np.testing.assert_allclose(driven.angular_momentum, free.angular_momentum, atol=1e-10)
     np.testing.assert_allclose(driven.orientation, free.orientation, atol=1e-10)
+
+
+def _bodies_and_loads():
+    rng = np.random.default_rng(7)
+    moments = rng.uniform(1.0, 1.9, (5, 3))  # any two sum past the third: physical
+    body = rb.Body(rng.uniform(0.5, 2.0, 5), jnp.asarray(np.einsum("ni,ij->nij", moments, np.eye(3))))
+    q = rng.normal(size=(5, 4))
+    s = rb.State.create(
+        body,
+        velocity=rng.normal(size=(5, 3)),
+        orientation=q / np.linalg.norm(q, axis=-1, keepdims=True),
+        angular_velocity=rng.normal(size=(5, 3)) * 2.0,
+    )
+    directions = np.array([[0.0, 0.0, 1.0], [0.6, 0.8, 0.0]])
+    model = (
+        rb.Gravity()
+        + rb.QuadraticDrag(0.05, 0.02)
+        + rb.LinearDrag(0.1, jnp.asarray([0.01, 0.02, 0.03, 0.04, 0.05]))
+        + rb.ConstantForce(torque=jnp.asarray([0.1, -0.2, 0.05]))
+        + rb.Thruster([0, 3], directions, [2.0, -1.0], point=[[0.1, 0.0, 0.0], [0.0, -0.2, 0.1]])
+    )
+    return s, model
+
+
+def test_per_body_laws_in_the_body_frame_match_the_world_path():
+    # simulate evaluates per-body laws with rk4_body's stage derivative and takes their torque in
+    # the body frame (drag reads ω_b, nothing turns); a plain callable goes the world-frame way
+    # (forces on the batch, torque turned back by R(q̂)ᵀ). The same law both ways: float64
+    # round-off over 100 steps (1e-12; the loads change L by O(1), checked below)
+    s, model = _bodies_and_loads()
+    body_frame = rb.simulate(s, model, 0.01, 100, "rk4_body", native=False, save_every=100)
+    world = rb.simulate(s, lambda state, t: model(state, t), 0.01, 100, "rk4_body", native=False, save_every=100)
+    free = rb.simulate(s, None, 0.01, 100, "rk4_body", native=False, save_every=100)
+    assert np.min(np.linalg.norm(np.asarray(world.angular_momentum - free.angular_momentum)[-1], axis=-1)) > 1e-2
+    for name in ("position", "velocity", "orientation", "angular_momentum"):
+        np.testing.assert_allclose(getattr(body_frame, name), getattr(world, name), rtol=0, atol=1e-12, err_msg=name)
+
+
+@pytest.mark.parametrize("drag", [rb.LinearDrag(0.1, 0.3), rb.QuadraticDrag(0.1, 0.3)], ids=["linear", "quadratic"])
+def test_drag_in_the_body_frame_is_the_world_torque_turned_back(drag):
+    # τ(R ω_b) = R τ(ω_b): the drag's own body-frame form against the world law's torque turned
+    # back by R(q)ᵀ in NumPy (float64, a few ulps of O(1) values)
+    s, _ = _bodies_and_loads()
+    one = jax.tree.map(lambda a: a[2], s)
+    w_b = rb.body_angular_velocity(one)
+    mine = drag.on_body_in_body_frame(one, w_b, 0.0)
+    world = drag.on_body(one, 0.0)
+    R = np.asarray(rb.quat_to_matrix(one.orientation))
+    np.testing.assert_allclose(mine.torque, R.T @ np.asarray(world.torque), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(mine.force, world.force, rtol=0, atol=1e-14)

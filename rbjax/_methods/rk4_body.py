@@ -17,7 +17,8 @@ what a :class:`~rbjax.State` promises (a unit quaternion), and a law that
 turns with the body costs nothing to turn back: ``ω = R̂ ω_b``, so drag
 ``-(b_r + c_r|ω|) ω`` is ``-(b_r + c_r|ω_b|) ω_b`` in the body frame, and a
 thruster's torque ``R̂ᵀ (R̂ p × R̂ f) = p × f``. The native kernel uses this: with
-gravity and drag its stages need no rotation at all (rbjax/_native/steps.h).
+gravity and drag its stages need no rotation at all (rbjax/_native/steps.h); so does the JAX
+path for per-body laws (:meth:`~rbjax._force_model.PerBodyForce.on_body_in_body_frame`).
 
 Why a second RK4. ``"rk4"`` integrates the notes' world-frame loop ``(q, L)``,
 where ``ω = R I_L⁻¹ Rᵀ L`` depends on the attitude: its local error couples the
@@ -40,6 +41,7 @@ import jax
 import jax.numpy as jnp
 
 from .._batching import lift
+from .._force_model import PerBodyForces, sum_on_body
 from .._math import cross, matvec3, over, quat_conjugate, quat_multiply, quat_normalize_unchecked, quat_rotate_unchecked
 from .._pytree import replace
 from .._state import Forces, State
@@ -66,20 +68,24 @@ def _to_unit_world(s: State) -> State:
     return replace(s, orientation=q, angular_momentum=quat_rotate_unchecked(q, s.angular_momentum))
 
 
-def _body_derivative(s: State, f: Forces, world: State) -> State:
+def _body_derivative(s: State, f: Forces) -> State:
     """``(ẋ, v̇, q̇, π̇)`` of one body, stored in a State's fields (π̇ in ``angular_momentum``).
 
-    ``f`` acts on ``world``, the stage's world state of :func:`_world_for_forces`, whose
-    orientation is ``q/|q|``: its torque is turned back into the body frame by that rotation.
+    ``f``'s force is world frame and its torque body frame (see :func:`_stage_derivative`).
     """
     q, pi = s.orientation, s.angular_momentum
     w = matvec3(s.body.inverse_inertia, pi)
-    dpi = cross(pi, w)
-    if f.torque is not None:
-        dpi = dpi + quat_rotate_unchecked(quat_conjugate(world.orientation), f.torque)
+    dpi = cross(pi, w) if f.torque is None else cross(pi, w) + f.torque
     a = jnp.zeros_like(s.velocity) if f.force is None else over(f.force, s.body.mass)
     dq = 0.5 * quat_multiply(q, jnp.concatenate([jnp.zeros_like(w[:1]), w]))
     return replace(s, position=s.velocity, velocity=a, orientation=dq, angular_momentum=dpi)
+
+
+def _turned_back(f: Forces, world: State) -> Forces:
+    """``f`` with its torque in the body frame: ``R(q̂)ᵀ τ`` (one body)."""
+    if f.torque is None:
+        return f
+    return replace(f, torque=quat_rotate_unchecked(quat_conjugate(world.orientation), f.torque))
 
 
 def _world_for_forces(y: State) -> State:
@@ -95,14 +101,32 @@ def _world_for_forces(y: State) -> State:
     return replace(w, angular_momentum=jax.lax.optimization_barrier(w.angular_momentum))
 
 
+def _stage_derivative(force_fn, y: State, t) -> State:
+    """The right-hand side at stage ``y`` (``π`` in ``angular_momentum``), forces on its world state.
+
+    Per-body laws (:class:`~rbjax._force_model.PerBodyForces`) are evaluated with the
+    derivative, one body at a time, and give their torque in the body frame: drag reads
+    ``ω_b = I_L⁻¹ π`` directly, where the world path would rotate ``π`` out and back twice.
+    Any other force function sees the batch and its torque is turned back here.
+    """
+    world = _world_for_forces(y)
+    if isinstance(force_fn, PerBodyForces):
+
+        def one(s: State, w: State, *terms) -> State:
+            f = sum_on_body(terms, w, t, omega_body=matvec3(s.body.inverse_inertia, s.angular_momentum))
+            return _body_derivative(s, f)
+
+        return lift(one)(y, world, *force_fn.terms)
+    return lift(lambda s, f, w: _body_derivative(s, _turned_back(f, w)))(y, force_fn(world, t), world)
+
+
 def rk4_body(state: State, force_fn, t, dt) -> State:
     """One RK4 step of the body-frame equations (see the module docstring); batch-level."""
     y0 = lift(_to_body)(state)
     ks = []
     for i in range(4):
         y = combine(y0, dt, _A[i], ks[:i])
-        world = _world_for_forces(y)
-        ks.append(lift(_body_derivative)(y, force_fn(world, t + _C[i] * dt), world))
+        ks.append(_stage_derivative(force_fn, y, t + _C[i] * dt))
     return lift(_to_world)(project(combine(y0, dt, _B, ks)))
 
 
