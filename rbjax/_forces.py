@@ -124,6 +124,8 @@ class _Drag(PerBodyForce):
         raise NotImplementedError  # pragma: no cover - each drag writes its own
 
     def on_body(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
+        """World-frame force from ``v`` (m/s) and, with ``angular``, torque from the world ``ω``
+        (rad/s) of one body: :class:`Forces` ``(3,)`` N and ``(3,)`` N m (``None`` without)."""
         if self.angular is None:
             return self._law(state, None)
         return self._law(
@@ -131,7 +133,11 @@ class _Drag(PerBodyForce):
         )
 
     def on_body_in_body_frame(self, state: State, omega_body: Array, t: Float[ArrayLike, ""]) -> Forces:
-        # τ(R ω_b) = R τ(ω_b) (|R ω_b| = |ω_b|): in the body frame the law reads ω_b and turns nothing
+        """:meth:`on_body` with the torque in the body frame, from ``omega_body`` ``ω_b`` ``(3,)`` rad/s.
+
+        The law turns with the body, ``τ(R ω_b) = R τ(ω_b)`` (``|R ω_b| = |ω_b|``), so in the
+        body frame it reads ``ω_b`` and turns nothing; the force stays world frame (from ``v``).
+        """
         return self._law(state, omega_body)
 
 

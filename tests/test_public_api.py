@@ -49,7 +49,12 @@ def _public_methods():
         cls = getattr(rb, n)
         if not inspect.isclass(cls):
             continue
-        for m, v in vars(cls).items():
+        # a public class's methods, also those it inherits from a private base (LinearDrag's on_body)
+        own = {}
+        for klass in reversed(cls.__mro__):
+            if klass is cls or (klass.__module__.startswith("rbjax") and klass.__name__.startswith("_")):
+                own.update(vars(klass))
+        for m, v in own.items():
             if m.startswith("_"):
                 continue
             if isinstance(v, (classmethod, staticmethod)):
