@@ -139,10 +139,7 @@ class PerBodyForce(ForceModel):
         (``"rk4_body"``). This default turns :meth:`on_body`'s torque back; a law whose torque
         turns with the body (drag: ``τ(R ω_b) = R τ(ω_b)``) overrides it and needs no rotation.
         """
-        f = self.on_body(state, t)
-        if f.torque is None:
-            return f
-        return replace(f, torque=quat_rotate_unchecked(quat_conjugate(state.orientation), f.torque))
+        return torque_to_body(self.on_body(state, t), state)
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         self.check(state)
@@ -167,6 +164,13 @@ class PerBodyForces:
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         return lift(lambda s, *terms: sum_on_body(terms, s, t))(state, *self.terms)
+
+
+def torque_to_body(f: Forces, state: State) -> Forces:
+    """``f`` with its world torque turned into ``state``'s body frame, ``R(q)ᵀ τ`` (one body; force kept)."""
+    if f.torque is None:
+        return f
+    return replace(f, torque=quat_rotate_unchecked(quat_conjugate(state.orientation), f.torque))
 
 
 def sum_on_body(terms: tuple[PerBodyForce, ...], state: AnyState, t: Any, omega_body: Array | None = None) -> Forces:

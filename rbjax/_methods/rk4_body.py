@@ -41,7 +41,7 @@ import jax
 import jax.numpy as jnp
 
 from .._batching import lift
-from .._force_model import PerBodyForces, sum_on_body
+from .._force_model import PerBodyForces, sum_on_body, torque_to_body
 from .._math import cross, matvec3, over, quat_conjugate, quat_multiply, quat_normalize_unchecked, quat_rotate_unchecked
 from .._pytree import replace
 from .._state import Forces, State
@@ -81,13 +81,6 @@ def _body_derivative(s: State, f: Forces) -> State:
     return replace(s, position=s.velocity, velocity=a, orientation=dq, angular_momentum=dpi)
 
 
-def _turned_back(f: Forces, world: State) -> Forces:
-    """``f`` with its torque in the body frame: ``R(q̂)ᵀ τ`` (one body)."""
-    if f.torque is None:
-        return f
-    return replace(f, torque=quat_rotate_unchecked(quat_conjugate(world.orientation), f.torque))
-
-
 def _world_for_forces(y: State) -> State:
     """The world-frame stage state ``(q̂, L = R(q̂) π)`` that the forces see, ``L`` computed into memory.
 
@@ -117,7 +110,7 @@ def _stage_derivative(force_fn, y: State, t) -> State:
             return _body_derivative(s, f)
 
         return lift(one)(y, world, *force_fn.terms)
-    return lift(lambda s, f, w: _body_derivative(s, _turned_back(f, w)))(y, force_fn(world, t), world)
+    return lift(lambda s, f, w: _body_derivative(s, torque_to_body(f, w)))(y, force_fn(world, t), world)
 
 
 def rk4_body(state: State, force_fn, t, dt) -> State:
