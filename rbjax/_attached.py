@@ -20,17 +20,9 @@ from jax.sharding import NamedSharding, PartitionSpec
 from jaxtyping import Float, Int
 
 from ._body import floats
-from ._force_model import (
-    ForceModel,
-    PerBodyForce,
-    cast_to,
-    check_core,
-    check_fits,
-    check_non_negative,
-    is_concrete,
-    rigid_only,
-)
-from ._math import cross, matvec3, quat_rotate_unchecked, safe_norm, scale3
+from ._force_checks import cast_to, check_core, check_fits, check_non_negative, rigid_only
+from ._force_model import ForceModel, PerBodyForce
+from ._math import cross, is_concrete, matvec3, quat_rotate_unchecked, safe_norm, scale3
 from ._pytree import field, pytree_dataclass
 from ._quantities import angular_velocity
 from ._state import AnyState, Forces, MatrixState, ParticleState, RigidState, State

@@ -2,8 +2,8 @@
 
 :class:`ForceModel` is the base of the models in :mod:`rbjax._forces` (laws per body and
 prescribed loads) and :mod:`rbjax._attached` (springs and thrusters, which name bodies by
-index); :class:`ForceSum` is what ``+`` builds. The checks the models share live here too.
-See :mod:`rbjax._forces` for the conventions every model follows.
+index); :class:`ForceSum` is what ``+`` builds. The checks of their fields are in
+:mod:`rbjax._force_checks`. See :mod:`rbjax._forces` for the conventions every model follows.
 """
 
 from __future__ import annotations
@@ -12,15 +12,13 @@ from typing import Any
 
 import jax
 import jax.core
-import jax.numpy as jnp
-import numpy as np
 from jax import Array
 from jaxtyping import Float
 
 from ._batching import lift
-from ._math import broadcasts_to, quat_conjugate, quat_rotate_unchecked
+from ._math import quat_conjugate, quat_rotate_unchecked
 from ._pytree import pytree_dataclass, replace
-from ._state import AnyState, Forces, ParticleState, RigidState, State
+from ._state import AnyState, Forces, State
 from ._typing import ArrayLike
 
 __all__ = ["ForceModel", "ForceSum"]
@@ -213,65 +211,6 @@ def with_per_body_terms(forces: ForceModel, state: AnyState) -> ForceModel:
     if all(a is b for a, b in zip(new, terms)):
         return forces
     return ForceSum(new) if isinstance(forces, ForceSum) else new[0]
-
-
-def is_concrete(a: Any) -> bool:
-    """Whether ``a`` is a value that can be read here (not ``None``, not traced, on this process)."""
-    return a is not None and not isinstance(a, jax.core.Tracer) and getattr(a, "is_fully_addressable", True)
-
-
-def check_core(model: Any, name: str, core: tuple[int, ...], extra: str = "") -> None:
-    """``ValueError`` unless field ``name`` (if given) ends in ``core``, e.g. ``(3,)`` for a vector."""
-    a = getattr(model, name)
-    if a is None:
-        return
-    if tuple(a.shape[a.ndim - len(core) :]) != core or a.ndim < len(core):
-        dims = ", ".join(str(c) for c in core)
-        raise ValueError(
-            f"{type(model).__name__}: {name} must have shape (..., {dims}){extra}, got shape {tuple(a.shape)}"
-        )
-
-
-def check_non_negative(model: Any, *names: str) -> None:
-    """``ValueError`` for a concrete negative coefficient (it would add energy, not take it)."""
-    for name in names:
-        a = getattr(model, name)
-        if is_concrete(a) and np.any(np.asarray(a) < 0):
-            raise ValueError(
-                f"{type(model).__name__}: {name} must be >= 0 (a negative coefficient adds energy instead of "
-                f"removing or restoring it), got {np.asarray(a).ravel()[:4]}; pass its magnitude"
-            )
-
-
-def check_fits(model: Any, name: str, core: int, shape: tuple[int, ...], what: str) -> None:
-    """``ValueError`` unless field ``name``'s leading shape (all but ``core`` axes) broadcasts to ``shape``."""
-    a = getattr(model, name)
-    if a is None:
-        return
-    lead = tuple(a.shape[: a.ndim - core])
-    ok = broadcasts_to(lead, tuple(shape))
-    if not ok:
-        raise ValueError(
-            f"{type(model).__name__}: {name} of shape {tuple(a.shape)} does not fit {what} {tuple(shape)}; give it "
-            f"the shape {tuple(shape) + tuple(a.shape[a.ndim - core :])} or a broadcastable one"
-        )
-
-
-def cast_to(x: Any, state: AnyState) -> Array:
-    """``x`` as an array of the state's dtype."""
-    return jnp.asarray(x).astype(state.dtype)
-
-
-def full_batch(x: Array, state: AnyState) -> Array:
-    """``x`` broadcast to the state's ``(*B, 3)``."""
-    return jnp.broadcast_to(x, state.position.shape)
-
-
-def rigid_only(name: str, state: AnyState) -> RigidState:
-    """``state``, known to be rigid; ``ValueError`` for particles."""
-    if isinstance(state, ParticleState):
-        raise ValueError(f"{name}: a torque needs rigid bodies; ParticleState has no rotation")
-    return state
 
 
 @pytree_dataclass

@@ -38,18 +38,9 @@ from jax import Array
 from jaxtyping import Float
 
 from ._body import as_float, floats
-from ._force_model import (
-    ForceModel,
-    PerBodyForce,
-    cast_to,
-    check_core,
-    check_fits,
-    check_non_negative,
-    full_batch,
-    is_concrete,
-    rigid_only,
-)
-from ._math import broadcasts_to, norm3, scale3
+from ._force_checks import cast_to, check_core, check_fits, check_non_negative, full_batch, rigid_only
+from ._force_model import ForceModel, PerBodyForce
+from ._math import broadcasts_to, is_concrete, norm3, scale3
 from ._pytree import field, pytree_dataclass, static_field
 from ._quantities import angular_velocity
 from ._state import AnyState, Forces, State

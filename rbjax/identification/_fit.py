@@ -239,13 +239,13 @@ def fit_inertia(
             or too little excitation (naming the unidentifiable directions), or
             ``body_rates`` that look world-frame (``check_gyro_frame``).
     """
-    arrays = dict(
-        orientations=orientations,
-        body_rates=body_rates,
-        torques=torques,
-        body_torques=body_torques,
-        accelerations=accelerations,
-    )
+    arrays = {
+        "orientations": orientations,
+        "body_rates": body_rates,
+        "torques": torques,
+        "body_torques": body_torques,
+        "accelerations": accelerations,
+    }
     _check_list_of_recordings(times)
     if isinstance(times, Recording) or (
         isinstance(times, (list, tuple)) and len(times) > 0 and all(isinstance(r, Recording) for r in times)

@@ -156,20 +156,20 @@ class LMMember:
         r, J = self.shapes(y, data)
         n = y.shape[0]
         kept = {"J": jnp.zeros(J.shape, J.dtype)} if self.keep_jacobian else {}
-        return dict(
+        return {
             **kept,
-            y=y,
-            y_eval=y,
-            data=data,
-            r=jnp.zeros(r.shape, r.dtype),
-            G=jnp.zeros((n, n), y.dtype),
-            g=jnp.zeros(n, y.dtype),
-            step_size=jnp.ones((), y.dtype),
-            first=jnp.array(True),
-            steps=jnp.zeros((), jnp.int32),
-            terminate=jnp.array(False),
-            ok=jnp.all(jnp.isfinite(y)),
-        )
+            "y": y,
+            "y_eval": y,
+            "data": data,
+            "r": jnp.zeros(r.shape, r.dtype),
+            "G": jnp.zeros((n, n), y.dtype),
+            "g": jnp.zeros(n, y.dtype),
+            "step_size": jnp.ones((), y.dtype),
+            "first": jnp.array(True),
+            "steps": jnp.zeros((), jnp.int32),
+            "terminate": jnp.array(False),
+            "ok": jnp.all(jnp.isfinite(y)),
+        }
 
     def advance(self, slot):
         """Evaluate the trial point, accept or reject it, and propose the next one."""
@@ -198,20 +198,20 @@ class LMMember:
         kept = {"J": jnp.where(accept, J_e, slot["J"])} if self.keep_jacobian else {}
         y_next = y + _damped_step(G, g, step_size)
         ok = slot["ok"] & jnp.all(jnp.isfinite(y_next)) & jnp.all(jnp.isfinite(r))
-        return dict(
-            slot,
+        return {
+            **slot,
             **kept,
-            y=y,
-            y_eval=y_next,
-            r=r,
-            G=G,
-            g=g,
-            step_size=step_size,
-            first=jnp.array(False),
-            steps=slot["steps"] + 1,
-            terminate=terminate,
-            ok=ok,
-        )
+            "y": y,
+            "y_eval": y_next,
+            "r": r,
+            "G": G,
+            "g": g,
+            "step_size": step_size,
+            "first": jnp.array(False),
+            "steps": slot["steps"] + 1,
+            "terminate": terminate,
+            "ok": ok,
+        }
 
     def running(self, slot):
         return ~slot["terminate"] & slot["ok"] & (slot["steps"] < self.max_steps)
