@@ -68,29 +68,43 @@ def _q_rate(q, L, inv):
     return (-0.5 * (w[0] * u[0] + w[1] * u[1] + w[2] * u[2]),) + tuple(0.5 * (q[0] * w[i] + c[i]) for i in range(3))
 
 
-def _combine(y, dt, weights, ks):
-    """``y + dt Σ_j w_j k_j`` component-wise; zero weights cost nothing."""
-    terms = [(w, k) for w, k in zip(weights, ks, strict=False) if w]
-    if not terms:
-        return y
-    return tuple(x + dt * sum(w * k[i] for w, k in terms) for i, x in enumerate(y))
+# Classical RK4's stage i reads only stage i-1 (A is zero below its first sub-diagonal), so one
+# stage function serves all four: (a_i, b_i, c_i) = (A[i][i-1], b[i], c[i])
+assert all(not any(row[:-1]) for row in _A[1:]), "the stage loop needs a sub-diagonal tableau"
+_STAGES = tuple(zip((0.0,) + tuple(row[-1] for row in _A[1:]), _B, _C, strict=True))
 
 
-def _rk4(q, L, inv, k, dt, torque):
+def _rk4(q, L, inv, k, dt, torque, looped: bool = False):
     """One step; ``torque(q_stage, L_stage, inv, k, c)`` is the world torque at stage node ``c``, or ``None``.
 
     ``k``: the drag coefficients ``(c₁, c₂)`` (rows over the bodies) or ``()``.
+    ``looped``: the four stages as a ``lax.scan`` of one stage instead of
+    written out. The same arithmetic; the program holds one copy of the stage
+    and its tangents instead of four, which compiles in about half the time
+    and runs up to ~2.7x slower (measured on the fit: benchmarks/fit_speed.py),
+    so the fit loops only where the compile is most of the call.
     """
-    kq, kL = [], []
-    for a, c in zip(_A, _C, strict=True):
-        qs = _combine(q, dt, a, kq)
-        Ls = _combine(L, dt, a, kL) if torque is not None else L
-        kq.append(_q_rate(qs, Ls, inv))
-        if torque is not None:
-            kL.append(torque(qs, Ls, inv, k, c))
-    q = _combine(q, dt, _B, kq)
-    if torque is not None:
-        L = _combine(L, dt, _B, kL)
+    y = (q, L) if torque is not None else (q,)  # without a torque L is constant
+
+    def stage(k_prev, acc, a, b, c):
+        """Stage ``(a, b, c)`` after the rates ``k_prev`` (``None`` before the first): its rates, and
+        ``acc + b k`` (``acc``: the weighted sum of the stages so far, ``None`` before the first)."""
+        qs, *Ls = y if k_prev is None else jax.tree.map(lambda x, r: x + dt * (a * r), y, k_prev)
+        Ls = Ls[0] if Ls else L
+        k_i = (_q_rate(qs, Ls, inv),) + ((torque(qs, Ls, inv, k, c),) if torque is not None else ())
+        weighted = jax.tree.map(lambda r: b * r, k_i)
+        return k_i, weighted if acc is None else jax.tree.map(jnp.add, acc, weighted)
+
+    if looped:
+        zero = jax.tree.map(jnp.zeros_like, y)
+        body = lambda carry, abc: (stage(*carry, *abc), None)
+        (_, acc), _ = jax.lax.scan(body, (zero, zero), tuple(jnp.asarray(_STAGES, dt.dtype).T))
+    else:
+        k_prev = acc = None
+        for a, b, c in _STAGES:
+            k_prev, acc = stage(k_prev, acc, a, b, c)
+    q, *L_end = jax.tree.map(lambda x, s: x + dt * s, y, acc)
+    L = L_end[0] if L_end else L
     norm = jnp.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
     return tuple(x / norm for x in q), L
 
@@ -121,7 +135,7 @@ def _soa(a: Array, core: int) -> tuple:
     return tuple(jnp.moveaxis(rows[..., i], 0, -1) for i in range(rows.shape[-1]))
 
 
-def _flow(args, *, substeps: int, torque_frame: str | None, observe, drag: bool = False):
+def _flow(args, *, substeps: int, torque_frame: str | None, observe, drag: bool = False, looped: bool = False):
     q0, L0, inv = _soa(args["q"], 1), _soa(args["L"], 1), _soa(args["inv"], 2)
     dq0, dL0, dinv = _soa(args["dq"], 1), _soa(args["dL"], 1), _soa(args["dinv"], 2)
     k, dk = (_soa(args["drag"], 1), _soa(args["ddrag"], 1)) if drag else ((), ())
@@ -146,7 +160,7 @@ def _flow(args, *, substeps: int, torque_frame: str | None, observe, drag: bool 
             if torque_frame is not None or drag:
                 torque = functools.partial(_stage_torque, x, j, substeps, torque_frame, drag)
             (q, L), (dq, dL) = carry
-            step = functools.partial(_rk4, dt=h, torque=torque)
+            step = functools.partial(_rk4, dt=h, torque=torque, looped=looped)
             push = lambda tq, tL, ti, tk: jax.jvp(step, (q, L, inv, k), (tq, tL, ti, tk))
             return jax.vmap(push, out_axes=(None, 0))(dq, dL, dinv, dk), None
 
@@ -166,7 +180,7 @@ def _flow(args, *, substeps: int, torque_frame: str | None, observe, drag: bool 
 
 
 @functools.cache
-def flow(substeps: int, torque_frame: str | None, observe, drag: bool = False):
+def flow(substeps: int, torque_frame: str | None, observe, drag: bool = False, looped: bool = False):
     """``rk4`` on ``M`` bodies' ``(q, L)`` over ``K`` sample intervals, observed after each, with tangents.
 
     ``flow(substeps, torque_frame, observe)(args)``; ``args`` is a dict of
@@ -188,11 +202,16 @@ def flow(substeps: int, torque_frame: str | None, observe, drag: bool = False):
     (N m, ``ω`` in rad/s), ``args["drag"]`` ``(M, 2)`` the coefficients
     ``(c₁, c₂)`` and ``args["ddrag"]`` ``(M, n, 2)`` their tangents.
 
+    ``looped``: the RK4 stages as a loop of one stage (see :func:`_rk4`), for
+    programs whose compile costs more than their run.
+
     Under ``vmap`` (the fit's work queue) the mapped axis is folded into the
     body axis instead of being batched op by op.
     """
     fn = jax.custom_batching.custom_vmap(
-        functools.partial(_flow, substeps=substeps, torque_frame=torque_frame, observe=observe, drag=drag)
+        functools.partial(
+            _flow, substeps=substeps, torque_frame=torque_frame, observe=observe, drag=drag, looped=looped
+        )
     )
 
     @fn.def_vmap

@@ -78,7 +78,7 @@ def _pushforward(f, x, tx):
     return jax.vmap(lambda v: jax.jvp(f, (x,), (v,)), out_axes=(None, 0))(tx)
 
 
-def _segments(X, seg, *, layout: Layout, scale_fixed, method, substeps, use_rates, use_orientations=True):
+def _segments(X, seg, *, layout: Layout, scale_fixed, method, substeps, use_rates, use_orientations=True, looped=False):
     """Data residuals ``(S, m)`` and end states ``(q, ω_body)`` ``(S, 7)`` of all segments, and
     their derivatives ``(S, m, n)``, ``(S, 7, n)`` in each segment's ``x_s = X[s]`` (``n = n_θ + 6``).
 
@@ -166,7 +166,7 @@ def _segments(X, seg, *, layout: Layout, scale_fixed, method, substeps, use_rate
             tangents = jnp.broadcast_to(basis[:, at], (X.shape[0], X.shape[1], drag))
             dk = jnp.zeros((X.shape[0], X.shape[1], 2), X.dtype).at[:, :, :drag].set(tangents)
             args.update(drag=k, ddrag=dk)
-        (q_end, dq_end), y, dy = flow(substeps, frame, _observe, bool(drag))(args)
+        (q_end, dq_end), y, dy = flow(substeps, frame, _observe, bool(drag), looped)(args)
     else:
         K = seg.dt.shape[1]
         dts = jnp.broadcast_to((seg.dt / substeps).T[:, None], (K, substeps, X.shape[0]))
@@ -260,13 +260,15 @@ def model_residuals(
     layout: Layout,
     use_orientations=True,
     joins=None,
+    looped=False,
 ):
     """Residual vector ``r`` (segments' data rows, then join rows) and its dense Jacobian ``∂r/∂y``.
 
     ``y = (shared block, p_0, ..., p_{S-1})`` as ``layout`` places them
     (:class:`._layout.Layout`: inertia θ, gyro bias, gyro rotation, accelerometer,
     drag), then 6 per segment. ``joins``: the segments ``s`` whose end is joined to the start of ``s + 1``
-    (a static tuple); ``None``: every one (one recording).
+    (a static tuple); ``None``: every one (one recording). ``looped``: the RK4
+    stages as a loop (:func:`._flow.flow`), for a program that compiles faster and runs slower.
     """
     seg = data["seg"]
     S = seg.dt.shape[0]
@@ -282,6 +284,7 @@ def model_residuals(
         substeps=substeps,
         use_rates=use_rates,
         use_orientations=use_orientations,
+        looped=looped,
     )
     m = r_seg.shape[1]
     # robust (IRLS) weights per sample and sensor block, rw (S, blocks, K+1): rows scaled by √w

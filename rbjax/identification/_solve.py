@@ -46,7 +46,9 @@ def fit_batch_jit(backend: str, small: bool = False):
     CPU-s) and made the solve faster too (3.1 → 2.0 CPU-s), same result.
     ``small`` (a problem whose solve is short: :func:`is_small`) also turns
     LLVM's optimisation off (``xla_backend_optimization_level=0``): it cuts the
-    compile by ~40% and slows the solve, which for a short throw is a few ms.
+    compile by ~40% and slows the solve, which for a short throw is a few ms;
+    :func:`solve` also has such a problem's model loop over the RK4 stages
+    (``looped``, :func:`._flow.flow`), which halves the compile again.
     """
     key = (backend, small)
     if key not in _JITS:
@@ -203,10 +205,11 @@ def solve_with_starts(prob, options, per_sample: bool = True) -> tuple[FitResult
     """:func:`solve`, and every segment's fitted start: ``q``, ``q_std``, ``w``, ``w_std`` ``(*N, S, ...)``."""
     loss = options["loss"]
     data = dict(prob.data, loss_scale=np.full(prob.y0.shape[0], float(options["loss_scale"]), prob.y0.dtype))
-    out = fit_batch_jit(jax.default_backend(), is_small(prob))(
+    small = is_small(prob)
+    out = fit_batch_jit(jax.default_backend(), small)(
         prob.y0,
         data,
-        model_opts=tuple(sorted(prob.static.items())),
+        model_opts=tuple(sorted({**prob.static, "looped": small}.items())),
         loss=loss,
         rtol=float(options["rtol"]),
         atol=float(options["atol"]),
