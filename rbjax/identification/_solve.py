@@ -10,6 +10,7 @@ then the covariance and diagnostics (:mod:`._result`).
 from __future__ import annotations
 
 import functools
+import math
 
 import jax
 import jax.numpy as jnp
@@ -69,13 +70,13 @@ def compiled_programs() -> int:
 
 
 def is_small(prob) -> bool:
-    """Whether ``prob``'s solve is cheap next to its compile: one recording, or one joint problem,
-    of at most ``_SMALL_INTERVALS`` sample intervals in all (segments x padded intervals)."""
-    S, K = prob.data["seg"].dt.shape[-2:]
-    return not prob.batched and S * K <= _SMALL_INTERVALS
+    """Whether ``prob``'s solve is cheap next to its compile: one recording, a joint problem or a
+    batch of at most ``_SMALL_INTERVALS`` sample intervals in all (members x segments x padded
+    intervals)."""
+    return math.prod(prob.data["seg"].dt.shape) <= _SMALL_INTERVALS
 
 
-# a throw, a few seconds at 200 Hz, or a joint fit of up to ~12 throws of <= 100 samples. Measured
+# a throw, a few seconds at 200 Hz, a joint fit or a list of up to ~12 throws of <= 100 samples. Measured
 # (2026-12-02, 2-core EPYC, quiet): 5 throws joint, compile 2.4 -> 1.4 s, solve 0.06-0.08 ->
 # 0.10-0.12 CPU-s; 4 s @ 1 kHz (4096 intervals, left optimised): compile 2.8 -> 1.7-1.9 s but the
 # solve 0.14 -> 0.28-0.52 s, which repeated fits would pay every time
