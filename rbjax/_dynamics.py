@@ -20,7 +20,16 @@ from jax import Array
 
 from ._batching import lift
 from ._body import inertia_of
-from ._math import cross, matmul3, matvec3, over, pure_quat_multiply, quat_conjugate, quat_rotate_unchecked, skew
+from ._math import (
+    cross,
+    matmul3,
+    matvec3,
+    over,
+    pure_quat_multiply,
+    quat_rotate_inverse_unchecked,
+    quat_rotate_unchecked,
+    skew,
+)
 from ._pytree import replace
 from ._state import AnyState, Forces, ParticleState, State, StateT
 
@@ -31,7 +40,7 @@ def omega_world(s: State) -> Array:
     # ω = I_w⁻¹ L = R I_L⁻¹ Rᵀ L, evaluated with quaternion rotations (no matrix)
     return quat_rotate_unchecked(
         s.orientation,
-        matvec3(s.body.inverse_inertia, quat_rotate_unchecked(quat_conjugate(s.orientation), s.angular_momentum)),
+        matvec3(s.body.inverse_inertia, quat_rotate_inverse_unchecked(s.orientation, s.angular_momentum)),
     )
 
 

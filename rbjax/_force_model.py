@@ -16,7 +16,7 @@ from jax import Array
 from jaxtyping import Float
 
 from ._batching import lift
-from ._math import quat_conjugate, quat_rotate_unchecked
+from ._math import quat_rotate_inverse_unchecked
 from ._pytree import pytree_dataclass, replace
 from ._state import AnyState, Forces, State
 from ._typing import ArrayLike
@@ -168,7 +168,7 @@ def torque_to_body(f: Forces, state: State) -> Forces:
     """``f`` with its world torque turned into ``state``'s body frame, ``R(q)ᵀ τ`` (one body; force kept)."""
     if f.torque is None:
         return f
-    return replace(f, torque=quat_rotate_unchecked(quat_conjugate(state.orientation), f.torque))
+    return replace(f, torque=quat_rotate_inverse_unchecked(state.orientation, f.torque))
 
 
 def sum_on_body(terms: tuple[PerBodyForce, ...], state: AnyState, t: Any, omega_body: Array | None = None) -> Forces:

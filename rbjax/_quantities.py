@@ -23,8 +23,7 @@ from ._math import (
     matmul3,
     matrix_to_quat_unchecked,
     matvec3,
-    quat_conjugate,
-    quat_rotate_unchecked,
+    quat_rotate_inverse_unchecked,
     quat_to_matrix_unchecked,
 )
 from ._pytree import new_unchecked
@@ -73,7 +72,7 @@ def angular_velocity(state: RigidState) -> Float[Array, "*B 3"]:
 
 def _one_body_angular_velocity(s: RigidState) -> Array:
     if isinstance(s, State):
-        return matvec3(s.body.inverse_inertia, quat_rotate_unchecked(quat_conjugate(s.orientation), s.angular_momentum))
+        return matvec3(s.body.inverse_inertia, quat_rotate_inverse_unchecked(s.orientation, s.angular_momentum))
     return matvec3(jnp.swapaxes(s.rotation, -1, -2), s.angular_velocity)
 
 

@@ -25,7 +25,7 @@ from ._math import (
     is_concrete,
     matrix_to_quat_unchecked,
     matvec3,
-    quat_conjugate,
+    quat_rotate_inverse_unchecked,
     quat_rotate_unchecked,
     quat_to_matrix_unchecked,
     quat_tolerance,
@@ -299,7 +299,7 @@ class State(_RigidStateBase):
     @classmethod
     def _from_kinematics(cls, body: Body, x: Array, v: Array, o: Array, w: Array, t: Array) -> State:
         q = o if o.shape[-1:] == (4,) else matrix_to_quat_unchecked(o)
-        L = quat_rotate_unchecked(q, matvec3(inertia_of(body), quat_rotate_unchecked(quat_conjugate(q), w)))
+        L = quat_rotate_unchecked(q, matvec3(inertia_of(body), quat_rotate_inverse_unchecked(q, w)))
         bc = lambda a: jnp.broadcast_to(a, t.shape + a.shape[-1:])
         return cls(body, bc(x), bc(v), bc(q), bc(L), t)
 

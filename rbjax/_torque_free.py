@@ -71,7 +71,14 @@ from jaxtyping import Float
 
 from . import _elliptic as ell
 from ._batching import lift
-from ._math import matrix_to_quat_unchecked, quat_conjugate, quat_exp, quat_multiply, quat_rotate_unchecked
+from ._math import (
+    matrix_to_quat_unchecked,
+    quat_conjugate,
+    quat_exp,
+    quat_multiply,
+    quat_rotate_inverse_unchecked,
+    quat_rotate_unchecked,
+)
 from ._pytree import new_unchecked
 from ._quantities import to_matrix_state, to_state
 from ._state import MatrixState, RigidStateT, State
@@ -109,7 +116,7 @@ def _setup(moments: Array, axes: Array, q0: Array, L: Array) -> dict[str, Array]
     """Per-body constants of the motion (one body) from principal ``moments`` (3,), ascending,
     ``axes`` (3, 3) as columns (body frame), ``q0`` (4,) and world ``L`` (3,)."""
     dtype = q0.dtype
-    m_body = quat_rotate_unchecked(quat_conjugate(q0), L)
+    m_body = quat_rotate_inverse_unchecked(q0, L)
     m_p = m_body @ axes  # principal-frame momentum
     M2 = jnp.sum(m_p * m_p)
     I1, I2, I3 = moments[0], moments[1], moments[2]

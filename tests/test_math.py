@@ -233,3 +233,26 @@ def test_quat_normalize_refuses_a_zero_or_non_finite_quaternion():
         rb.quat_normalize(q)
     with pytest.raises(ValueError, match=r"non-finite"):
         rb.quat_normalize([np.nan, 0, 0, 1])
+
+
+@pytest.mark.parametrize("batch", [(), (5,), (2, 3)])
+def test_rotate_inverse_takes_world_vectors_into_the_body_frame(batch):
+    # R(q)ᵀ v by scipy's rotation matrix (scalar-last quaternions); and for a q off the unit sphere
+    # (an RK stage), the rotation by q* that it stands for in the steps, to round-off
+    from rbjax._math import quat_conjugate, quat_rotate_inverse_unchecked, quat_rotate_unchecked
+
+    rng = np.random.default_rng(3)
+    q = rng.normal(size=(*batch, 4))
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    v = rng.normal(size=(*batch, 3))
+    R = Rotation.from_quat(q.reshape(-1, 4)[:, [1, 2, 3, 0]]).as_matrix()
+    want = np.einsum("bji,bj->bi", R, v.reshape(-1, 3)).reshape(v.shape)
+    got = np.asarray(quat_rotate_inverse_unchecked(jnp.asarray(q), jnp.asarray(v)))
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-14)  # float64 round-off of O(1) values
+    off = 1.1 * jnp.asarray(q)  # |q|² = 1.21: not a rotation, the same polynomial
+    np.testing.assert_allclose(
+        np.asarray(quat_rotate_inverse_unchecked(off, jnp.asarray(v))),
+        np.asarray(quat_rotate_unchecked(quat_conjugate(off), jnp.asarray(v))),
+        rtol=0,
+        atol=1e-14,
+    )

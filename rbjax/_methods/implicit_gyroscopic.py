@@ -24,10 +24,10 @@ from .._math import (
     cross,
     matmul3,
     matvec3,
-    quat_conjugate,
     quat_exp,
     quat_multiply,
     quat_normalize_unchecked,
+    quat_rotate_inverse_unchecked,
     quat_rotate_unchecked,
     skew,
 )
@@ -41,11 +41,11 @@ def implicit_gyroscopic_state(s: State, f: Forces, dt) -> State:
     """One implicit-gyroscopic step of one body in the ``(x, v, q, L)`` form."""
     v = kicked_velocity(s, f, dt)
     q, I = s.orientation, s.body.inertia
-    pi = quat_rotate_unchecked(quat_conjugate(q), s.angular_momentum)  # I_L ω₀
+    pi = quat_rotate_inverse_unchecked(q, s.angular_momentum)  # I_L ω₀
     w0 = matvec3(s.body.inverse_inertia, pi)
     rhs = cross(w0, pi)
     if f.torque is not None:
-        rhs = rhs - quat_rotate_unchecked(quat_conjugate(q), f.torque)
+        rhs = rhs - quat_rotate_inverse_unchecked(q, f.torque)
     J = I + dt * (matmul3(skew(w0), I) - skew(pi))
     w1 = w0 - solve3(J, dt * rhs)
     q = quat_normalize_unchecked(quat_multiply(q, quat_exp(w1 * dt)))

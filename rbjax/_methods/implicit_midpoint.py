@@ -56,10 +56,9 @@ from .._math import (
     dot3,
     matmul3,
     matvec3,
-    quat_conjugate,
     quat_multiply,
     quat_normalize_unchecked,
-    quat_rotate_unchecked,
+    quat_rotate_inverse_unchecked,
     skew,
 )
 from .._pytree import replace
@@ -113,7 +112,7 @@ def _fixed_newton(pi0, I_inv, h):
 
 
 def _body_momentum(s: State):
-    return quat_rotate_unchecked(quat_conjugate(s.orientation), s.angular_momentum)
+    return quat_rotate_inverse_unchecked(s.orientation, s.angular_momentum)
 
 
 def _residual(y, pi0, I_inv, h):

@@ -42,7 +42,15 @@ import jax.numpy as jnp
 
 from .._batching import lift
 from .._force_model import PerBodyForces, sum_on_body, torque_to_body
-from .._math import cross, matvec3, over, quat_conjugate, quat_multiply, quat_normalize_unchecked, quat_rotate_unchecked
+from .._math import (
+    cross,
+    matvec3,
+    over,
+    quat_multiply,
+    quat_normalize_unchecked,
+    quat_rotate_inverse_unchecked,
+    quat_rotate_unchecked,
+)
 from .._pytree import replace
 from .._state import Forces, State
 from ._common import project, rigid_steps
@@ -56,7 +64,7 @@ _A, _B, _C = CLASSICAL_RK4
 
 # The stages carry π (body frame) in the ``angular_momentum`` field of a State.
 def _to_body(s: State) -> State:
-    return replace(s, angular_momentum=quat_rotate_unchecked(quat_conjugate(s.orientation), s.angular_momentum))
+    return replace(s, angular_momentum=quat_rotate_inverse_unchecked(s.orientation, s.angular_momentum))
 
 
 def _to_world(s: State) -> State:

@@ -16,7 +16,15 @@ from jax import Array
 from .. import _methods
 from .._body import Body, inverse_3x3
 from .._inertia_param import inertia_from_params
-from .._math import matvec3, quat_conjugate, quat_exp, quat_log, quat_multiply, quat_rotate_unchecked
+from .._math import (
+    matvec3,
+    quat_conjugate,
+    quat_exp,
+    quat_log,
+    quat_multiply,
+    quat_rotate_inverse_unchecked,
+    quat_rotate_unchecked,
+)
 from .._pytree import new_unchecked
 from .._state import Forces, State
 from ._flow import flow
@@ -64,7 +72,7 @@ def _observe(q, L, inv, o, c):
     ``inv``: body-frame ``I⁻¹``; ``o``: the sample (``q_meas``, ``w_meas``,
     ``weight``); ``c``: the segment's inverse noise levels (``wq``, ``ww``).
     """
-    w = matvec3(inv, quat_rotate_unchecked(quat_conjugate(q), L))
+    w = matvec3(inv, quat_rotate_inverse_unchecked(q, L))
     r_q = o["weight"] * c["wq"] * quat_log(quat_multiply(quat_conjugate(q), o["q_meas"]))
     return r_q, o["weight"] * c["ww"] * (w - o["w_meas"]), w
 

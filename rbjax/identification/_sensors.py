@@ -18,12 +18,12 @@ import jax.numpy as jnp
 from jax import Array
 
 from .._body import inverse_3x3
-from .._math import quat_conjugate, quat_exp, quat_rotate_unchecked
+from .._math import quat_exp, quat_rotate_inverse_unchecked
 
 
 def gyro_reading(rho: Array, w: Array) -> Array:
     """Gyro-frame reading ``R_gᵀ ω`` ``(3,)`` of the body rate ``w`` ``(3,)``, ``R_g = exp(rho)``."""
-    return quat_rotate_unchecked(quat_conjugate(quat_exp(rho)), w)
+    return quat_rotate_inverse_unchecked(quat_exp(rho), w)
 
 
 def accelerometer_reading(I: Array, w: Array, r: Array, b: Array) -> Array:
