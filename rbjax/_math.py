@@ -361,8 +361,8 @@ def quat_rotate_inverse_unchecked(q: ArrayLike, v: ArrayLike) -> Array:
     No unit-norm check (see :func:`quat_rotate_unchecked`); units of ``v``. Why
     through ``q*`` rather than the equal ``v - w t + u × t`` (``t = 2 u × v``),
     which needs no negations: XLA:CPU ran the explicit-Euler and RK4 steps built
-    on that form 7-17% slower (benchmarks/ab_throughput.py, JAX path, 1e5
-    bodies), with the same fusions and fewer operations in them.
+    on that form slower, with the same fusions and fewer operations in them
+    (benchmarks/results/ab_rotate_inverse_without_conjugate_2026-12-04.json).
     """
     return quat_rotate_unchecked(quat_conjugate(q), v)
 

@@ -80,9 +80,9 @@ def _rk4(q, L, inv, k, dt, torque, looped: bool = False):
     ``k``: the drag coefficients ``(c₁, c₂)`` (rows over the bodies) or ``()``.
     ``looped``: the four stages as a ``lax.scan`` of one stage instead of
     written out. The same arithmetic; the program holds one copy of the stage
-    and its tangents instead of four, which compiles in about half the time
-    and runs up to ~2.7x slower (measured on the fit: benchmarks/fit_speed.py),
-    so the fit loops only where the compile is most of the call.
+    and its tangents instead of four, which compiles faster and runs slower
+    (docs/fitting.md, "Speed"), so the fit loops only where the compile is most
+    of the call.
     """
     y = (q, L) if torque is not None else (q,)  # without a torque L is constant
 
