@@ -496,7 +496,9 @@ def test_native_kernel_splits_a_sharded_batch_over_its_devices():
     # the kernel call is batch-partitionable: each device steps its own bodies (no collective),
     # every leaf stays split on its body axis, and the values are the unsharded run's: each body's
     # arithmetic is the same whichever device runs it, so they agree to the bit (asserted: 0)
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
+    # the suite's XLA flags (its fast compile) and 2 host devices
+    flags = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=2".strip()
+    env = dict(os.environ, XLA_FLAGS=flags, JAX_PLATFORMS="cpu")
     env["PYTHONPATH"] = str(Path(__file__).resolve().parents[1])
     out = subprocess.run([sys.executable, "-c", SHARDED_CHECK], env=env, capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-3000:]

@@ -269,14 +269,15 @@ SHARDING_CHECK = textwrap.dedent(
 )
 
 
-@pytest.mark.slow  # a fresh process with 8 host devices (~17 s)
+@pytest.mark.slow  # a fresh process with 8 host devices
 def test_sharded_simulate_keeps_sharding_and_results():
     # 8 host devices need XLA_FLAGS before JAX starts, hence a fresh process. Every output leaf
     # must stay split over the 8 devices on its body axis (axis 1, behind time) for both mesh
     # axis types (explicit: a Scene with springs that
     # gather and scatter by body index; auto: rbjax.simulate), and equal the unsharded run to
     # round-off (the partitioned program may fuse differently): 1e-13 relative.
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=8", PYTHONPATH=ROOT, JAX_PLATFORMS="cpu")
+    flags = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=8".strip()
+    env = dict(os.environ, XLA_FLAGS=flags, PYTHONPATH=ROOT, JAX_PLATFORMS="cpu")
     out = subprocess.run([sys.executable, "-c", SHARDING_CHECK], env=env, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-3000:]
     worst = float(out.stdout.split("WORST")[-1])
