@@ -767,6 +767,36 @@ def test_robust_loss_on_clean_data_keeps_sigma_calibrated():
     assert np.all(np.asarray(ls.robust_weights) == 1)
 
 
+def test_glitches_choose_the_clean_recordings_substeps_and_segments():
+    # a 1-rad glitch turns its two intervals by ~1 rad each, 60x the 0.017 rad the body turns: by
+    # the raw angles it asked for 32 integrator steps per interval (20x the solve). The fit of the
+    # glitched recording must run the clean one's program (same substeps and segments: no compile)
+    q, wb = _record(T_FAST)
+    qn, _ = imu_noise(q, wb, np.random.default_rng(0))
+    clean = rb.fit_inertia(T_FAST, qn, loss="huber")
+    n_compiled = _solve.compiled_programs()
+    glitched = rb.fit_inertia(T_FAST, _glitched(qn), loss="huber")
+    assert _solve.compiled_programs() == n_compiled and glitched.segments == clean.segments
+
+
+@pytest.mark.parametrize("spikes", [0, 1, 2, 3])
+def test_glitch_free_angles_keep_a_smooth_rate_and_drop_spikes(spikes):
+    # |ω| = 3 + sin(2πt) rad/s on a jittered 200 Hz clock; each interval's angle is the exact
+    # integral. Spikes of 1 rad over 1-3 adjacent intervals (one or two glitched samples) must go,
+    # and the largest angle stay the clean one's: the running median of 7 rates is the centre
+    # value where the rate is monotone, and within ω''(3.5 dt)²/2 ≈ 0.15% of its peak at a maximum
+    rng = np.random.default_rng(1)
+    t = np.cumsum(np.r_[0.0, rng.uniform(0.003, 0.007, 400)])
+    F = 3 * t - np.cos(2 * np.pi * t) / (2 * np.pi)  # ∫|ω| dt
+    angles = np.diff(F)[None]
+    spiked = angles.copy()
+    spiked[0, 200 : 200 + spikes] += 1.0
+    got = _problem._glitch_free_angles(spiked, np.diff(t))
+    assert got.shape == angles.shape
+    np.testing.assert_allclose(got.max(), angles.max(), rtol=2e-3)
+    np.testing.assert_allclose(got.sum(), angles.sum(), rtol=2e-3)
+
+
 @pytest.mark.parametrize(
     ("kwargs", "exc", "match"),
     [

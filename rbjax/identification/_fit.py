@@ -113,7 +113,9 @@ def fit_inertia(
             512 sample intervals and per ``4π`` (two turns) of recorded rotation,
             rounded up to a power of two, at least 1 and at most ``(T-1) // 8``.
         substeps: integrator steps per sample interval; default enough that no
-            step turns more than 0.05 rad, rounded up to a power of two; 2 becomes
+            step turns more than 0.05 rad at the rate's running median over 7
+            intervals (a glitched sample's spike does not count), rounded up to
+            a power of two; 2 becomes
             4 for recordings of at most 256 intervals (throws: so that throws of
             different speeds share one compiled program).
         orientation_std, rate_std: noise standard deviations (rad, rad/s) that

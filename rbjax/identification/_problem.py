@@ -60,6 +60,29 @@ def _default_segments(n_intervals: int, total_angle: float) -> int:
     return int(min(_next_pow2(want), max(1, n_intervals // 8)))
 
 
+def _glitch_free_angles(angles: np.ndarray, dts: np.ndarray) -> np.ndarray:
+    """Angles turned per sample interval ``(N, T-1)``, the spikes of glitched samples taken out.
+
+    ``angle_k / dt_k`` is the mean rate over interval ``k``, which a rigid body changes
+    smoothly; a glitched orientation (a sample off by 1 rad) puts a spike of that size into
+    the two intervals beside it, and would ask for 20x the integrator steps everywhere. So the
+    rate is the running median over ``_MEDIAN_WINDOW`` intervals (spikes of up to 3 adjacent
+    intervals are removed, a smooth rate keeps its peak to second order in the window) and
+    turned back into each interval's angle with its own ``dt`` (jitter and gaps kept).
+    """
+    rates = angles / dts
+    n = rates.shape[-1]
+    if n < _MEDIAN_WINDOW:
+        return angles
+    half = _MEDIAN_WINDOW // 2
+    padded = np.pad(rates, [(0, 0)] * (rates.ndim - 1) + [(half, half)], mode="edge")
+    windows = np.lib.stride_tricks.sliding_window_view(padded, _MEDIAN_WINDOW, axis=-1)
+    return np.median(windows, axis=-1) * dts
+
+
+_MEDIAN_WINDOW = 7
+
+
 # median |ω| above this (rad/s) is unusual for a hand-tossed object: a hint that the gyro is in deg/s
 _DEG_HINT_RATE = 50.0
 
@@ -206,15 +229,16 @@ def prepare(
         speed = np.linalg.norm(np.asarray(wr, np.float64), axis=-1)
         angles = 0.5 * (speed[:, 1:] + speed[:, :-1]) * dts  # rad turned per interval (trapezoid)
         q = np.broadcast_to(np.array([1.0, 0.0, 0.0, 0.0]), (N, T, 4))  # body frame at t0 = world
+    turned = _glitch_free_angles(angles, dts)
     if substeps is None:  # a power of two, so similar recordings share a compiled program
-        substeps = _next_pow2(np.ceil(angles.max() / _MAX_STEP_ANGLE))
+        substeps = _next_pow2(np.ceil(turned.max() / _MAX_STEP_ANGLE))
         if T - 1 <= _SHORT_INTERVALS and substeps > 1:
             # a throw (short and fast): 2 becomes _SHORT_SUBSTEPS, so throws of ~8-20 rad/s at 100 Hz
             # (2 or 4 by the angle alone) share one program; the extra steps cost a few ms, a new
             # program seconds. Slow recordings (1 substep) keep theirs: their solve would pay 4x
             substeps = max(substeps, _SHORT_SUBSTEPS)
     if segments is None:
-        segments = _default_segments(T - 1, angles.sum(-1).max())
+        segments = _default_segments(T - 1, turned.sum(-1).max())
     S = int(segments)
     if S < 1 or (T - 1) // S < 2:
         raise ValueError(f"fit_inertia: segments={segments} needs at least 2 intervals each; T = {T}")
