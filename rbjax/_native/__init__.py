@@ -54,7 +54,7 @@ from .._validate import checked_force_fn
 
 __all__ = ["NativeStatus", "native_status", "native_plan", "advance"]
 
-# the methods with a kernel and their codes (kernels.cc: Method), as each Method records its own
+# the methods with a kernel and their codes (block.h: Method), as each Method records its own
 METHODS = dict(
     sorted(((m.name, m.native_code) for m in available().values() if m.native_code is not None), key=lambda p: p[1])
 )

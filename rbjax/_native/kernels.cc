@@ -21,67 +21,18 @@
 // The `series` attribute: 0, or `steps` when F and τ are a time series (V, steps, n, 3),
 // one slice per step (rbjax.simulate's forces of shape (steps, *B, 3)), held over its stages.
 
+
 #include <algorithm>
 #include <atomic>
-#include <cmath>
-#include <cstdint>
-#include <cstring>
-#include <limits>
 #include <memory>
 #include <thread>
 
+#include "block.h"
 #include "xla/ffi/api/ffi.h"
 
 namespace ffi = xla::ffi;
 
 namespace rbjax_native {
-
-// Method codes (the `method` attribute), as in rbjax/_native/__init__.py.
-enum Method : int64_t { kEuler = 0, kRk4 = 1, kSplitting = 2, kSemiImplicitEuler = 3, kRk4Body = 4 };
-
-constexpr int kBlock = 64;  // bodies per block: its state and constants stay in L1 across the steps
-
-// The state of one block of bodies, structure of arrays.
-template <typename T>
-struct Block {
-  T x[3][kBlock], v[3][kBlock], q[4][kBlock], L[3][kBlock];
-};
-
-// Per-body constants of a block: mass, I_L⁻¹ (row-major 3x3) and the force parameters
-// (constant F and τ, gravity g, drag b, b_r, c, c_r, thrusters' body-frame sums; zero where a
-// term is absent).
-template <typename T>
-struct Consts {
-  T m[kBlock], inv_m[kBlock], inv[9][kBlock];  // inv_m: 1/m, so F/m is a product (within an ulp)
-  T F[3][kBlock], tau[3][kBlock], g[3][kBlock];
-  T b[kBlock], br[kBlock], c[kBlock], cr[kBlock];
-  T fb[3][kBlock], tb[3][kBlock];  // thrusters' body-frame force and torque sums (steps.h: forces)
-};
-
-// the per-body helpers of steps.h must inline into the loops over bodies, or nothing vectorises
-#define RBJAX_INLINE __attribute__((always_inline)) inline
-
-// The steps, once per instruction set, dispatched on the running processor (the
-// shipped build targets the x86-64 baseline; no -march=native).
-namespace baseline {
-#include "steps.h"
-}  // namespace baseline
-
-#if defined(__x86_64__) && defined(__GNUC__)
-#define RBJAX_X86 1
-#pragma GCC push_options
-#pragma GCC target("avx2,fma")
-namespace avx2 {
-#include "steps.h"
-}  // namespace avx2
-#pragma GCC pop_options
-#pragma GCC push_options
-#pragma GCC target("avx512f,avx512dq,avx512vl,avx512bw,avx2,fma")
-namespace avx512 {
-#include "steps.h"
-}  // namespace avx512
-#pragma GCC pop_options
-#endif
 
 // Which instruction set the steps run with: 0 baseline, 1 AVX2, 2 AVX-512.
 int isa() {

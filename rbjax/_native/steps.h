@@ -1,8 +1,9 @@
 // The per-block steps of rbjax's native kernels (see README.md beside this file).
 //
-// Included by kernels.cc once per instruction set, inside a namespace of its own
-// under `#pragma GCC target`, so this file includes nothing and defines only
-// templates. Every loop runs over the bodies j of one block, straight-line, so
+// Included once per instruction set, by steps_baseline.cc, steps_avx2.cc and
+// steps_avx512.cc, inside a namespace of its own under `#pragma GCC target`, so
+// this file includes nothing (block.h, included first, has the types) and defines
+// only templates. Every loop runs over the bodies j of one block, straight-line, so
 // the compiler vectorises it; the steps are the outer loop, so the block's
 // state stays in L1 between them.
 //
