@@ -19,6 +19,7 @@ import sys
 import textwrap
 import warnings
 from pathlib import Path
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -516,3 +517,67 @@ def test_native_plan_refuses_a_sharded_series_and_a_sharded_batch_of_two_axes(mo
     assert "time-series" in plan(_state((4,), jnp.float64), True)
     assert "1-D batches" in plan(_state((2, 3), jnp.float64), False)
     assert plan(_state((4,), jnp.float64), False) == ""
+
+
+_ISAS = ("x86-64 baseline", "AVX2", "AVX-512")
+
+
+def _isa_cases():
+    """``{name: (state, forces, method)}``: every method and dtype without forces and with every
+    term, thrusters, three blocks of bodies (the vector loops' full and partial blocks), and
+    quat_exp's two branches: the steps' template instances (kForces, kQuad, kThrust)."""
+    cases = {}
+    for m in sorted(_native.METHODS):
+        for dtype in (jnp.float32, jnp.float64):
+            d = jnp.dtype(dtype).name
+            for kind in ("none", "every term"):
+                cases[f"{m}|{d}|{kind}"] = (_state((7,), dtype), _forces(kind, (7,), dtype), m)
+            cases[f"{m}|{d}|130"] = (_state((130,), dtype), _forces("every term", (130,), dtype), m)
+        cases[f"{m}|thrusters"] = (_state((7,), jnp.float64), _thrusters(jnp.float64), m)
+    state = _state((8,), jnp.float64)
+    rates = jnp.asarray([0.0, 1e-7, 1e-5, 1e-3, 0.1, 1.0, 3.0, 10.0])
+    direction = rb.quat_normalize(jnp.asarray(np.random.default_rng(2).normal(size=(8, 4))))[:, 1:]
+    state = rb.State.create(state.body, orientation=state.orientation, angular_velocity=rates[:, None] * direction)
+    cases["branches"] = (state, _forces("every term", (8,), jnp.float64), "semi_implicit_euler")
+    return cases
+
+
+_FIELDS = ("position", "velocity", "orientation", "angular_momentum", "time")
+
+
+def _native_runs(path):
+    """The kernel's trajectories of :func:`_isa_cases`, saved to ``path`` (run in a fresh process)."""
+    out = {}
+    for name, (state, forces, method) in _isa_cases().items():
+        traj = rb.simulate(state, forces, 1e-2, STEPS, method, save_every=SAVE, native=True)
+        out.update({f"{name}|{f}": np.asarray(getattr(traj, f)) for f in _FIELDS})
+    np.savez(path, **out)
+
+
+@needs_kernels
+@pytest.mark.slow  # a fresh process per instruction set
+@pytest.mark.parametrize("cap", ["baseline", "avx2"])
+def test_the_narrower_instruction_sets_match_jax(cap, tmp_path):
+    # The library carries the steps for three instruction sets and runs the widest this processor
+    # has; a wheel ships all three. RBJAX_NATIVE_ISA caps the choice, so the narrower ones are held
+    # to the JAX steps here too, with this module's tolerance: the kernel runs in a fresh process
+    # with the cap, the JAX reference here
+    want = _ISAS[("baseline", "avx2").index(cap)]
+    have = rb.native_status().instruction_set
+    if _ISAS.index(have) < _ISAS.index(want):
+        pytest.skip(f"this processor runs {have}, narrower than {want}")
+    path = tmp_path / "native.npz"
+    code = (
+        "import jax; jax.config.update('jax_enable_x64', True); import rbjax, test_native; "
+        f"print(rbjax.native_status().instruction_set); test_native._native_runs({str(path)!r})"
+    )
+    here = Path(__file__).resolve().parent
+    env = dict(os.environ, RBJAX_NATIVE_ISA=cap, PYTHONPATH=os.pathsep.join([str(here), str(here.parent)]))
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.split("\n")[0] == want
+    got = np.load(path)
+    for name, (state, forces, method) in _isa_cases().items():
+        ref = rb.simulate(state, forces, 1e-2, STEPS, method, save_every=SAVE, native=False)
+        nat = SimpleNamespace(**{f: got[f"{name}|{f}"] for f in _FIELDS})
+        _assert_close(nat, ref, STEPS, state.position.dtype)

@@ -24,6 +24,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cstdlib>
 #include <memory>
 #include <thread>
 
@@ -35,11 +36,21 @@ namespace ffi = xla::ffi;
 namespace rbjax_native {
 
 // Which instruction set the steps run with: 0 baseline, 1 AVX2, 2 AVX-512.
+// Every extension a variant is compiled for must be there (a processor with AVX-512F alone, as
+// Xeon Phi, lacks the VL/DQ/BW forms the compiler may emit). RBJAX_NATIVE_ISA=baseline or avx2
+// caps the choice, so that a processor which would take a wider variant can test the others.
 int isa() {
 #ifdef RBJAX_X86
-  static const int level = __builtin_cpu_supports("avx512f")  ? 2
-                           : __builtin_cpu_supports("avx2") ? 1
-                                                            : 0;
+  static const int level = [] {
+    const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+    const bool avx512 = avx2 && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq") &&
+                        __builtin_cpu_supports("avx512vl") && __builtin_cpu_supports("avx512bw");
+    const int cpu = avx512 ? 2 : avx2 ? 1 : 0;
+    const char* cap = std::getenv("RBJAX_NATIVE_ISA");
+    if (cap != nullptr && std::strcmp(cap, "baseline") == 0) return 0;
+    if (cap != nullptr && std::strcmp(cap, "avx2") == 0) return std::min(cpu, 1);
+    return cpu;
+  }();
   return level;
 #else
   return 0;
