@@ -127,16 +127,20 @@ def test_native_matches_jax_over_batch_shapes_and_shared_bodies(method, batch, s
     _assert_close(nat, ref, STEPS, jnp.float64)
 
 
+def _both_branches(dtype):
+    """Eight bodies spinning at 0 to 10 rad/s: one block on both sides of quat_exp's series switch."""
+    state = _state((8,), dtype)
+    rates = jnp.asarray([0.0, 1e-7, 1e-5, 1e-3, 0.1, 1.0, 3.0, 10.0], dtype)
+    direction = rb.quat_normalize(jnp.asarray(np.random.default_rng(2).normal(size=(8, 4)), dtype))[:, 1:]
+    return rb.State.create(state.body, orientation=state.orientation, angular_velocity=rates[:, None] * direction)
+
+
 @needs_kernels
 @pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
 def test_native_quat_exp_takes_both_branches(dtype):
     # quat_exp switches to its series below θ² = √eps: rates from 0 to 10 rad/s put bodies of
     # one block on both sides of the switch in either dtype
-    state = _state((8,), dtype)
-    rates = jnp.asarray([0.0, 1e-7, 1e-5, 1e-3, 0.1, 1.0, 3.0, 10.0], dtype)
-    direction = rb.quat_normalize(jnp.asarray(np.random.default_rng(2).normal(size=(8, 4)), dtype))[:, 1:]
-    state = rb.State.create(state.body, orientation=state.orientation, angular_velocity=rates[:, None] * direction)
-    nat, ref = _both(state, _forces("every term", (8,), dtype), "semi_implicit_euler")
+    nat, ref = _both(_both_branches(dtype), _forces("every term", (8,), dtype), "semi_implicit_euler")
     _assert_close(nat, ref, STEPS, dtype)
 
 
@@ -519,9 +523,6 @@ def test_native_plan_refuses_a_sharded_series_and_a_sharded_batch_of_two_axes(mo
     assert plan(_state((4,), jnp.float64), False) == ""
 
 
-_ISAS = ("x86-64 baseline", "AVX2", "AVX-512")
-
-
 def _isa_cases():
     """``{name: (state, forces, method)}``: every method and dtype without forces and with every
     term, thrusters, three blocks of bodies (the vector loops' full and partial blocks), and
@@ -534,11 +535,7 @@ def _isa_cases():
                 cases[f"{m}|{d}|{kind}"] = (_state((7,), dtype), _forces(kind, (7,), dtype), m)
             cases[f"{m}|{d}|130"] = (_state((130,), dtype), _forces("every term", (130,), dtype), m)
         cases[f"{m}|thrusters"] = (_state((7,), jnp.float64), _thrusters(jnp.float64), m)
-    state = _state((8,), jnp.float64)
-    rates = jnp.asarray([0.0, 1e-7, 1e-5, 1e-3, 0.1, 1.0, 3.0, 10.0])
-    direction = rb.quat_normalize(jnp.asarray(np.random.default_rng(2).normal(size=(8, 4))))[:, 1:]
-    state = rb.State.create(state.body, orientation=state.orientation, angular_velocity=rates[:, None] * direction)
-    cases["branches"] = (state, _forces("every term", (8,), jnp.float64), "semi_implicit_euler")
+    cases["branches"] = (_both_branches(jnp.float64), _forces("every term", (8,), jnp.float64), "semi_implicit_euler")
     return cases
 
 
@@ -562,9 +559,9 @@ def test_the_narrower_instruction_sets_match_jax(cap, tmp_path):
     # has; a wheel ships all three. RBJAX_NATIVE_ISA caps the choice, so the narrower ones are held
     # to the JAX steps here too, with this module's tolerance: the kernel runs in a fresh process
     # with the cap, the JAX reference here
-    want = _ISAS[("baseline", "avx2").index(cap)]
+    want = _native._ISA[_native._ISA_CAPS.index(cap)]
     have = rb.native_status().instruction_set
-    if _ISAS.index(have) < _ISAS.index(want):
+    if _native._ISA.index(have) < _native._ISA.index(want):
         pytest.skip(f"this processor runs {have}, narrower than {want}")
     path = tmp_path / "native.npz"
     code = (
@@ -576,6 +573,16 @@ def test_the_narrower_instruction_sets_match_jax(cap, tmp_path):
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-3000:]
     assert out.stdout.split("\n")[0] == want
+    # an unknown cap is named, not silently taken for "no cap"
+    env["RBJAX_NATIVE_ISA"] = "avx3"
+    warned = subprocess.run(
+        [sys.executable, "-c", "import rbjax; rbjax.native_status()"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert "RBJAX_NATIVE_ISA='avx3' is not one of baseline, avx2, avx512" in warned.stderr, warned.stderr[-2000:]
     got = np.load(path)
     for name, (state, forces, method) in _isa_cases().items():
         ref = rb.simulate(state, forces, 1e-2, STEPS, method, save_every=SAVE, native=False)

@@ -32,6 +32,7 @@ import ctypes
 import dataclasses
 import functools
 import importlib.util
+import os
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -61,6 +62,8 @@ METHODS = dict(
 _TARGET = "rbjax_advance"
 _ABI = 3  # kernels.cc: rbjax_native_abi, the version of the call's operands and attributes
 _ISA = ("x86-64 baseline", "AVX2", "AVX-512")
+# RBJAX_NATIVE_ISA's values (kernels.cc: isa): the widest instruction set the kernels may use
+_ISA_CAPS = ("baseline", "avx2", "avx512")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -129,6 +132,12 @@ def native_status() -> NativeStatus:
         # (N, c)) is split over the devices of its batch; unmarked calls are not partitioned
         jax.ffi.register_ffi_target_as_batch_partitionable(_TARGET)
         isa = _ISA[min(int(lib.rbjax_native_isa()), 2)]
+        cap = os.environ.get("RBJAX_NATIVE_ISA")
+        if cap is not None and cap not in _ISA_CAPS:
+            warnings.warn(
+                f"rbjax: RBJAX_NATIVE_ISA={cap!r} is not one of {', '.join(_ISA_CAPS)}: ignored, the kernels run {isa}",
+                stacklevel=2,
+            )
     except (OSError, AttributeError, ValueError, RuntimeError) as e:
         return NativeStatus(False, str(path), None, f"{path.name} could not be loaded: {e}")
     return NativeStatus(True, str(path), isa, "")

@@ -21,7 +21,6 @@
 // The `series` attribute: 0, or `steps` when F and τ are a time series (V, steps, n, 3),
 // one slice per step (rbjax.simulate's forces of shape (steps, *B, 3)), held over its stages.
 
-
 #include <algorithm>
 #include <atomic>
 #include <cstdlib>
@@ -38,7 +37,8 @@ namespace rbjax_native {
 // Which instruction set the steps run with: 0 baseline, 1 AVX2, 2 AVX-512.
 // Every extension a variant is compiled for must be there (a processor with AVX-512F alone, as
 // Xeon Phi, lacks the VL/DQ/BW forms the compiler may emit). RBJAX_NATIVE_ISA=baseline or avx2
-// caps the choice, so that a processor which would take a wider variant can test the others.
+// caps the choice (avx512 or unset: no cap), so that a processor which would take a wider variant
+// can test the others.
 int isa() {
 #ifdef RBJAX_X86
   static const int level = [] {
