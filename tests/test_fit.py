@@ -66,7 +66,7 @@ def _frame_error(V_fit, V_true):
 def test_inertia_covariance_and_principal_axes_std():
     # One noisy tumble (2 s @ 200 Hz, 1e-3 rad + 0.01 rad/s). Each moment's variance read off the
     # 6x6 covariance, aᵀ C a with a = (v_x², v_y², v_z², 2 v_x v_y, 2 v_x v_z, 2 v_y v_z), must equal
-    # moment_std² (the same linearisation in other coordinates: round-off, float64); tr I = 1 is
+    # moment_std² (rows of one covariance: round-off, float64); tr I = 1 is
     # fixed without torques, so C (1,1,1,0,0,0) = 0 to round-off and C has rank 5. The truth lies
     # within 4σ of each fitted axis rotation (3 components, one draw) and within a Mahalanobis
     # distance² of χ²₅'s 0.9999 quantile (25.7)
@@ -86,6 +86,32 @@ def test_inertia_covariance_and_principal_axes_std():
     z = _frame_error(V, V_true) / np.asarray(res.principal_axes_std)
     assert np.all(np.abs(z) < 4), z
     assert np.all(np.asarray(res.principal_axes_std) < 0.01)
+
+
+def test_an_inertia_pivot_that_underflowed_leaves_the_other_sigmas_as_they_were(monkeypatch, retrace):
+    # The covariance is taken in the inertia's own coordinates c, through (∂c/∂θ)⁻¹. Where a
+    # log-Cholesky pivot exp(θ) has underflowed to 0, ∂c/∂θ is singular: everything that depends on
+    # the inertia is then unknown (moment σ inf, its covariance NaN, converged False), while the
+    # other parameters' σ (here each segment's start ω) is that of the same J with the inertia in
+    # θ: a reparametrisation of the inertia leaves it unchanged, so it equals the regular fit's to
+    # rounding (1e-6 relative: two SVDs of differently scaled J, float64)
+    q, wb = _record(T_FAST)
+    qn, wn = imu_noise(q, wb, np.random.default_rng(1))
+    regular = rb.fit_inertia(T_FAST, qn, body_rates=wn)
+    summarise = _solve.summarise
+
+    def underflowed(y, *args, **kwargs):  # log L22 (y[1] without torques) far below exp's range
+        return summarise(y.at[1].set(-1e4), *args, **kwargs)
+
+    monkeypatch.setattr(_solve, "summarise", underflowed)
+    retrace()
+    res = rb.fit_inertia(T_FAST, qn, body_rates=wn)
+    assert np.all(np.isinf(np.asarray(res.moment_std))) and np.all(np.isnan(np.asarray(res.inertia_covariance)))
+    assert np.all(np.isinf(np.asarray(res.principal_axes_std)))
+    assert not bool(res.well_determined) and not bool(res.converged)
+    w_std = np.asarray(res.member_initial_angular_velocity_std)
+    assert np.all(np.isfinite(w_std))
+    np.testing.assert_allclose(w_std, np.asarray(regular.member_initial_angular_velocity_std), rtol=1e-6)
 
 
 def test_symmetric_body_axes_in_its_plane_are_not_determined():
@@ -214,7 +240,7 @@ def test_batch_compiles_once_and_matches_single_fits():
 
 
 @pytest.mark.slow
-def test_a_batch_too_large_to_keep_its_jacobians_gets_the_same_result(monkeypatch):
+def test_a_batch_too_large_to_keep_its_jacobians_gets_the_same_result(monkeypatch, retrace):
     # a batch keeps each solve's J for the covariance unless they would take more than
     # _KEEP_J_BYTES; then it re-evaluates the model at each solution. The same J (the model at the
     # same point), so the same result to rounding (1e-9 relative; the moments' σ are formed from
@@ -222,10 +248,23 @@ def test_a_batch_too_large_to_keep_its_jacobians_gets_the_same_result(monkeypatc
     _, qs = _three_noisy_recordings()
     kept = rb.fit_inertia(T_FAST, qs, segments=2)
     monkeypatch.setattr(_solve, "_KEEP_J_BYTES", 0)
-    monkeypatch.setattr(_solve, "_JITS", {})  # a new program, not the cached one
+    keeps = []  # whether each solver traced keeps J
+
+    class Recorded(_solve.LMMember):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            keeps.append(self.keep_jacobian)
+
+    monkeypatch.setattr(_solve, "LMMember", Recorded)
+    retrace()
     again = rb.fit_inertia(T_FAST, qs, segments=2)
-    for name in ("inertia", "moment_std", "residuals", "iterations", "chi2"):
+    assert keeps == [False]  # traced anew, without the kept J
+    for name in ("inertia", "moment_std", "iterations", "chi2"):
         np.testing.assert_allclose(getattr(again, name), getattr(kept, name), rtol=1e-9, err_msg=name)
+    # the residuals to rounding of the states, not of each entry: the join rows, near zero, are end
+    # states' differences times continuity_weight = 1000 (measured 7.5e-9 apart; 1e-10 of a state
+    # times 1000 allowed)
+    np.testing.assert_allclose(again.residuals, kept.residuals, rtol=0, atol=1e-7)
 
 
 @pytest.mark.slow
@@ -292,11 +331,11 @@ def test_float32_sigma_of_a_weakly_determined_fit_matches_float64():
 
 
 def test_undetermined_directions_get_infinite_not_zero_variance():
-    # _variances on a hand-made Jacobian (no fit): columns 0 and 1 differ by 1e-6 of their norm, a
+    # _covariance on a hand-made Jacobian (no fit): columns 0 and 1 differ by 1e-6 of their norm, a
     # direction float32 cannot resolve (relative singular value ~7e-7, below its cut of
     # 40 · 1.2e-7 = 4.8e-6) and float64 can; column 2 is exactly zero (a pinned parameter), which
     # must contribute nothing rather than NaN. float32: inf, never the 0 of a pseudo-inverse
-    from rbjax.identification._result import _variances
+    from rbjax.identification._result import _covariance
 
     rng = np.random.default_rng(0)
     a, b = rng.normal(size=(2, 40))
@@ -307,7 +346,7 @@ def test_undetermined_directions_get_infinite_not_zero_variance():
     ref = np.einsum("fi,ij,fj->f", F[:, :2], P @ P.T, F[:, :2])
     for dtype in (np.float32, np.float64):
         J = jax.numpy.asarray(J64, dtype)
-        var = np.asarray(_variances(J, 40, 0, jax.numpy.ones(40, dtype), jax.numpy.asarray(F, dtype)))
+        var = np.diagonal(_covariance(J, 40, 0, jax.numpy.ones(40, dtype), jax.numpy.asarray(F, dtype)))
         assert not np.any(np.isnan(var)), var
         if dtype == np.float32:
             assert np.isinf(var[0]), var  # undetermined

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from .._pytree import replace
@@ -114,8 +113,8 @@ def fit_joint(members, options) -> FitResult:
         member_chi2=tuple(x[1] for x in per),
         member_dof=tuple(x[2] for x in per),
         member_pvalue=tuple(x[3] for x in per),
-        member_initial_orientation=jnp.asarray(rows["q"]),
-        member_initial_orientation_std=jnp.asarray(rows["q_std"]),
-        member_initial_angular_velocity=jnp.asarray(rows["w"]),
-        member_initial_angular_velocity_std=jnp.asarray(rows["w_std"]),
+        member_initial_orientation=jax.device_put(np.asarray(rows["q"])),
+        member_initial_orientation_std=jax.device_put(np.asarray(rows["q_std"])),
+        member_initial_angular_velocity=jax.device_put(np.asarray(rows["w"])),
+        member_initial_angular_velocity_std=jax.device_put(np.asarray(rows["w_std"])),
     )

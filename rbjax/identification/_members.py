@@ -10,7 +10,6 @@ from __future__ import annotations
 import dataclasses
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from .._pytree import new_unchecked
@@ -178,8 +177,8 @@ def _stack_results(results: dict, n: int, errors: dict) -> FitResult:
         for i, a in enumerate(arrs):
             if a is not None:
                 out[(i,) + tuple(slice(0, s) for s in a.shape)] = a
-        fields[f.name] = jnp.asarray(out)
-    fields["failed"] = jnp.asarray([i in errors for i in range(n)])
+        fields[f.name] = jax.device_put(out)
+    fields["failed"] = jax.device_put(np.array([i in errors for i in range(n)]))
     return new_unchecked(
         FitResult,
         **fields,

@@ -33,7 +33,9 @@ class FitResult:
             the segment joins as constraints and each sensor's residual
             variance per degree of freedom ``s²_k`` (the sandwich
             ``C = A⁺ diag(s²_k) A⁺ᵀ``, ``A`` the whitened data Jacobian on the
-            joins' null space; ``s² (JᵀJ)⁻¹`` for one sensor). ``inf`` when a
+            joins' null space; ``s² (JᵀJ)⁻¹`` for one sensor), taken in the
+            inertia's own coordinates (its entries), not the solver's log-Cholesky
+            ``θ``, which flattens at the edge of the consistent set. ``inf`` when a
             direction the moments depend on is not determined by the data
             (singular value at rounding level, float32 or float64). Computed with the parameters' columns scaled to
             unit norm, so float32 and float64 fits agree (never a σ of 0 for
@@ -43,8 +45,8 @@ class FitResult:
             symmetric body).
         inertia_covariance: ``(6, 6)`` covariance of the entries of ``inertia``
             in the order ``(I_xx, I_yy, I_zz, I_xy, I_xz, I_yz)`` (body frame,
-            units of ``inertia`` squared), the same linearised sandwich as
-            ``moment_std`` taken in the inertia's own coordinates. Without
+            units of ``inertia`` squared), from the same covariance as
+            ``moment_std``. Without
             torques (``tr I = 1``) it has rank 5: ``I_zz = 1 - I_xx - I_yy``. A
             combination the data do not determine has variance ``inf`` and NaN
             covariances. The variance of any linear function ``a · c`` of the
@@ -76,8 +78,8 @@ class FitResult:
             flat body (a racquet, a phone, a plate: ``I3 = I1 + I2``) lands here
             about half the time, its noisy estimate being pushed back onto the
             edge. ``moment_std`` is then the linearised σ of the estimate at the
-            edge in the moments' own coordinates (the parameters' columns are
-            scaled, so the flattening ``d I / d θ → 0`` cancels); measured on an
+            edge (in the inertia's own coordinates, where the flattening
+            ``d I / d θ → 0`` of the log-Cholesky map does not enter); measured on an
             exactly flat body (20 draws, 2 s): finite, RMS z 0.7-1.0. It no
             longer blocks ``converged``; a fit driven onto the edge by bad data
             (a world-frame gyro, glitches) fails ``model_consistent`` instead.
@@ -262,8 +264,8 @@ CONSISTENCY_ALPHA = 1e-3
 _SIGMA_MAX_REL = 0.1
 
 
-def _along_singular_directions(J, n_rows, n_cont, row_s2, F):
-    """The pieces of :func:`_variances` and :func:`_covariance`: ``(FBs, M, unbounded)``.
+def _covariance(J, n_rows, n_cont, row_s2, F):
+    """Covariance ``(f, f)`` of the linear functionals ``F (f, p)`` of the fitted parameters.
 
     Least squares with the ``n_cont`` join rows of ``J`` (after its ``n_rows``
     data rows) taken as the constraints they stand for: with ``Z`` a basis of
@@ -303,20 +305,6 @@ def _along_singular_directions(J, n_rows, n_cont, row_s2, F):
     # a functional that moves along an undetermined direction (beyond rounding of the basis)
     scale = jnp.linalg.norm(F * D, axis=1, keepdims=True)
     unbounded = jnp.any(~good & (jnp.abs(FB) > jnp.sqrt(eps) * scale), axis=1)
-    return FBs, M, unbounded
-
-
-def _variances(J, n_rows, n_cont, row_s2, F):
-    """Variances ``(f,)`` of the linear functionals ``F (f, p)`` of the fitted parameters; ``inf`` where
-    unbounded (see :func:`_along_singular_directions`)."""
-    FBs, M, unbounded = _along_singular_directions(J, n_rows, n_cont, row_s2, F)
-    return jnp.where(unbounded, jnp.inf, jnp.einsum("fi,ij,fj->f", FBs, M, FBs))
-
-
-def _covariance(J, n_rows, n_cont, row_s2, F):
-    """Covariance ``(f, f)`` of the functionals ``F (f, p)``: an unbounded one has variance ``inf`` and
-    NaN covariances with the others (see :func:`_along_singular_directions`)."""
-    FBs, M, unbounded = _along_singular_directions(J, n_rows, n_cont, row_s2, F)
     C = FBs @ M @ FBs.T
     C = jnp.where(unbounded[:, None] | unbounded[None, :], jnp.nan, C)
     return jnp.where(jnp.diag(unbounded), jnp.inf, C)
@@ -391,9 +379,10 @@ def summarise(
 ):
     """FitResult fields of one recording from the solver's final ``y``, residuals ``r`` and Jacobian ``J``.
 
-    Covariance ``s² (JᵀJ)⁺`` with ``s²`` the data residuals' variance per degree
-    of freedom (the continuity rows are constraints, not data), propagated to
-    the principal moments; then the honest-failure diagnostics.
+    One covariance (:func:`_covariance`, each sensor's residual variance per
+    degree of freedom, the continuity rows as constraints) of the moments, the
+    inertia's entries, the principal axes' rotations, the other parameters and
+    the drag coefficients; then the honest-failure diagnostics.
     """
     seg = data["seg"]
     S, K = seg.dt.shape
@@ -424,21 +413,26 @@ def summarise(
     # own derivative is not), where it is the first-order change along the returned basis
     _, V = jnp.linalg.eigh(_after(moments, I))
     V = jax.lax.stop_gradient(V)
-    G = jax.jacfwd(lambda yy: jnp.einsum("ik,ij,jk->k", V, normalised_inertia(yy, scale_fixed), V))(y)
-    c_drag = lambda yy: drag_coefficients(yy, scale_fixed, layout)
-    G_drag = jax.jacfwd(c_drag)(y)
-    var = _variances(_after(V, J), n_rows, n_cont, row_s2, jnp.concatenate([G, jnp.eye(p, dtype=y.dtype), G_drag]))
-    var, var_drag = var[:-2], var[-2:]
-    # on the edge of the consistent set (I1 + I2 ≈ I3) the log-Cholesky map flattens: J's inertia
-    # columns and G both vanish along the flat direction, and a rounding-level cut would read
-    # "independent of it" (σ ~1e-7 on a degenerate fit). There the moments' σ is taken in the
-    # inertia's own coordinates c (the 6 entries, or 5 of the unit-trace ones): J_c = J_θ (∂c/∂θ)⁻¹,
-    # where the flat direction is a small singular value of J_c with an O(1) G_c: σ finite or inf
+    # One covariance, in the inertia's own coordinates c (the 6 entries, or 5 of the unit-trace ones)
+    # instead of the log-Cholesky θ the solver steps in: J_c = J_θ (∂c/∂θ)⁻¹. On the edge of the
+    # consistent set (I1 + I2 ≈ I3) the map θ -> c flattens, J's inertia columns and dλ/dθ both
+    # vanish along the flat direction, and a rounding-level cut in θ would read "independent of
+    # it" (σ ~1e-7 on a degenerate fit); in c the flat direction is a small singular value with an
+    # O(1) dλ/dc: σ finite or inf. Elsewhere c is a reparametrisation of θ: the same covariance.
     n_I = layout.inertia
     pick = jnp.array([0, 4, 8, 1, 2, 5]) if scale_fixed else jnp.array([0, 4, 1, 2, 5])
     c_of = lambda th: normalised_inertia(jnp.concatenate([th, y[n_I:]]), scale_fixed).reshape(-1)[pick]
-    M = jax.jacfwd(c_of)(y[:n_I])  # (n_I, n_I)
-    J_c = _after(var, jnp.concatenate([solve_small(M.T, J[:, :n_I].T).T, J[:, n_I:]], 1))
+    dc_dth = jax.jacfwd(c_of)(y[:n_I])  # (n_I, n_I)
+    c_drag = lambda yy: drag_coefficients(yy, scale_fixed, layout)
+    G_drag = jax.jacfwd(c_drag)(y)  # (2, p), in θ
+    # A (., p) of derivatives in θ -> in c: A's inertia columns times (∂c/∂θ)⁻¹, one solve for J and G_drag
+    JG = _after(V, jnp.concatenate([J, G_drag]))
+    JG_c = solve_small(dc_dth.T, JG[:, :n_I].T).T
+    # (∂c/∂θ singular to rounding, its pivot exp(θ) underflowed: the other parameters' covariance is
+    # taken with the inertia in θ, and what depends on the inertia is unknown, below)
+    regular = jnp.all(jnp.isfinite(JG_c))
+    JG_c = jnp.concatenate([jnp.where(regular, JG_c, JG[:, :n_I]), JG[:, n_I:]], 1)
+    J_c, G_drag_c = JG_c[: J.shape[0]], JG_c[J.shape[0] :]
 
     def inertia_of_c(c):
         full = jnp.zeros(9, y.dtype).at[pick].set(c).reshape(3, 3)
@@ -447,14 +441,25 @@ def summarise(
 
     G_c = jax.jacfwd(lambda c: jnp.einsum("ik,ij,jk->k", V, inertia_of_c(c), V))(I.reshape(-1)[pick])
     # in the same coordinates, the inertia's six entries (xx, yy, zz, xy, xz, yz) and the principal
-    # frame's small rotation about each of its axes: linear in c, so one covariance serves all
+    # frame's small rotation about each of its axes: linear in c
     E = jax.jacfwd(lambda c: inertia_of_c(c).reshape(-1)[jnp.array([0, 4, 8, 1, 2, 5])])(I.reshape(-1)[pick])
-    F_c = jnp.concatenate([G_c, E, _axis_rotations(V, moments) @ E])
-    C = _covariance(J_c, n_rows, n_cont, row_s2, jnp.concatenate([F_c, jnp.zeros((12, p - n_I), y.dtype)], 1))
-    var_c = jnp.diagonal(C)[:3]
-    var_c = jnp.where(jnp.isnan(var_c), jnp.inf, var_c)  # ∂c/∂θ singular to rounding
-    on_edge = (moments[0] + moments[1] - moments[2]) < _BOUNDARY_RTOL * jnp.sum(moments)
-    std, param_std = jnp.sqrt(jnp.where(on_edge, var_c, var[:3])), jnp.sqrt(var[3:])
+    F_I = jnp.concatenate([G_c, E, _axis_rotations(V, moments) @ E])  # (12, n_I)
+    # rows: the moments (3), the inertia's entries (6), the axes' rotations (3), then every other
+    # parameter (p - n_I) and the drag coefficients (2)
+    F = jnp.concatenate(
+        [
+            jnp.concatenate([F_I, jnp.zeros((12, p - n_I), y.dtype)], 1),
+            jnp.eye(p, dtype=y.dtype)[n_I:],
+            G_drag_c,
+        ]
+    )
+    C = _covariance(J_c, n_rows, n_cont, row_s2, F)
+    others = jnp.arange(F.shape[0]) >= 12
+    C = jnp.where(regular | (others[:, None] & others), C, jnp.nan)
+    var = jnp.diagonal(C)
+    var_c, var_drag = jnp.where(jnp.isnan(var[:3]), jnp.inf, var[:3]), var[-2:]
+    std = jnp.sqrt(var_c)
+    param_std = jnp.concatenate([jnp.full(n_I, jnp.nan, y.dtype), jnp.sqrt(var[12:-2])])
     inertia_cov = C[3:9, 3:9]
     # about axis i, the pair (j, k) of the other two: where their moments are equal within
     # _EQUAL_MOMENTS_Z σ of their difference, the axes in that plane are not determined (the
@@ -462,7 +467,7 @@ def summarise(
     j, k = jnp.array([1, 2, 0]), jnp.array([2, 0, 1])
     gaps = jnp.abs(moments[j] - moments[k])
     gap_std = jnp.sqrt(C[j, j] + C[k, k] - 2 * C[j, k])
-    axes_std = jnp.where(gaps > _EQUAL_MOMENTS_Z * gap_std, jnp.sqrt(jnp.diagonal(C)[9:]), jnp.inf)
+    axes_std = jnp.where(gaps > _EQUAL_MOMENTS_Z * gap_std, jnp.sqrt(var[9:12]), jnp.inf)
     _, axes = jnp.linalg.eigh(_after(C, I))
     axes = axes * jnp.sign(jnp.linalg.det(axes))
     _, P = unpack(y, layout.shared, S)

@@ -154,6 +154,8 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
         return retire(slot)
 
     first = start(y0[0], member(data, 0))
+    if loss == "squared":  # one round: no loop over the rounds
+        return summary(retire(jax.lax.while_loop(lm.running, lm.advance, first))[2], member(data, 0))
     out0 = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(lambda s: retire(s)[2], first))
     return summary(jax.lax.while_loop(lambda c: c[0], body, (jnp.array(True), first, out0))[2], member(data, 0))
 
@@ -219,24 +221,26 @@ def solve_with_starts(prob, options, per_sample: bool = True) -> tuple[FitResult
     )
     p_value = consistency(out.pop("consistency"))  # on the host: see ._tails
     consistent = p_value >= CONSISTENCY_ALPHA
+    # host arrays go back with device_put: jnp.asarray compiles a small program per new shape (jax
+    # 0.10, ~10 ms each: a fit's first call paid for six)
     out.update(
-        consistency_pvalue=jnp.asarray(p_value, out["chi2"].dtype),
-        model_consistent=jnp.asarray(consistent),
-        converged=jnp.asarray(np.asarray(out["converged"]) & consistent),
+        consistency_pvalue=jax.device_put(p_value.astype(out["chi2"].dtype)),
+        model_consistent=jax.device_put(consistent),
+        converged=jax.device_put(np.asarray(out["converged"]) & consistent),
     )
     starts = jax.tree.map(np.asarray, out.pop("segment_start"))  # (*N, S, ...) per segment
     # one recording (or a batch of them): its first segment's start; a joint fit puts in each member's
     out.update(
-        member_initial_orientation=jnp.asarray(starts["q"][..., :1, :]),
-        member_initial_orientation_std=jnp.asarray(starts["q_std"][..., :1, :]),
-        member_initial_angular_velocity=jnp.asarray(starts["w"][..., :1, :]),
-        member_initial_angular_velocity_std=jnp.asarray(starts["w_std"][..., :1, :]),
+        member_initial_orientation=jax.device_put(starts["q"][..., :1, :]),
+        member_initial_orientation_std=jax.device_put(starts["q_std"][..., :1, :]),
+        member_initial_angular_velocity=jax.device_put(starts["w"][..., :1, :]),
+        member_initial_angular_velocity_std=jax.device_put(starts["w_std"][..., :1, :]),
     )
     rw = np.asarray(out.pop("robust_weights"))
     if per_sample:
         out["robust_weights"], out["outliers"] = sample_weights(prob, rw, _robust.outlier_weight(loss))
     else:
-        out["robust_weights"], out["outliers"] = jnp.asarray(rw), jnp.zeros(rw.shape[0], bool)
+        out["robust_weights"], out["outliers"] = jax.device_put(rw), jax.device_put(np.zeros(rw.shape[0], bool))
     out["failed"] = jnp.zeros(prob.y0.shape[0] if prob.batched else (), bool)
     res = new_unchecked(
         FitResult,
@@ -296,4 +300,4 @@ def sample_weights(prob, rw: np.ndarray, outlier_weight: float):
     outliers = np.any(W < outlier_weight, -1)
     if not prob.batched:
         W, outliers = W[0], outliers[0]
-    return jnp.asarray(W), jnp.asarray(outliers)
+    return jax.device_put(W), jax.device_put(outliers)
