@@ -144,13 +144,3 @@ def _release_compiled_programs():
     if _tests_run % _CHECK_EVERY == 0 and _mapping_count() > _MAPPINGS_BEFORE_CLEARING:
         jax.clear_caches()
         gc.collect()
-
-
-@pytest.fixture
-def retrace():
-    """``retrace()`` after patching a module global that rbjax reads while tracing: the next call
-    traces and compiles anew. jax's trace caches are keyed on the function and its arguments, not on
-    the globals it reads, so without it a patched test can run the program traced before the patch
-    and compare it with itself. Nothing traced under the patch outlives the test."""
-    yield jax.clear_caches
-    jax.clear_caches()

@@ -4,6 +4,8 @@ Each distinct (shape, options) compiles once (~10-20 s); the fast tests share
 the shapes below so they reuse compiled programs.
 """
 
+import functools
+
 import jax
 import numpy as np
 import pytest
@@ -56,6 +58,20 @@ def _six(M):
     return np.asarray(M)[..., [0, 1, 2, 0, 0, 1], [0, 1, 2, 1, 2, 2]]
 
 
+@pytest.fixture
+def new_fit_program(monkeypatch):
+    """Call it after patching a global that the fit's solver reads while tracing: the next fit is
+    traced and compiled anew. A new jax.jit of the same function would reuse the trace made before
+    the patch (jax's trace cache is keyed on the function and its arguments, not on the globals it
+    reads), so the solver is jitted as a new function object; the other tests' programs stay."""
+
+    def new():
+        monkeypatch.setattr(_solve, "_fit_batch", functools.partial(_solve._fit_batch))
+        monkeypatch.setattr(_solve, "_JITS", {})
+
+    return new
+
+
 def _frame_error(V_fit, V_true):
     """Small rotation (rad) from the true principal frame to the fitted one, about the true axes."""
     V_fit = V_fit * np.sign(np.sum(V_fit * V_true, 0))  # each axis's sign as the truth's
@@ -88,7 +104,7 @@ def test_inertia_covariance_and_principal_axes_std():
     assert np.all(np.asarray(res.principal_axes_std) < 0.01)
 
 
-def test_an_inertia_pivot_that_underflowed_leaves_the_other_sigmas_as_they_were(monkeypatch, retrace):
+def test_an_inertia_pivot_that_underflowed_leaves_the_other_sigmas_as_they_were(monkeypatch, new_fit_program):
     # The covariance is taken in the inertia's own coordinates c, through (∂c/∂θ)⁻¹. Where a
     # log-Cholesky pivot exp(θ) has underflowed to 0, ∂c/∂θ is singular: everything that depends on
     # the inertia is then unknown (moment σ inf, its covariance NaN, converged False), while the
@@ -104,7 +120,7 @@ def test_an_inertia_pivot_that_underflowed_leaves_the_other_sigmas_as_they_were(
         return summarise(y.at[1].set(-1e4), *args, **kwargs)
 
     monkeypatch.setattr(_solve, "summarise", underflowed)
-    retrace()
+    new_fit_program()
     res = rb.fit_inertia(T_FAST, qn, body_rates=wn)
     assert np.all(np.isinf(np.asarray(res.moment_std))) and np.all(np.isnan(np.asarray(res.inertia_covariance)))
     assert np.all(np.isinf(np.asarray(res.principal_axes_std)))
@@ -240,7 +256,7 @@ def test_batch_compiles_once_and_matches_single_fits():
 
 
 @pytest.mark.slow
-def test_a_batch_too_large_to_keep_its_jacobians_gets_the_same_result(monkeypatch, retrace):
+def test_a_batch_too_large_to_keep_its_jacobians_gets_the_same_result(monkeypatch, new_fit_program):
     # a batch keeps each solve's J for the covariance unless they would take more than
     # _KEEP_J_BYTES; then it re-evaluates the model at each solution. The same J (the model at the
     # same point), so the same result to rounding (1e-9 relative; the moments' σ are formed from
@@ -256,7 +272,7 @@ def test_a_batch_too_large_to_keep_its_jacobians_gets_the_same_result(monkeypatc
             keeps.append(self.keep_jacobian)
 
     monkeypatch.setattr(_solve, "LMMember", Recorded)
-    retrace()
+    new_fit_program()
     again = rb.fit_inertia(T_FAST, qs, segments=2)
     assert keeps == [False]  # traced anew, without the kept J
     for name in ("inertia", "moment_std", "iterations", "chi2"):
