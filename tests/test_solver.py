@@ -149,8 +149,10 @@ def _unordered_lapack_pairs(jaxpr, where="top"):
 def test_a_batched_fit_runs_its_lapack_calls_one_after_another(monkeypatch):
     # Batched over a fit's members, each LAPACK call (eigh, SVD, det) waits for its batch on
     # XLA's intra-op thread pool; two at once can starve each other on a 2-core machine and hang
-    # the fit (reproduced with two batched solves, see cholesky_solve). The result pass chains
-    # them: in the batch program's jaxpr every two of them are ordered by a data dependency.
+    # the fit (reproduced with two batched solves, see cholesky_solve, and with the result pass's
+    # SVDs: 100 recordings, 1 process in 3). The result pass chains them: in the batch program's jaxpr
+    # every two of them are ordered by a data dependency. Also where the result pass runs in
+    # slices of _SLOTS members and a partial slice is left (lax.map ran that one beside its loop)
     import rbjax as rb
     from rbjax.identification import _solve
 
@@ -170,8 +172,10 @@ def test_a_batched_fit_runs_its_lapack_calls_one_after_another(monkeypatch):
     t = np.linspace(0.0, 2.0, 101)  # a tumble near the intermediate axis: every axis excited
     state = rb.State.create(rb.Body(1.0, np.diag([1.0, 2.0, 2.6])), angular_velocity=[0.3, 3.0, 0.4])
     q = np.asarray(rb.torque_free(state, t).orientation)
-    rb.fit_inertia(t, np.stack([q, q]), segments=2)  # a batch of two recordings; joins: two more SVDs
+    rb.fit_inertia(t, np.stack([q, q, q]), segments=2)  # a batch of three recordings; joins: two more SVDs
     ((args, kwargs),) = seen
-    jaxpr = jax.make_jaxpr(lambda *a: _solve._fit_batch(*a, **kwargs))(*args).jaxpr
-    assert sum(_calls_lapack(e) for e in jaxpr.eqns), "the check found no LAPACK call to order"
-    assert not _unordered_lapack_pairs(jaxpr)
+    for slots in (_solve._SLOTS, 2):  # one partial slice of 3; a full slice of 2, then one of 1
+        monkeypatch.setattr(_solve, "_SLOTS", slots)
+        jaxpr = jax.make_jaxpr(lambda *a: _solve._fit_batch(*a, **kwargs))(*args).jaxpr
+        assert sum(_calls_lapack(e) for e in jaxpr.eqns), "the check found no LAPACK call to order"
+        assert not _unordered_lapack_pairs(jaxpr), slots

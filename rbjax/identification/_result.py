@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -14,7 +12,7 @@ from .._math import quat_exp, quat_multiply
 from .._pytree import field, pytree_dataclass, static_field
 from ._layout import Layout
 from ._model import drag_coefficients, normalised_inertia, unpack
-from ._solver import solve_small
+from ._solver import after, solve_small
 from ._tails import chi2_sf, f_sf
 
 
@@ -337,17 +335,6 @@ def _axis_rotations(V: Array, moments: Array) -> Array:
     return jnp.stack(rows)
 
 
-def _after(done: Any, x: Array) -> Array:
-    """``x``, not to be used before ``done`` is computed: orders the result pass's LAPACK calls.
-
-    Batched over a batch's members, each eigh, SVD or det is a LAPACK call that waits for its
-    batch on XLA's intra-op thread pool; two independent ones may run at once, and on a 2-thread
-    pool two such waits starve each other (a hang, reproduced with two batched solves). Chained
-    through an optimisation barrier, one runs after the other.
-    """
-    return jax.lax.optimization_barrier((done, x))[1]
-
-
 def consistency(stats: dict) -> np.ndarray:
     """The consistency test's p-value ``(*N,)`` (NumPy) from :func:`summarise`'s per-sensor statistics.
 
@@ -411,7 +398,7 @@ def summarise(
     moments = jnp.linalg.eigvalsh(I)
     # dλ_k = v_kᵀ dI v_k with the eigenvectors held fixed: finite for equal moments too (eigvalsh's
     # own derivative is not), where it is the first-order change along the returned basis
-    _, V = jnp.linalg.eigh(_after(moments, I))
+    _, V = jnp.linalg.eigh(after(moments, I))
     V = jax.lax.stop_gradient(V)
     # One covariance, in the inertia's own coordinates c (the 6 entries, or 5 of the unit-trace ones)
     # instead of the log-Cholesky θ the solver steps in: J_c = J_θ (∂c/∂θ)⁻¹. On the edge of the
@@ -426,7 +413,7 @@ def summarise(
     c_drag = lambda yy: drag_coefficients(yy, scale_fixed, layout)
     G_drag = jax.jacfwd(c_drag)(y)  # (2, p), in θ
     # A (., p) of derivatives in θ -> in c: A's inertia columns times (∂c/∂θ)⁻¹, one solve for J and G_drag
-    JG = _after(V, jnp.concatenate([J, G_drag]))
+    JG = after(V, jnp.concatenate([J, G_drag]))
     JG_c = solve_small(dc_dth.T, JG[:, :n_I].T).T
     # (∂c/∂θ singular to rounding, its pivot exp(θ) underflowed: the other parameters' covariance is
     # taken with the inertia in θ, and what depends on the inertia is unknown, below)
@@ -468,7 +455,7 @@ def summarise(
     gaps = jnp.abs(moments[j] - moments[k])
     gap_std = jnp.sqrt(C[j, j] + C[k, k] - 2 * C[j, k])
     axes_std = jnp.where(gaps > _EQUAL_MOMENTS_Z * gap_std, jnp.sqrt(var[9:12]), jnp.inf)
-    _, axes = jnp.linalg.eigh(_after(C, I))
+    _, axes = jnp.linalg.eigh(after(C, I))
     axes = axes * jnp.sign(jnp.linalg.det(axes))
     _, P = unpack(y, layout.shared, S)
     P_std = param_std[layout.shared :].reshape(S, 6)

@@ -23,7 +23,7 @@ from ._model import model_residuals, model_shapes
 from ._problem import prepare
 from ._queue import run_queue
 from ._result import CONSISTENCY_ALPHA, FitResult, consistency, summarise
-from ._solver import LMMember
+from ._solver import LMMember, after
 
 __all__ = [
     "NOT_JOINT",
@@ -146,7 +146,7 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
             steps_per_round=_STEPS_PER_ROUND,
         )
         # in slices: the memory of one model evaluation (if any) per slice, few LAPACK calls
-        return jax.lax.map(lambda a: summary(*a), (sols, data), batch_size=C)
+        return _map_in_order(lambda a: summary(*a), (sols, data), C)
     # one recording: no queue (and no vmap, whose batching of the solver's loops doubles tracing)
 
     def body(c):
@@ -158,6 +158,27 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
         return summary(retire(jax.lax.while_loop(lm.running, lm.advance, first))[2], member(data, 0))
     out0 = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(lambda s: retire(s)[2], first))
     return summary(jax.lax.while_loop(lambda c: c[0], body, (jnp.array(True), first, out0))[2], member(data, 0))
+
+
+def _map_in_order(f, xs, size: int):
+    """``vmap(f)(xs)`` in slices of ``size`` members, one slice after another.
+
+    ``lax.map(f, xs, batch_size=size)``, except that the last, partial slice runs after the full
+    ones: lax.map computes it beside its loop, independently, and the two slices' batched SVDs
+    then ran at once and starved each other of XLA's intra-op threads (a hang: a batch of 100
+    recordings on 2 cores, 1 process in 3, jaxlib 0.10.2; see :func:`._solver.after`).
+    """
+    n = jax.tree.leaves(xs)[0].shape[0]
+    k = n - n % size
+    rest = jax.tree.map(lambda a: a[k:], xs)
+    if k == 0:
+        return jax.vmap(f)(rest)
+    full = jax.tree.map(lambda a: a[:k].reshape(k // size, size, *a.shape[1:]), xs)
+    out = jax.tree.map(lambda a: a.reshape(k, *a.shape[2:]), jax.lax.map(jax.vmap(f), full))
+    if k == n:
+        return out
+    tail = jax.vmap(f)(after(out, rest))
+    return jax.tree.map(lambda a, b: jnp.concatenate([a, b]), out, tail)
 
 
 _SUMMARY_OPTS = ("scale_fixed", "use_rates", "use_orientations", "layout")

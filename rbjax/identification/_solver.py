@@ -41,9 +41,11 @@ fits stopped within 200 steps, with 98–99% of the moments within 3σ
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import jax
 import jax.numpy as jnp
+from jax import Array
 
 _SIGMA_TOL = 0.1
 # the trust region grows when the actual reduction is at least this fraction of the predicted
@@ -65,6 +67,18 @@ def _damped_step(G, g, step_size):
     tiny = step_size <= jnp.finfo(dtype).eps
     lam = jnp.where(tiny, jnp.finfo(dtype).max, 1 / jnp.where(tiny, 1, step_size))
     return -cholesky_solve(G + lam * jnp.eye(G.shape[0], dtype=dtype), g)
+
+
+def after(done: Any, x: Array) -> Array:
+    """``x``, not to be used before ``done`` is computed: orders a program's LAPACK calls.
+
+    Batched over a batch's members, each eigh, SVD or det is a LAPACK call that waits for its
+    batch on XLA's intra-op thread pool; two independent ones may run at once, and on a 2-thread
+    pool two such waits starve each other (a hang, reproduced with two batched solves, and with
+    two batched SVDs of the result pass). Chained through an optimisation barrier, one runs after
+    the other.
+    """
+    return jax.lax.optimization_barrier((done, x))[1]
 
 
 def cholesky_solve(A, b):
