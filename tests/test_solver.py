@@ -145,7 +145,7 @@ def _unordered_lapack_pairs(jaxpr, where="top"):
     return bad
 
 
-@pytest.mark.slow  # compiles a batched fit to read its program; the whole suite (CI) runs it
+@pytest.mark.slow  # traces a batched fit twice to read its program; the whole suite (CI) runs it
 def test_a_batched_fit_runs_its_lapack_calls_one_after_another(monkeypatch):
     # Batched over a fit's members, each LAPACK call (eigh, SVD, det) waits for its batch on
     # XLA's intra-op thread pool; two at once can starve each other on a 2-core machine and hang
@@ -157,14 +157,14 @@ def test_a_batched_fit_runs_its_lapack_calls_one_after_another(monkeypatch):
     from rbjax.identification import _solve
 
     seen = []
-    real = _solve.fit_batch_jit
+
+    class Captured(Exception):  # the solver's arguments are all the check needs: nothing is compiled
+        pass
 
     def recording(backend, small=False):
-        jitted = real(backend, small)
-
         def call(*args, **kwargs):
             seen.append((args, kwargs))
-            return jitted(*args, **kwargs)
+            raise Captured
 
         return call
 
@@ -172,7 +172,8 @@ def test_a_batched_fit_runs_its_lapack_calls_one_after_another(monkeypatch):
     t = np.linspace(0.0, 2.0, 101)  # a tumble near the intermediate axis: every axis excited
     state = rb.State.create(rb.Body(1.0, np.diag([1.0, 2.0, 2.6])), angular_velocity=[0.3, 3.0, 0.4])
     q = np.asarray(rb.torque_free(state, t).orientation)
-    rb.fit_inertia(t, np.stack([q, q, q]), segments=2)  # a batch of three recordings; joins: two more SVDs
+    with pytest.raises(Captured):
+        rb.fit_inertia(t, np.stack([q, q, q]), segments=2)  # a batch of three recordings; joins: two more SVDs
     ((args, kwargs),) = seen
     for slots in (_solve._SLOTS, 2):  # one partial slice of 3; a full slice of 2, then one of 1
         monkeypatch.setattr(_solve, "_SLOTS", slots)
