@@ -180,3 +180,16 @@ def test_a_batched_fit_runs_its_lapack_calls_one_after_another(monkeypatch):
         jaxpr = jax.make_jaxpr(lambda *a: _solve._fit_batch(*a, **kwargs))(*args).jaxpr
         assert sum(_calls_lapack(e) for e in jaxpr.eqns), "the check found no LAPACK call to order"
         assert not _unordered_lapack_pairs(jaxpr), slots
+
+
+@pytest.mark.parametrize("n", [3, 8, 10])  # a partial slice only; full slices only; both
+def test_the_result_pass_in_slices_gives_every_member_its_own_result(n):
+    # _map_in_order (the batched result pass) runs full slices of `size` members in a loop, then
+    # the partial one: every member's output must be that of vmap over the whole batch, in order
+    from rbjax.identification._solve import _map_in_order
+
+    xs = {"a": jnp.arange(n * 3.0).reshape(n, 3), "b": jnp.arange(n * 1.0) % 5}
+    f = lambda x: {"s": jnp.sum(x["a"]) * x["b"], "v": x["a"][::-1] + x["b"]}
+    got, want = _map_in_order(f, xs, 4), jax.vmap(f)(xs)
+    for k in want:
+        np.testing.assert_array_equal(got[k], want[k])
