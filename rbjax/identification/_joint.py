@@ -113,8 +113,8 @@ def fit_joint(members, options) -> FitResult:
         member_chi2=tuple(x[1] for x in per),
         member_dof=tuple(x[2] for x in per),
         member_pvalue=tuple(x[3] for x in per),
-        member_initial_orientation=jax.device_put(np.asarray(rows["q"])),
-        member_initial_orientation_std=jax.device_put(np.asarray(rows["q_std"])),
-        member_initial_angular_velocity=jax.device_put(np.asarray(rows["w"])),
-        member_initial_angular_velocity_std=jax.device_put(np.asarray(rows["w_std"])),
+        member_initial_orientation=jax.device_put(rows["q"]),
+        member_initial_orientation_std=jax.device_put(rows["q_std"]),
+        member_initial_angular_velocity=jax.device_put(rows["w"]),
+        member_initial_angular_velocity_std=jax.device_put(rows["w_std"]),
     )

@@ -170,14 +170,13 @@ def _map_in_order(f, xs, size: int):
     """
     n = jax.tree.leaves(xs)[0].shape[0]
     k = n - n % size
-    rest = jax.tree.map(lambda a: a[k:], xs)
     if k == 0:
-        return jax.vmap(f)(rest)
+        return jax.vmap(f)(xs)
     full = jax.tree.map(lambda a: a[:k].reshape(k // size, size, *a.shape[1:]), xs)
     out = jax.tree.map(lambda a: a.reshape(k, *a.shape[2:]), jax.lax.map(jax.vmap(f), full))
     if k == n:
         return out
-    tail = jax.vmap(f)(after(out, rest))
+    tail = jax.vmap(f)(after(out, jax.tree.map(lambda a: a[k:], xs)))
     return jax.tree.map(lambda a, b: jnp.concatenate([a, b]), out, tail)
 
 
