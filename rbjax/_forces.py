@@ -128,8 +128,9 @@ class _Drag(PerBodyForce):
 
         The law turns with the body, ``τ(R ω_b) = R τ(ω_b)`` (``|R ω_b| = |ω_b|``), so in the
         body frame it reads ``ω_b`` and turns nothing; the force stays world frame (from ``v``).
+        Without ``angular`` there is no torque, as in :meth:`on_body`.
         """
-        return self._law(state, omega_body)
+        return self._law(state, None if self.angular is None else omega_body)
 
 
 @pytree_dataclass
