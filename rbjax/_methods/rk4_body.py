@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+from jax import Array
 
 from .._batching import lift
 from .._force_model import PerBodyForces, sum_on_body, torque_to_body
@@ -76,13 +77,14 @@ def _to_unit_world(s: State) -> State:
     return replace(s, orientation=q, angular_momentum=quat_rotate_unchecked(q, s.angular_momentum))
 
 
-def _body_derivative(s: State, f: Forces) -> State:
+def _body_derivative(s: State, f: Forces, w: Array | None = None) -> State:
     """``(ẋ, v̇, q̇, π̇)`` of one body, stored in a State's fields (π̇ in ``angular_momentum``).
 
-    ``f``'s force is world frame and its torque body frame (see :func:`_stage_derivative`).
+    ``f``'s force is world frame and its torque body frame (see :func:`_stage_derivative`);
+    ``w``: the stage's ``ω_b = I_L⁻¹ π`` ``(3,)`` if the caller has it, else computed here.
     """
     q, pi = s.orientation, s.angular_momentum
-    w = matvec3(s.body.inverse_inertia, pi)
+    w = matvec3(s.body.inverse_inertia, pi) if w is None else w
     dpi = cross(pi, w) if f.torque is None else cross(pi, w) + f.torque
     a = jnp.zeros_like(s.velocity) if f.force is None else over(f.force, s.body.mass)
     dq = 0.5 * quat_multiply(q, jnp.concatenate([jnp.zeros_like(w[:1]), w]))
@@ -109,13 +111,18 @@ def _stage_derivative(force_fn, y: State, t) -> State:
     derivative, one body at a time, and give their torque in the body frame: drag reads
     ``ω_b = I_L⁻¹ π`` directly, where the world path would rotate ``π`` out and back twice.
     Any other force function sees the batch and its torque is turned back here.
+
+    On the per-body path ``ω_b`` is computed into memory once per stage: fused, XLA:CPU
+    recomputes ``I_L⁻¹ π`` in every kernel that reads it (the rows of ``π̇`` and ``q̇``, and
+    with a drag torque ``|ω_b|`` in each); benchmarks/results/forces_rk4_body_omega_2026-12-04.md has the A/B.
     """
     world = _world_for_forces(y)
     if isinstance(force_fn, PerBodyForces):
 
         def one(s: State, w: State, *terms) -> State:
-            f = sum_on_body(terms, w, t, omega_body=matvec3(s.body.inverse_inertia, s.angular_momentum))
-            return _body_derivative(s, f)
+            w_b = jax.lax.optimization_barrier(matvec3(s.body.inverse_inertia, s.angular_momentum))
+            f = sum_on_body(terms, w, t, omega_body=w_b)
+            return _body_derivative(s, f, w_b)
 
         return lift(one)(y, world, *force_fn.terms)
     return lift(lambda s, f, w: _body_derivative(s, torque_to_body(f, w)))(y, force_fn(world, t), world)
