@@ -12,6 +12,7 @@ from jax import Array
 from jax.extend.core import Literal
 
 from .._batching import lift
+from .._eigh3 import eigh3
 from .._math import (
     cross,
     dot3,
@@ -55,7 +56,8 @@ def principal_frame(inertia: Array) -> tuple[Array, Array, Array]:
     ``I = P diag(d) Pᵀ`` with ``P`` (columns = principal axes in the body frame,
     ``det P = +1``) the rotation of ``p``.
 
-    Values come from ``eigh`` of ``stop_gradient(I)``: ``eigh``'s own gradient
+    Values come from :func:`rbjax._eigh3.eigh3` (cyclic Jacobi, elementwise over
+    a batch) of ``stop_gradient(I)``: an eigen-decomposition's own gradient
     is NaN at repeated moments (spheres, axisymmetric bodies). Gradients come
     from first-order perturbation theory instead, with ``M = P₀ᵀ I P₀`` (its
     value is ``diag(d)``, its tangent ``P₀ᵀ dI P₀``):
@@ -75,15 +77,14 @@ def principal_frame(inertia: Array) -> tuple[Array, Array, Array]:
       the derivative of a sphere's or a symmetric top's motion along such a
       perturbation would be missing, not merely inexact.
 
-    Cost: one ``eigh`` per body. The result depends only on the body, so when
-    this runs inside ``simulate``'s scan XLA's while-loop invariant code motion
-    hoists it out of the loop: the compiled HLO of ``simulate`` has the ``eigh``
-    custom call in the entry computation, not in the while body (a per-step
-    ``eigh`` of 10⁴ bodies would cost ~7 ms, 20x an Euler step).
+    Cost: five Jacobi sweeps per body. The result depends only on the body, so
+    when this runs inside ``simulate``'s scan XLA's while-loop invariant code
+    motion hoists it out of the loop: the compiled HLO of ``simulate`` has the
+    sweeps' loop in the entry computation, not in the while body
+    (tests/test_composition.py). LAPACK's ``eigh`` took 7x as long as the sweeps
+    at 10⁵ float32 bodies on the CPU (benchmarks/results/splitting_principal_frame_2026-12-04.md).
     """
-    I0 = jax.lax.stop_gradient(inertia)
-    d0, P0 = jnp.linalg.eigh(I0)
-    P0 = P0 * jnp.sign(jnp.linalg.det(P0))
+    d0, P0 = eigh3(inertia)  # values only (stop_gradient inside)
     M = P0.T @ inertia @ P0
     d = jnp.diagonal(M)
     gap = d0[None, :] - d0[:, None]

@@ -59,7 +59,8 @@ Choose it for long or stiff (fast-spinning, anisotropic) runs, Dzhanibekov
 flips, and anything where energy must not drift.
 
 The principal frame is computed from the body by :func:`._common.principal_frame`
-(``eigh`` outside the differentiated path, hoisted out of ``simulate``'s loop).
+(Jacobi sweeps, :func:`rbjax._eigh3.eigh3`, outside the differentiated path,
+hoisted out of ``simulate``'s loop).
 Gradients with respect to the inertia come from perturbation theory. Where two
 moments are equal the split depends on axes the inertia does not determine,
 and a perturbation that splits them is carried by ``w`` (zero by value) through
