@@ -19,16 +19,14 @@ import jax.numpy as jnp
 from jax import Array
 
 from ._batching import lift
-from ._body import inertia_of
+from ._body import Body, inertia_of
 from ._math import (
     cross,
-    matmul3,
     matvec3,
     over,
     pure_quat_multiply,
     quat_rotate_inverse_unchecked,
     quat_rotate_unchecked,
-    skew,
 )
 from ._pytree import replace
 from ._state import AnyState, Forces, ParticleState, State, StateT
@@ -67,16 +65,32 @@ def _one_derivative(s: AnyState, f: Forces) -> AnyState:
             orientation=0.5 * pure_quat_multiply(w, s.orientation),
             angular_momentum=tau,
         )
-    R, w = s.rotation, s.angular_velocity
-    I_w = matmul3(matmul3(R, inertia_of(s.body)), R.T)
-    I_w_inv = matmul3(matmul3(R, s.body.inverse_inertia), R.T)
-    return replace(
-        s,
-        position=s.velocity,
-        velocity=a,
-        rotation=matmul3(skew(w), R),
-        angular_velocity=matvec3(I_w_inv, tau - cross(w, matvec3(I_w, w))),
-    )
+    R_dot, w_dot = matrix_rates(s.rotation, s.angular_velocity, s.body, tau)
+    return replace(s, position=s.velocity, velocity=a, rotation=R_dot, angular_velocity=w_dot)
+
+
+def matrix_rates(R: Array, w: Array, body: Body, torque: Array | None) -> tuple[Array, Array]:
+    """``Ṙ = ω̃ R`` and ``ω̇ = I_w⁻¹ (τ - ω × I_w ω)`` of one body in the ``(x, v, R, ω)`` form.
+
+    ``R`` (3, 3) body to world, ``ω`` and ``τ`` (3,) world frame (rad/s, N·m;
+    ``None``: no torque); returns ``Ṙ`` (3, 3) (1/s) and ``ω̇`` (3,) (rad/s²).
+    With ``I_w = R I_L Rᵀ``, ``ω̇`` is evaluated in the body frame,
+    ``ω̇ = R I_L⁻¹ (Rᵀτ - ω_b × I_L ω_b)`` with ``ω_b = Rᵀ ω``: the same on
+    rotations, and four products of a 3x3 with a vector where building ``I_w``
+    and ``I_w⁻¹`` takes four 3x3 products; the 3x3 products made gradients
+    through the Runge–Kutta methods compile several times slower (figures in
+    the CHANGELOG, 2026-12-04). Within a Runge–Kutta stage ``R`` is off orthogonal by
+    ``O(dt²)``, where the two forms differ: both are the same ODE on rotations,
+    so the method's order is kept. :func:`derivative` (hence the Runge–Kutta
+    methods), ``"euler"`` and the Scene's general kernel take their rates from here.
+    """
+    Rt = jnp.swapaxes(R, -1, -2)
+    w_b = matvec3(Rt, w)
+    gyro = cross(w_b, matvec3(inertia_of(body), w_b))
+    w_b_dot = matvec3(body.inverse_inertia, -gyro if torque is None else matvec3(Rt, torque) - gyro)
+    # column j of Ṙ = ω̃ R is ω × R e_j
+    R_dot = jnp.stack([cross(w, R[..., :, j]) for j in range(3)], axis=-1)
+    return R_dot, matvec3(R, w_b_dot)
 
 
 def derivative(state: StateT, forces: Forces) -> StateT:

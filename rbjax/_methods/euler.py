@@ -21,16 +21,12 @@ import math
 import jax
 
 from .._batching import lift
-from .._dynamics import omega_world
+from .._dynamics import matrix_rates, omega_world
 from .._math import (
-    cross,
     kick3,
-    matmul3,
-    matvec3,
     orthonormalize_unchecked,
     pure_quat_multiply,
     quat_normalize_unchecked,
-    skew,
 )
 from .._pytree import replace
 from .._state import Forces, MatrixState, ParticleState, State
@@ -62,11 +58,9 @@ def euler_matrix(s: MatrixState, f: Forces, dt) -> MatrixState:
     """One explicit-Euler step of one body in the ``(x, v, R, ω)`` form."""
     x, v = _translate(s.position, s.velocity, s.body.mass, f, dt)
     R, w = s.rotation, s.angular_velocity
-    I_w = matmul3(matmul3(R, s.body.inertia), R.T)
-    I_w_inv = matmul3(matmul3(R, s.body.inverse_inertia), R.T)
-    tau = -cross(w, matvec3(I_w, w)) if f.torque is None else f.torque - cross(w, matvec3(I_w, w))
-    R_new = orthonormalize_unchecked(R + matmul3(skew(w), R) * dt)
-    w_new = w + matvec3(I_w_inv, tau) * dt
+    R_dot, w_dot = matrix_rates(R, w, s.body, f.torque)
+    R_new = orthonormalize_unchecked(R + R_dot * dt)
+    w_new = w + w_dot * dt
     return replace(s, position=x, velocity=v, rotation=R_new, angular_velocity=w_new)
 
 

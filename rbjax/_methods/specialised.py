@@ -30,8 +30,8 @@ import jax
 import jax.numpy as jnp
 
 from .._batching import lift
-from .._dynamics import omega_world
-from .._math import cross, dot3, matmul3, matvec3, over, pure_quat_multiply, quat_normalize_unchecked, skew
+from .._dynamics import matrix_rates, omega_world
+from .._math import cross, dot3, matmul3, over, pure_quat_multiply, quat_normalize_unchecked, skew
 from .._pytree import replace
 from .._state import Forces, MatrixState, State
 from ._common import project
@@ -101,10 +101,7 @@ def _rates(s: Any, f: Forces, kind: str) -> dict[str, Any]:
         tau = -gyro if f.torque is None else f.torque - gyro
         out["angular_velocity"] = _axisym_inv(s.body, n, tau)
         return out
-    I_w = matmul3(matmul3(R, s.body.inertia), R.T)
-    I_w_inv = matmul3(matmul3(R, s.body.inverse_inertia), R.T)
-    tau = -cross(w, matvec3(I_w, w)) if f.torque is None else f.torque - cross(w, matvec3(I_w, w))
-    out["angular_velocity"] = matvec3(I_w_inv, tau)
+    out["rotation"], out["angular_velocity"] = matrix_rates(R, w, s.body, f.torque)
     return out
 
 
