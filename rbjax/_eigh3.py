@@ -19,8 +19,7 @@ relative to ``‖A‖``. Each rotation is orthogonal up to rounding, so the
 product drifts by a few eps (6 eps after five sweeps, measured); one polar
 (Newton–Schulz) step at the end brings ``P`` back to within 2 eps of
 orthogonal, for a frame whose quaternion is exactly the rotation it stands for.
-A diagonal matrix is returned
-exactly, with ``P`` a permutation (up to sign) of the identity.
+A diagonal matrix is returned exactly, with ``P`` a permutation (up to sign) of the identity.
 """
 
 from __future__ import annotations

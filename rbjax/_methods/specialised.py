@@ -30,8 +30,8 @@ import jax
 import jax.numpy as jnp
 
 from .._batching import lift
-from .._dynamics import matrix_rates, omega_world
-from .._math import cross, dot3, matmul3, over, pure_quat_multiply, quat_normalize_unchecked, skew
+from .._dynamics import angular_acceleration, omega_world, rotation_rate
+from .._math import cross, dot3, over, pure_quat_multiply, quat_normalize_unchecked
 from .._pytree import replace
 from .._state import Forces, MatrixState, State
 from ._common import project
@@ -89,7 +89,7 @@ def _rates(s: Any, f: Forces, kind: str) -> dict[str, Any]:
         out["angular_momentum"] = f.torque
         return out
     R, w = s.rotation, s.angular_velocity
-    out["rotation"] = matmul3(skew(w), R)
+    out["rotation"] = rotation_rate(R, w)
     if kind == "isotropic":
         # gyroscopic term i ω × ω = 0; I_w⁻¹ = 1/i
         out["angular_velocity"] = None if f.torque is None else s.body.inverse_inertia[0, 0] * f.torque
@@ -101,7 +101,7 @@ def _rates(s: Any, f: Forces, kind: str) -> dict[str, Any]:
         tau = -gyro if f.torque is None else f.torque - gyro
         out["angular_velocity"] = _axisym_inv(s.body, n, tau)
         return out
-    out["rotation"], out["angular_velocity"] = matrix_rates(R, w, s.body, f.torque)
+    out["angular_velocity"] = angular_acceleration(R, w, s.body, f.torque)
     return out
 
 
