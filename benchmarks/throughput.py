@@ -238,7 +238,9 @@ def measure_machine(quick: bool) -> dict:
     bw_np = 2 * 4 * n / best_time(lambda: np.copyto(y, x), repeats=5)
     del a, b
 
-    m, chain = 2**16, 64  # cache-resident; 64 dependent FMAs per element, fused into one loop by XLA
+    # 64 dependent FMAs per element, fused into one loop by XLA, over a cache-resident array on a CPU;
+    # a GPU needs millions of elements to fill its cores, or the figure is one launch's latency
+    m, chain = (2**16 if jax.default_backend() == "cpu" else 2**26), 64
     z = jnp.linspace(0.0, 1.0, m, dtype=jnp.float32)
 
     def fmas(z):
@@ -307,6 +309,12 @@ def main(argv=None) -> int:
     costs = {(m, np.dtype(d).name): step_cost(m, d) for m in methods for d in dtypes}
 
     rows = []
+
+    def checkpoint():
+        # the rows so far, after every size: a run cut short (a device lease, a time limit) keeps them
+        if args.json:
+            write_json(args.json, dict(machine=machine(), hardware=hw, quick=args.quick, rows=rows, partial=True))
+
     for dtype in dtypes:
         dname = np.dtype(dtype).name
         for n in sizes:
@@ -314,7 +322,9 @@ def main(argv=None) -> int:
             # fixed work (the trajectory's two frames, a body per frame: ~0.12 s) outweighs the steps
             steps = int(max(4 if args.quick else 100, min(2000, budget // n)))
             state = make_state(n, dtype)
-            np_steps = max(2, min(steps, 50 if n < 1000 else steps))
+            # NumPy's rate per step is flat in the step count: ~2e6 body-steps time it (a 1e6 batch's 100
+            # steps would take 15 s of a run whose point is rbjax)
+            np_steps = max(2, min(steps, 50 if n < 1000 else int(2e6 // n)))
             t_np = time_numpy(state, np_steps) * steps / np_steps
             rows.append(
                 dict(
@@ -397,6 +407,7 @@ def main(argv=None) -> int:
                     f"roofline {bound / t_bs:.0%}",
                     flush=True,
                 )
+            checkpoint()
     if "mujoco" in peers:
         for integ in ("Euler", "RK4"):
             for n in mj_sizes:

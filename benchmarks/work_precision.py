@@ -500,6 +500,12 @@ def default_methods(quick: bool) -> list[str]:
     return ["euler", "rk4"] if quick else list(rb.methods(rb.State))
 
 
+def checkpoint(stem: str, results: dict) -> None:
+    """The curves so far (``partial: true``), so that a run cut short (a device lease, a time
+    limit) keeps them; the finished run overwrites the file with its summary."""
+    write_json(stem + ".json", dict(machine=machine(), partial=True, results=results))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="tiny sizes, < 1 minute (checks it runs)")
@@ -545,6 +551,8 @@ def main(argv=None) -> int:
         args.no_diffrax = True
         print("diffrax not installed: peer skipped (pip install -e '.[bench]')")
 
+    os.makedirs(args.out, exist_ok=True)
+    stem = os.path.join(args.out, "work_precision" + ("_quick" if args.quick else ""))
     t_start = time.perf_counter()
     results, refs = {}, {}
     for name, p in probs.items():
@@ -554,14 +562,14 @@ def main(argv=None) -> int:
         print(f"{p.title} (T = {p.T} s; reference: {ref['source']})", flush=True)
         log = lambda s: print(s, flush=True)
         rows = []
+        results[name] = rows
         for dtype in dtypes:
             rows += rbjax_curves(p, ref, dtype, n_batch, methods, args.quick, log, native=not args.no_native)
+            checkpoint(stem, results)
             if not args.no_diffrax and dtype in tols:
                 rows += diffrax_curves(p, ref, dtype, n_batch, solvers, tols[dtype], max_steps, args.quick, log)
-        results[name] = rows
+                checkpoint(stem, results)
 
-    os.makedirs(args.out, exist_ok=True)
-    stem = os.path.join(args.out, "work_precision" + ("_quick" if args.quick else ""))
     table, verdicts = summary(results, probs)
     header = (
         f"Work-precision, batch of {n_batch:,} identical bodies; time = wall time per body to the final "

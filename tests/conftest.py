@@ -7,6 +7,7 @@ error, so the library never hard-codes a dtype.
 """
 
 import gc
+import importlib.metadata
 import os
 import shutil
 import tempfile
@@ -44,9 +45,20 @@ _CACHE_ENV = "RBJAX_TEST_COMPILATION_CACHE_DIR"
 # tests start. The benchmarks and users' programs keep XLA's defaults, and so do the tests that
 # hold a property of XLA's default pipeline (they run in a process of their own with
 # ``default_xla_env()``). RBJAX_TEST_FAST_COMPILE=0 runs the whole suite with the defaults.
+# They are CPU flags: where a GPU or TPU plugin is installed the tests run there, and that jaxlib
+# (0.11.2 with CUDA 13 on an H200, 2026-12-04) ended every pytest process at start with them set.
 _FAST_COMPILE = ("--xla_cpu_use_fusion_emitters=false", "--xla_backend_optimization_level=0")
 _FLAGS_BEFORE = "RBJAX_TEST_XLA_FLAGS_BEFORE"
-if os.environ.get("RBJAX_TEST_FAST_COMPILE", "1") != "0" and _FLAGS_BEFORE not in os.environ:
+
+
+def _accelerator_plugin() -> bool:
+    names = {(d.metadata["Name"] or "").lower().replace("_", "-") for d in importlib.metadata.distributions()}
+    return any(n.startswith(("jax-cuda", "jax-rocm", "libtpu")) for n in names)
+
+
+_PLATFORMS = os.environ.get("JAX_PLATFORMS", "")
+_CPU_ONLY = _PLATFORMS == "cpu" or (not _PLATFORMS and not _accelerator_plugin())
+if os.environ.get("RBJAX_TEST_FAST_COMPILE", "1") != "0" and _FLAGS_BEFORE not in os.environ and _CPU_ONLY:
     os.environ[_FLAGS_BEFORE] = os.environ.get("XLA_FLAGS", "")
     os.environ["XLA_FLAGS"] = " ".join(os.environ[_FLAGS_BEFORE].split() + list(_FAST_COMPILE))
 
