@@ -48,7 +48,7 @@ from .._attached import Thruster
 from .._force_model import ForceSum
 from .._forces import ConstantForce, Gravity, LinearDrag, QuadraticDrag
 from .._methods import Method, available
-from .._methods._common import principal_frame
+from .._methods._common import principal_frame_values
 from .._pytree import replace
 from .._state import Forces, State
 from .._validate import checked_force_fn
@@ -309,10 +309,10 @@ def _thrust_sums(thruster: Thruster, n: int, dtype: Any) -> jax.Array:
 
 def _frames(body: Any, shared: bool, batch: tuple[int, ...], n: int) -> jax.Array:
     """``"splitting"``'s principal frames, ``(1, 7)`` or ``(n, 7)``: the axes' quaternion ``p`` and
-    the inverse moments ``e = 1/d``, as :func:`rbjax._methods._common.principal_frame` gives them."""
+    the inverse moments ``e = 1/d``, the values :func:`rbjax._methods._common.principal_frame` gives."""
     inertia = body.inertia
     inertia = inertia.reshape(1, 3, 3) if shared else jnp.broadcast_to(inertia, batch + (3, 3)).reshape(n, 3, 3)
-    d, p, _ = jax.vmap(principal_frame)(inertia)
+    d, p = principal_frame_values(inertia)
     return jnp.concatenate([p, 1 / d], axis=1)
 
 

@@ -339,14 +339,11 @@ RBJAX_INLINE void cayley(T g, T n2, T& c2, T& t2) {
   t2 = T(2) * num * den * r;
 }
 
-// The exact flow of ½ k_i m_i² over h: a turn about principal axis i (splitting.py: _rotate_about).
+// The turn about principal axis i by θ with half-angle pair (c2, s2) and (c, s) = (cos θ, sin θ):
+// qp ← qp ⊗ (c2, s2 e_i), m ← Rot_i(-θ) m (splitting.py: _rotate_about, after its _cayley).
 template <typename T, int i>
-RBJAX_INLINE void rotate_about(T qp[4], T m[3], T k, T h) {
+RBJAX_INLINE void apply_turn(T qp[4], T m[3], T c2, T s2, T c, T s) {
   constexpr int j = (i + 1) % 3, l = (i + 2) % 3;
-  T c2, t2;
-  cayley(h * k / T(4), m[i] * m[i], c2, t2);
-  const T s2 = t2 * m[i];
-  const T c = T(1) - T(2) * s2 * s2, s = T(2) * s2 * c2;
   const T qw = qp[0], u[3] = {qp[1], qp[2], qp[3]};
   T nu[3], nm[3];
   nu[i] = c2 * u[i] + s2 * qw;
@@ -362,6 +359,26 @@ RBJAX_INLINE void rotate_about(T qp[4], T m[3], T k, T h) {
   }
 }
 
+// The pair of the turn by θ = h k m_i about axis i: c2, s2 and c, s as apply_turn takes them.
+template <typename T, int i>
+RBJAX_INLINE void turn_pair(const T m[3], T k, T h, T pair[4]) {
+  T c2, t2;
+  cayley(h * k / T(4), m[i] * m[i], c2, t2);
+  const T s2 = t2 * m[i];
+  pair[0] = c2;
+  pair[1] = s2;
+  pair[2] = T(1) - T(2) * s2 * s2;
+  pair[3] = T(2) * s2 * c2;
+}
+
+// The exact flow of ½ k_i m_i² over h: a turn about principal axis i (splitting.py: _rotate_about).
+template <typename T, int i>
+RBJAX_INLINE void rotate_about(T qp[4], T m[3], T k, T h) {
+  T pair[4];
+  turn_pair<T, i>(m, k, h, pair);
+  apply_turn<T, i>(qp, m, pair[0], pair[1], pair[2], pair[3]);
+}
+
 // ``q`` after the split free rotor over h (splitting.py: free_rotor), from the principal frame's
 // quaternion p and inverse moments e (computed by rbjax._methods._common.principal_frame).
 // H_L of free_rotor: the turn about world L by |L| h e₂, [c2, tl L].
@@ -374,7 +391,7 @@ RBJAX_INLINE void turn_about_L(const T L[3], const T e[3], T h, T turn[4]) {
   for (int c = 0; c < 3; ++c) turn[1 + c] = tl * L[c];
 }
 
-// turn: H_L from turn_about_L (the same every step while no torque changes L).
+// turn: H_L from turn_about_L.
 template <typename T>
 RBJAX_INLINE void free_rotor(T q[4], const T L[3], const T p[4], const T e[3], T h, const T turn[4]) {
   const T k0 = e[0] - e[1], k2 = e[2] - e[1];
@@ -407,44 +424,98 @@ RBJAX_INLINE void kick(const Consts<T>& k, int j, const T q[4], const T inv[9], 
   }
 }
 
-// `steps` steps of "splitting" (rbjax/_methods/splitting.py): kick(h/2) drift(h) kick(h/2), the
-// forces at the step's start and after the drift. frame: the principal frame's quaternion p
-// (rows 0-3) and inverse moments e (rows 4-6) per body.
-template <typename T, bool kForces, bool kQuad, bool kThrust>
+// `steps` steps of "splitting" (rbjax/_methods/splitting.py) with forces: kick(h/2) drift(h)
+// kick(h/2), the forces at the step's start and after the drift. frame: the principal frame's
+// quaternion p (rows 0-3) and inverse moments e (rows 4-6) per body.
+template <typename T, bool kQuad, bool kThrust>
 void splitting_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], int n, T dt, int64_t steps) {
   const T half = dt / T(2);
-  T turns[4][kBlock];  // without forces L, and so H_L, stays: computed once per call
-  if (!kForces) {
-#pragma GCC ivdep
-    for (int j = 0; j < n; ++j) {
-      const T L[3] = {B.L[0][j], B.L[1][j], B.L[2][j]}, e[3] = {frame[4][j], frame[5][j], frame[6][j]};
-      T turn[4];
-      turn_about_L(L, e, dt, turn);
-#pragma GCC unroll 16
-      for (int c = 0; c < 4; ++c) turns[c][j] = turn[c];
-    }
-  }
   for (int64_t s = 0; s < steps; ++s) {
 #pragma GCC ivdep
     for (int j = 0; j < n; ++j) {
       T q[4], L[3], v[3], inv[9];
       load_body(B, k, j, q, L, v, inv);
-      if (kForces) kick<T, kQuad, kThrust>(k, j, q, inv, half, v, L);  // with the forces at the start
+      kick<T, kQuad, kThrust>(k, j, q, inv, half, v, L);  // with the forces at the start
       const T p[4] = {frame[0][j], frame[1][j], frame[2][j], frame[3][j]};
       const T e[3] = {frame[4][j], frame[5][j], frame[6][j]};
 #pragma GCC unroll 16
       for (int c = 0; c < 3; ++c) B.x[c][j] = B.x[c][j] + v[c] * dt;
       T turn[4];
-      if (kForces) {
-        turn_about_L(L, e, dt, turn);
-      } else {
-#pragma GCC unroll 16
-        for (int c = 0; c < 4; ++c) turn[c] = turns[c][j];
-      }
+      turn_about_L(L, e, dt, turn);
       free_rotor(q, L, p, e, dt, turn);
-      if (kForces) kick<T, kQuad, kThrust>(k, j, q, inv, half, v, L);  // with the forces after the drift
+      kick<T, kQuad, kThrust>(k, j, q, inv, half, v, L);  // with the forces after the drift
       store_body(B, j, q, L, v);
     }
+  }
+}
+
+// `steps` torque-free steps of "splitting": the map of splitting_steps without forces, regrouped
+// over the steps of a call. Without a torque L stays, and three things each step recomputes are
+// carried from step to step instead (equal in exact arithmetic, so the two agree to round-off):
+// - the principal-frame attitude qp = q ⊗ p: q ⊗ p and ⊗ p* once per call, not per step;
+// - the body-frame momentum m = R(qp)ᵀ L: the principal turns move it as they move qp, and
+//   H_L's turn about L itself leaves it;
+// - the pair of the step's last half turn about axis 3, which the next step's first half turn
+//   repeats (the same m₃: turns about axis 3 keep it, and so does H_L).
+// |qp| enters nothing (the turns are unit and m is carried), so q is normalised once, at the
+// end of the call, as the step normalises it. It does about half the arithmetic of a step
+// (benchmarks/results/native_splitting_carried_2026-12-04.md).
+template <typename T>
+void splitting_free_steps(Block<T>& B, const T (*frame)[kBlock], int n, T dt, int64_t steps) {
+  const T half = dt / T(2);
+  T qps[4][kBlock], ms[3][kBlock], turns[4][kBlock], pairs[4][kBlock];
+#pragma GCC ivdep
+  for (int j = 0; j < n; ++j) {
+    const T q[4] = {B.q[0][j], B.q[1][j], B.q[2][j], B.q[3][j]}, L[3] = {B.L[0][j], B.L[1][j], B.L[2][j]};
+    const T p[4] = {frame[0][j], frame[1][j], frame[2][j], frame[3][j]};
+    const T e[3] = {frame[4][j], frame[5][j], frame[6][j]};
+    T qp[4], m[3], turn[4], pair[4];
+    quat_multiply(q, p, qp);
+    quat_rotate_back(qp, L, m);
+    turn_about_L(L, e, dt, turn);
+    turn_pair<T, 2>(m, e[2] - e[1], half, pair);
+#pragma GCC unroll 16
+    for (int c = 0; c < 4; ++c) {
+      qps[c][j] = qp[c];
+      turns[c][j] = turn[c];
+      pairs[c][j] = pair[c];
+    }
+#pragma GCC unroll 16
+    for (int c = 0; c < 3; ++c) ms[c][j] = m[c];
+  }
+  for (int64_t st = 0; st < steps; ++st) {
+#pragma GCC ivdep
+    for (int j = 0; j < n; ++j) {
+      const T k0 = frame[4][j] - frame[5][j], k2 = frame[6][j] - frame[5][j];
+      T qp[4] = {qps[0][j], qps[1][j], qps[2][j], qps[3][j]}, m[3] = {ms[0][j], ms[1][j], ms[2][j]};
+      const T turn[4] = {turns[0][j], turns[1][j], turns[2][j], turns[3][j]};
+      T pair[4];
+      apply_turn<T, 2>(qp, m, pairs[0][j], pairs[1][j], pairs[2][j], pairs[3][j]);
+      rotate_about<T, 0>(qp, m, k0, dt);
+      turn_pair<T, 2>(m, k2, half, pair);
+      apply_turn<T, 2>(qp, m, pair[0], pair[1], pair[2], pair[3]);
+      T turned[4];
+      quat_multiply(turn, qp, turned);
+#pragma GCC unroll 16
+      for (int c = 0; c < 4; ++c) {
+        qps[c][j] = turned[c];
+        pairs[c][j] = pair[c];
+      }
+#pragma GCC unroll 16
+      for (int c = 0; c < 3; ++c) {
+        ms[c][j] = m[c];
+        B.x[c][j] = B.x[c][j] + B.v[c][j] * dt;
+      }
+    }
+  }
+#pragma GCC ivdep
+  for (int j = 0; j < n; ++j) {
+    const T qp[4] = {qps[0][j], qps[1][j], qps[2][j], qps[3][j]};
+    const T conj[4] = {frame[0][j], -frame[1][j], -frame[2][j], -frame[3][j]};
+    T q[4];
+    quat_multiply(qp, conj, q);
+    normalize(q);
+    store_q(B, j, q);
   }
 }
 
@@ -679,7 +750,10 @@ void semi_implicit_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t s
 template <typename T, bool kForces, bool kQuad, bool kThrust>
 void method_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], int n, T dt, int64_t steps,
                   int64_t method) {
-  if (method == kSplitting) return splitting_steps<T, kForces, kQuad, kThrust>(B, k, frame, n, dt, steps);
+  if (method == kSplitting) {
+    if (!kForces) return splitting_free_steps<T>(B, frame, n, dt, steps);
+    return splitting_steps<T, kQuad, kThrust>(B, k, frame, n, dt, steps);
+  }
   if (method == kSemiImplicitEuler) return semi_implicit_steps<T, kForces, kQuad, kThrust>(B, k, n, dt, steps);
   if (method == kRk4Body) return rk4_body_steps<T, kForces, kQuad, kThrust>(B, k, n, dt, steps);
   if (method == kEuler) return euler_steps<T, kForces, kQuad, kThrust>(B, k, n, dt, steps);
