@@ -129,7 +129,10 @@ def test_simulate_save_every_and_length():
     full = rb.simulate(s, None, 0.01, 12)
     sparse = rb.simulate(s, None, 0.01, 12, save_every=4)
     assert full.orientation.shape == (13, 4) and sparse.orientation.shape == (4, 4)
-    np.testing.assert_allclose(sparse.orientation, full.orientation[::4], rtol=1e-15)
+    # the same steps; a native kernel steps all of a frame's steps in one call and may regroup their
+    # arithmetic (splitting carries q ⊗ p across them), so frames saved at other intervals agree to
+    # round-off: 8 · steps · eps, the bound tests/test_native.py holds native and JAX steps to
+    np.testing.assert_allclose(sparse.orientation, full.orientation[::4], rtol=0, atol=8 * 12 * np.finfo(float).eps)
     with pytest.raises(ValueError, match="save_every"):
         rb.simulate(s, None, 0.01, 10, save_every=3)
 
