@@ -488,12 +488,16 @@ def evaluate_goals(rows, hw, methods) -> dict:
     mj = [r for r in rows if r["engine"] == "mujoco" and r["method"] == "Euler"]
     mj_n = max((r["bodies"] for r in mj), default=None)
     mj_rate = _rate(rows, engine="mujoco", method="Euler", bodies=mj_n) if mj_n else None
+    # euler's goals need its row: a run of other methods (--methods) leaves them None
     row = next(
-        r
-        for r in rows
-        if r["engine"] == "rbjax" and r["method"] == "euler" and r["dtype"] == "float32" and r["bodies"] == n
+        (
+            r
+            for r in rows
+            if r["engine"] == "rbjax" and r["method"] == "euler" and r["dtype"] == "float32" and r["bodies"] == n
+        ),
+        None,
     )
-    bw_frac = row["achieved_Bps"] / hw["bandwidth_Bps"]
+    bw_frac = row["achieved_Bps"] / hw["bandwidth_Bps"] if row else None
     per_method = {}
     for m in methods:
         r = next(
@@ -533,14 +537,16 @@ def evaluate_goals(rows, hw, methods) -> dict:
     return dict(
         bodies=n,
         euler_vs_limit=vs_limit,
-        euler_vs_numpy=dict(ratio=eu / npy, target=3.0, met=eu / npy >= 3.0),
+        euler_vs_numpy=dict(
+            ratio=eu / npy if eu and npy else None, target=3.0, met=eu / npy >= 3.0 if eu and npy else None
+        ),
         euler_vs_mujoco=dict(
-            ratio=eu / mj_rate if mj_rate else None,
+            ratio=eu / mj_rate if mj_rate and eu else None,
             mujoco_bodies=mj_n,
             target=100.0,
-            met=(eu / mj_rate >= 100.0) if mj_rate else None,
+            met=(eu / mj_rate >= 100.0) if mj_rate and eu else None,
         ),
-        euler_bandwidth_fraction=dict(fraction=bw_frac, target=0.5, met=bw_frac >= 0.5),
+        euler_bandwidth_fraction=dict(fraction=bw_frac, target=0.5, met=bw_frac >= 0.5 if bw_frac else None),
         methods_within_2x_of_roofline=per_method,
         native=native_goals,
     )
@@ -592,16 +598,18 @@ def table(rows, hw, goals) -> str:
             f"{ours or float('nan'):.2e} | {ours / r['body_steps_per_s'] if ours else float('nan'):.1f}x |"
         )
     g = goals
+    verdict = {True: "met", False: "NOT met", None: "not measured (no euler row)"}
+    nan = float("nan")
     out += [
         "",
         f"Goals at N = {g['bodies']:,}, float32:",
-        f"- euler vs NumPy: {g['euler_vs_numpy']['ratio']:.1f}x (target 3x): "
-        f"{'met' if g['euler_vs_numpy']['met'] else 'NOT met'}",
+        f"- euler vs NumPy: {g['euler_vs_numpy']['ratio'] or nan:.1f}x (target 3x): "
+        f"{verdict[g['euler_vs_numpy']['met']]}",
         f"- euler vs MuJoCo Euler per body-step (MuJoCo at N = {g['euler_vs_mujoco']['mujoco_bodies']}): "
-        f"{g['euler_vs_mujoco']['ratio'] or float('nan'):.0f}x (target 100x): "
+        f"{g['euler_vs_mujoco']['ratio'] or nan:.0f}x (target 100x): "
         f"{ {True: 'met', False: 'NOT met', None: 'not measured'}[g['euler_vs_mujoco']['met']] }",
-        f"- euler memory-bandwidth fraction: {g['euler_bandwidth_fraction']['fraction']:.0%} (target 50%): "
-        f"{'met' if g['euler_bandwidth_fraction']['met'] else 'NOT met'}",
+        f"- euler memory-bandwidth fraction: {g['euler_bandwidth_fraction']['fraction'] or nan:.0%} (target 50%): "
+        f"{verdict[g['euler_bandwidth_fraction']['met']]}",
     ]
     for k, v in g["euler_vs_limit"].items():
         out.append(

@@ -14,6 +14,7 @@ import numpy as np
 from jax import Array
 from jaxtyping import Float
 
+from ._eigh3 import principal_frame
 from ._math import array_arg, check_rotations, is_concrete, skew
 from ._pytree import field, new_unchecked, pytree_dataclass
 from ._trajectory import BatchIndexing
@@ -170,6 +171,11 @@ class Body(BatchIndexing):
     # Set only inside step/simulate (see `prepare`): the inverse computed once from
     # the symmetrised inertia, so the time loop never inverts. Never user-facing.
     _inverse: Float[Array, "*B 3 3"] | None = field(core_shape=(3, 3), default=None, init=False, repr=False)
+    # Set only inside simulate, for the methods that turn about the principal axes
+    # (see `prepare`): `principal_frame`'s moments, axes quaternion and split carrier.
+    _moments: Float[Array, "*B 3"] | None = field(core_shape=(3,), default=None, init=False, repr=False)
+    _axes: Float[Array, "*B 4"] | None = field(core_shape=(4,), default=None, init=False, repr=False)
+    _split: Float[Array, "*B 3 3"] | None = field(core_shape=(3, 3), default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         mass = as_float(self.mass)
@@ -212,16 +218,34 @@ class Body(BatchIndexing):
         return moments, axes * sign[..., None, None]
 
 
-def prepare(body: Body) -> Body:
-    """``body`` with its inertia symmetrised and its inverse computed, for a time loop.
+def prepare(body: Body, principal: bool = False) -> Body:
+    """``body`` with its inertia symmetrised and its inverse computed, for a time loop;
+    with ``principal``, its principal frame too (:func:`rbjax._eigh3.principal_frame`).
 
-    Inside ``step`` and ``simulate`` every read of the inertia then costs nothing
-    extra per step, and the derivative still flows through ``inertia`` alone.
+    Inside ``step`` and ``simulate`` every read of the inertia, its inverse and
+    (for the methods that ask) its principal frame then costs nothing extra per
+    step, and the derivative still flows through ``inertia`` alone. The frame
+    is computed here, before the time loop, rather than left for the compiler
+    to hoist out of it: XLA:CPU hoists the Jacobi sweeps' loop, but XLA:GPU
+    (jaxlib 0.11.2 on an H200) kept it in the step's loop body and ran it every
+    step, 3-4x the step's own cost (benchmarks/results/gpu_h200_2026-12-04.md, run 4).
     """
-    if body._inverse is not None:
+    have_frame = body._moments is not None or not principal
+    if body._inverse is not None and have_frame:
         return body
-    I = symmetric_part(body.inertia)
-    return new_unchecked(Body, mass=body.mass, inertia=I, _inverse=_inverse_symmetric(I))
+    I = symmetric_part(body.inertia) if body._inverse is None else body.inertia
+    inverse = _inverse_symmetric(I) if body._inverse is None else body._inverse
+    moments, axes, split = (body._moments, body._axes, body._split) if have_frame else principal_frame(I)
+    return new_unchecked(Body, mass=body.mass, inertia=I, _inverse=inverse, _moments=moments, _axes=axes, _split=split)
+
+
+def principal_frame_of(body: Body) -> tuple[Array, Array, Array]:
+    """:func:`rbjax._eigh3.principal_frame` of ``body``'s inertia: moments ``(3,)``, axes
+    quaternion ``(4,)`` and split carrier ``(3, 3)``, read from a body :func:`prepare`
+    gave them to, else computed (one body)."""
+    if body._moments is not None and body._axes is not None and body._split is not None:
+        return body._moments, body._axes, body._split
+    return principal_frame(inertia_of(body))
 
 
 def _inverse_symmetric(S: Array) -> Array:

@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from ._math import orthonormalize_unchecked
+from ._math import matrix_to_quat_unchecked, orthonormalize_unchecked
 
 # Sweeps: the off-diagonal norm falls from ‖A‖ to below round-off within 4 sweeps in float64
 # for every matrix in tests/test_eigh3.py (worst case: two eigenvalues 1e-9 apart); one more for margin.
@@ -66,7 +66,7 @@ def eigh3(a: Array) -> tuple[Array, Array]:
     ``det P = +1`` (a rotation: for an inertia tensor in the body frame, the
     principal axes as seen from the body). Only the upper triangle of ``a`` is
     read. Values only: gradients are taken through the principal frame by
-    perturbation theory where needed (:func:`rbjax._methods._common.principal_frame`),
+    perturbation theory where needed (:func:`principal_frame`),
     since an eigenvector's derivative is undefined at repeated eigenvalues.
     Units: those of ``a`` for ``d``; ``P`` is dimensionless.
     """
@@ -98,3 +98,60 @@ def eigh3(a: Array) -> tuple[Array, Array]:
     sign = jnp.where(det < 0, -1, 1).astype(a.dtype)
     P = jnp.stack([jnp.stack([sign * cols[j][i] for j in range(3)], axis=-1) for i in range(3)], axis=-2)
     return jnp.stack(d, axis=-1), orthonormalize_unchecked(P, 1)
+
+
+def principal_frame(inertia: Array) -> tuple[Array, Array, Array]:
+    """Principal moments ``d`` (3,), ascending, the quaternion ``p`` of the axes,
+    and ``w`` (3, 3), the carrier of the perturbations that split equal moments.
+
+    ``I = P diag(d) Pᵀ`` with ``P`` (columns = principal axes in the body frame,
+    ``det P = +1``) the rotation of ``p``.
+
+    Values are those of :func:`principal_frame_values`: the Jacobi sweeps of
+    :func:`rbjax._eigh3.eigh3` of ``stop_gradient(I)``, exactly. An
+    eigen-decomposition's own derivative is NaN at repeated moments (spheres,
+    axisymmetric bodies); derivatives come from first-order perturbation theory
+    instead, through ``dM = P₀ᵀ (I - stop_gradient(I)) P₀`` (zero by value, its
+    tangent ``P₀ᵀ dI P₀``):
+
+    * ``d = d₀ + diag(dM)`` (derivative ``dd_i = dM_ii``, Hellmann–Feynman);
+    * ``P = P₀ (1 + A)`` with ``A_ij = dM_ij / (d_j - d_i)`` for ``i ≠ j``:
+      value ``P₀``, derivative ``P₀ dA``, the standard eigenvector derivative
+      (``1 + A`` is ``exp(A)`` to first order, which is all a first derivative
+      sees: second derivatives w.r.t. the inertia are not exact).
+    * Where ``|d_i - d_j|`` is within round-off of zero the axes are not
+      determined by ``I``: ``A_ij = 0`` (double ``where``: no 0/0 is ever
+      evaluated), and ``dM_ij``, which splits the two equal moments along axes
+      the perturbation chooses, goes into ``w`` instead. ``w`` is zero by value;
+      its tangent is that part of the body's inverse inertia in the principal
+      frame, ``d(M⁻¹)_ij = -dM_ij / (d_i d_j)``, which a method adds to its flow
+      with :func:`degenerate_flow`. Without it the derivative of a sphere's or a
+      symmetric top's motion along such a perturbation would be missing, not
+      merely inexact.
+
+    Cost: five Jacobi sweeps per body. The result depends only on the body:
+    ``simulate`` computes it once per call, before its loop, for the methods
+    that use it (:func:`rbjax._body.prepare`; tests/test_composition.py checks
+    the compiled program). LAPACK's ``eigh`` took 7x as long as the sweeps at
+    10⁵ float32 bodies on the CPU (benchmarks/results/splitting_principal_frame_2026-12-04.md).
+    """
+    d0, P0 = eigh3(inertia)  # values only (stop_gradient inside)
+    dM = P0.T @ (inertia - jax.lax.stop_gradient(inertia)) @ P0
+    d = d0 + jnp.diagonal(dM)
+    gap = d0[None, :] - d0[:, None]
+    eps = jnp.finfo(inertia.dtype).eps
+    tiny = jnp.abs(gap) <= 64 * eps * jnp.max(jnp.abs(d0))
+    A = jnp.where(tiny, 0.0, dM / jnp.where(tiny, 1.0, gap))
+    P = P0 + P0 @ A
+    e0 = 1 / d0
+    split = tiny & ~jnp.eye(3, dtype=bool)
+    w = jnp.where(split, -dM * (e0[:, None] * e0[None, :]), 0.0)
+    return d, matrix_to_quat_unchecked(P), w
+
+
+def principal_frame_values(inertia: Array) -> tuple[Array, Array]:
+    """The values of :func:`principal_frame`'s ``d`` (..., 3) and ``p`` (..., 4), without its
+    derivative terms (for the native kernels, whose derivatives come from the JAX steps):
+    elementwise over any batch of inertias (..., 3, 3)."""
+    d, P = eigh3(inertia)
+    return d, matrix_to_quat_unchecked(P)

@@ -148,10 +148,12 @@ def replace(obj: T, **changes: Any) -> T:
 
 
 def new_unchecked(cls: type[T], **fields: Any) -> T:
-    """Build ``cls(**fields)`` without ``__init__``: for values already known valid."""
+    """Build ``cls(**fields)`` without ``__init__``: for values already known valid
+    (a field not given takes its default; one without a default is a ``KeyError``)."""
     obj = object.__new__(cls)
     for f in dataclasses.fields(cls):  # type: ignore[arg-type]
-        object.__setattr__(obj, f.name, fields[f.name])
+        value = fields[f.name] if f.name in fields or f.default is dataclasses.MISSING else f.default
+        object.__setattr__(obj, f.name, value)
     return obj
 
 

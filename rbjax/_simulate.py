@@ -363,9 +363,12 @@ def _simulate(
     dyn0, consts = split_constants(state)
     consts_soa = {k: to_soa(v) for k, v in consts.items()}
     if "body" in consts_soa:
-        # the inverse inertia, once per call, in the scan's layout (contiguous rows per component)
+        # the inverse inertia (and the principal frame, for the methods that turn about it), once per
+        # call, in the scan's layout (contiguous rows per component); the native kernels take their frame
+        # themselves, and their JAX reference is only differentiated
+        principal = method.principal_frame and not native
         with batch_last(soa):
-            consts_soa["body"] = lift(prepare)(consts_soa["body"])
+            consts_soa["body"] = lift(lambda b: prepare(b, principal))(consts_soa["body"])
     # checked mode reads the batch-first state: its body prepared once too (|ω| and the energy at each frame)
     consts_checked = consts
     if checks is not None and "body" in consts:

@@ -74,6 +74,10 @@ class Method:
             :func:`rbjax.register_kernel`).
         native_code: the method's number in the native kernels
             (``rbjax/_native/kernels.cc``: ``Method``), or ``None`` when it has none.
+        principal_frame: the steps turn about each body's principal axes
+            (:func:`rbjax._eigh3.principal_frame`): ``simulate`` computes the frame
+            once per call, before its loop (:func:`rbjax._body.prepare`), and the
+            steps read it from the body.
     """
 
     name: str
@@ -87,6 +91,7 @@ class Method:
     layout_agnostic: bool = True
     batch_first_kernels: frozenset[tuple[str, type]] = frozenset()
     native_code: int | None = None
+    principal_frame: bool = False
 
     def __repr__(self) -> str:
         return f"Method({self.name!r}, order={self.order})"
@@ -196,4 +201,6 @@ def for_kind(method: Method, kind: str, torque_free: bool) -> Method:
         layout_agnostic=method.layout_agnostic and not any((kind, T) in method.batch_first_kernels for T in own),
         batch_first_kernels=frozenset(),
         native_code=None,
+        # a kind's kernel turns about its symmetry axis: no frame, unless a state type keeps the general step
+        principal_frame=method.principal_frame and any(T not in own for T in (State, MatrixState) if T in method.steps),
     )

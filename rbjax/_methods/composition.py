@@ -159,6 +159,7 @@ def _register(name: str, base: str, order: int, cost: float) -> Method:
             steps={T: compose(fn, gammas) for T, fn in base_method.steps.items()},
             conserves=base_method.conserves.replace("bounded", f"bounded (O(dt^{order}))"),
             cost=cost,
+            principal_frame=base_method.principal_frame,
         )
     )
 

@@ -58,9 +58,9 @@ rotations, two force evaluations, sub-steps materialised; see :func:`free_rotor`
 Choose it for long or stiff (fast-spinning, anisotropic) runs, Dzhanibekov
 flips, and anything where energy must not drift.
 
-The principal frame is computed from the body by :func:`._common.principal_frame`
-(Jacobi sweeps, :func:`rbjax._eigh3.eigh3`, outside the differentiated path,
-hoisted out of ``simulate``'s loop).
+The principal frame is computed from the body by :func:`rbjax._eigh3.principal_frame`
+(Jacobi sweeps, :func:`rbjax._eigh3.eigh3`, outside the differentiated path),
+once per ``simulate`` call, before its loop (:func:`rbjax._body.prepare`).
 Gradients with respect to the inertia come from perturbation theory. Where two
 moments are equal the split depends on axes the inertia does not determine,
 and a perturbation that splits them is carried by ``w`` (zero by value) through
@@ -78,6 +78,7 @@ import jax
 import jax.numpy as jnp
 
 from .._batching import lift
+from .._body import principal_frame_of
 from .._math import (
     dot3,
     kick3,
@@ -88,7 +89,7 @@ from .._math import (
 )
 from .._pytree import replace
 from .._state import ParticleState, State
-from ._common import degenerate_flow, kick, principal_frame, rigid_steps
+from ._common import degenerate_flow, kick, rigid_steps
 from ._registry import Method, register
 
 # (principal axis, fraction of h) of the symmetric composition H₃(h/2) H₁(h) H₃(h/2)
@@ -142,10 +143,10 @@ def _turn_about_momentum(L, e2, h):
     return jnp.stack([c2, t2 * L[0], t2 * L[1], t2 * L[2]])
 
 
-def free_rotor(q, L, inertia, h):
+def free_rotor(q, L, body, h):
     """Orientation after the split free-rotor flow of time ``h`` (world ``L`` unchanged)."""
-    d, p, w = principal_frame(inertia)
-    e = 1 / d  # loop-invariant: hoisted out of simulate's scan with the principal frame
+    d, p, w = principal_frame_of(body)  # computed once per simulate (rbjax._body.prepare)
+    e = 1 / d
     k = jnp.stack([e[0] - e[1], e[1] * 0, e[2] - e[1]])  # k[1] unused: H₂ is inside H_L
     qp = quat_multiply(q, p)  # principal frame -> world
     m = quat_rotate_inverse_unchecked(qp, L)
@@ -205,7 +206,7 @@ def splitting_of_kind(state, force_fn, t, dt, kind: str, torque_free: bool):
 
 
 def _drift(s: State, h) -> State:
-    q = free_rotor(s.orientation, s.angular_momentum, s.body.inertia, h)
+    q = free_rotor(s.orientation, s.angular_momentum, s.body, h)
     return replace(s, position=s.position + s.velocity * h, orientation=q)
 
 
@@ -244,5 +245,6 @@ register(
         # spheres and cylinders turn without a principal frame (free_rotor_of_kind)
         kernels={(kind, State): splitting_of_kind for kind in ("isotropic", "axisymmetric")},
         native_code=2,
+        principal_frame=True,
     )
 )

@@ -45,10 +45,10 @@ import numpy as np
 from jax.experimental.xla_metadata import set_xla_metadata
 
 from .._attached import Thruster
+from .._eigh3 import principal_frame_values
 from .._force_model import ForceSum
 from .._forces import ConstantForce, Gravity, LinearDrag, QuadraticDrag
 from .._methods import Method, available
-from .._methods._common import principal_frame_values
 from .._pytree import replace
 from .._state import Forces, State
 from .._validate import checked_force_fn
@@ -309,7 +309,7 @@ def _thrust_sums(thruster: Thruster, n: int, dtype: Any) -> jax.Array:
 
 def _frames(body: Any, shared: bool, batch: tuple[int, ...], n: int) -> jax.Array:
     """``"splitting"``'s principal frames, ``(1, 7)`` or ``(n, 7)``: the axes' quaternion ``p`` and
-    the inverse moments ``e = 1/d``, the values :func:`rbjax._methods._common.principal_frame` gives."""
+    the inverse moments ``e = 1/d``, the values :func:`rbjax._eigh3.principal_frame` gives."""
     inertia = body.inertia
     inertia = inertia.reshape(1, 3, 3) if shared else jnp.broadcast_to(inertia, batch + (3, 3)).reshape(n, 3, 3)
     d, p = principal_frame_values(inertia)
