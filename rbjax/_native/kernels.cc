@@ -17,7 +17,8 @@
 // The `terms` attribute: bit 0, some force or torque acts (else v and L stay);
 // bit 1, quadratic drag is among them (two square roots per evaluation); bit 2, thrusters
 // (body-fixed force and torque sums, turned by R(q) at each evaluation); bit 3, a world torque
-// (constant or a time series), which rk4_body turns into the body frame (steps.h: body_forces).
+// (constant or a time series), which rk4_body turns into the body frame (steps.h: body_forces)
+// and splitting into the principal frame (steps.h: principal_kick).
 // The `series` attribute: 0, or `steps` when F and τ are a time series (V, steps, n, 3),
 // one slice per step (rbjax.simulate's forces of shape (steps, *B, 3)), held over its stages.
 
@@ -92,7 +93,7 @@ struct Problem {
   const T* dt;                       // (V,)
   int64_t V, N, steps, method;
   bool forces, quad, thrust, series;  // series: F and τ hold one slice per step, held over the step's stages
-  bool turn;  // the steps' forces need R(q): thrusters, and for rk4_body a world torque too
+  bool turn;  // the steps' forces need R(q): thrusters, and for rk4_body and splitting a world torque too
 };
 
 template <typename T>
@@ -123,7 +124,7 @@ void run_block(const Problem<T>& P, int64_t vb, int64_t i0, int n) {
         k.fb[c][j] = fbtb[c][j];
         k.tb[c][j] = fbtb[3 + c][j];
       }
-  } else if (P.turn) {  // rk4_body with a world torque and no thrusters: zero sums
+  } else if (P.turn) {  // a world torque and no thrusters: zero sums
     for (int c = 0; c < 3; ++c)
       for (int j = 0; j < n; ++j) k.fb[c][j] = k.tb[c][j] = T(0);
   }
@@ -200,7 +201,7 @@ ffi::Error advance_typed(ffi::ThreadPool& pool, ffi::AnyBuffer x, ffi::AnyBuffer
   P.forces = (terms & 1) != 0;
   P.quad = (terms & 2) != 0;
   P.thrust = (terms & 4) != 0;
-  P.turn = P.thrust || (method == kRk4Body && (terms & 8) != 0);
+  P.turn = P.thrust || ((method == kRk4Body || method == kSplitting) && (terms & 8) != 0);
   P.series = series != 0;
   if (P.series && series != steps) return ffi::Error::InvalidArgument("a time series needs one slice per step");
   P.x0 = x.typed_data<T>();

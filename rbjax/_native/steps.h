@@ -379,9 +379,8 @@ RBJAX_INLINE void rotate_about(T qp[4], T m[3], T k, T h) {
   apply_turn<T, i>(qp, m, pair[0], pair[1], pair[2], pair[3]);
 }
 
-// ``q`` after the split free rotor over h (splitting.py: free_rotor), from the principal frame's
-// quaternion p and inverse moments e (computed by rbjax._methods._common.principal_frame).
-// H_L of free_rotor: the turn about world L by |L| h e₂, [c2, tl L].
+// H_L of the split free rotor over h (splitting.py: free_rotor): the turn about world L by
+// |L| h e₂, [c2, tl L], with e the principal frame's inverse moments (rbjax._eigh3.principal_frame).
 template <typename T>
 RBJAX_INLINE void turn_about_L(const T L[3], const T e[3], T h, T turn[4]) {
   T c2, tl;
@@ -389,26 +388,6 @@ RBJAX_INLINE void turn_about_L(const T L[3], const T e[3], T h, T turn[4]) {
   turn[0] = c2;
 #pragma GCC unroll 16
   for (int c = 0; c < 3; ++c) turn[1 + c] = tl * L[c];
-}
-
-// turn: H_L from turn_about_L.
-template <typename T>
-RBJAX_INLINE void free_rotor(T q[4], const T L[3], const T p[4], const T e[3], T h, const T turn[4]) {
-  const T k0 = e[0] - e[1], k2 = e[2] - e[1];
-  T qp[4], m[3], conj[4];
-  quat_multiply(q, p, qp);
-  quat_rotate_back(qp, L, m);
-  rotate_about<T, 2>(qp, m, k2, T(0.5) * h);
-  rotate_about<T, 0>(qp, m, k0, T(1.0) * h);
-  rotate_about<T, 2>(qp, m, k2, T(0.5) * h);
-  T turned[4];
-  quat_multiply(turn, qp, turned);
-  conj[0] = p[0];
-  conj[1] = -p[1];
-  conj[2] = -p[2];
-  conj[3] = -p[3];
-  quat_multiply(turned, conj, q);
-  normalize(q);
 }
 
 // kick(h) of body j (rbjax._methods._common.kick): v += F/m h, L += τ h, with the forces at (q, L, v).
@@ -424,28 +403,129 @@ RBJAX_INLINE void kick(const Consts<T>& k, int j, const T q[4], const T inv[9], 
   }
 }
 
+// kick(h) of body j (rbjax._methods._common.kick: v += F/m h, L += τ h) in the principal frame of
+// splitting_steps: m += R(qp)ᵀ τ h, with the forces at (qp, m, v). R(qp) keeps lengths and turns
+// ω with L, so the drag torque is the same law of ω_p = e∘m (principal-frame ω = R(qp)ᵀ ω);
+// the world torque τ and thrusters (kTurn) are turned by R(qp) (the rotation of qp/|qp|), the
+// thrusters' sums having been turned into the principal frame (fbp, tbp) once per call.
+template <typename T, bool kQuad, bool kTurn>
+RBJAX_INLINE void principal_kick(const Consts<T>& k, int j, const T qp[4], const T e[3], const T fbp[3],
+                                 const T tbp[3], T h, T v[3], T m[3]) {
+  const T w[3] = {e[0] * m[0], e[1] * m[1], e[2] * m[2]};
+  T sv = T(0), sw = -k.br[j];
+  if (kQuad) {
+    sv = -k.c[j] * norm3(v);
+    sw = sw + -k.cr[j] * norm3(w);
+  }
+  T F[3], tau[3];
+#pragma GCC unroll 16
+  for (int c = 0; c < 3; ++c) {
+    F[c] = ((k.F[c][j] + k.m[j] * k.g[c][j]) + -k.b[j] * v[c]) + sv * v[c];
+    tau[c] = sw * w[c];
+  }
+  if (kTurn) {
+    T R[9], Fw[3], tw[3];
+    rotation(qp, R, T(2) / (((qp[0] * qp[0] + qp[1] * qp[1]) + qp[2] * qp[2]) + qp[3] * qp[3]));
+    const T tau_w[3] = {k.tau[0][j], k.tau[1][j], k.tau[2][j]};
+    matvec3(R, fbp, Fw);
+    matvec3_t(R, tau_w, tw);
+#pragma GCC unroll 16
+    for (int c = 0; c < 3; ++c) {
+      F[c] = F[c] + Fw[c];
+      tau[c] = (tau[c] + tw[c]) + tbp[c];
+    }
+  }
+#pragma GCC unroll 16
+  for (int c = 0; c < 3; ++c) {
+    v[c] = v[c] + F[c] * k.inv_m[j] * h;
+    m[c] = m[c] + tau[c] * h;
+  }
+}
+
 // `steps` steps of "splitting" (rbjax/_methods/splitting.py) with forces: kick(h/2) drift(h)
-// kick(h/2), the forces at the step's start and after the drift. frame: the principal frame's
-// quaternion p (rows 0-3) and inverse moments e (rows 4-6) per body.
-template <typename T, bool kQuad, bool kThrust>
+// kick(h/2), the forces at the step's start and after the drift, regrouped over the steps of a
+// call in the principal frame: the attitude qp = q ⊗ p and the momentum m = R(qp)ᵀ L are carried
+// from step to step instead of q and the world L (equal in exact arithmetic, so the two agree to
+// round-off). A kick adds the torque turned into that frame; H_L's world turn about L is the
+// body turn about m (turn ⊗ qp = qp ⊗ (c2, tl m) for m = R(qp)ᵀ L), which leaves m. q ⊗ p, L's
+// turns into the frame and back and the normalisation happen once per call, not per step.
+// frame: the principal frame's quaternion p (rows 0-3) and inverse moments e (rows 4-6) per body.
+// kTurn: a world torque or thrusters (turned by R(qp) at each kick).
+template <typename T, bool kQuad, bool kTurn>
 void splitting_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], int n, T dt, int64_t steps) {
   const T half = dt / T(2);
-  for (int64_t s = 0; s < steps; ++s) {
+  T qps[4][kBlock], ms[3][kBlock], fbps[3][kBlock], tbps[3][kBlock];
+#pragma GCC ivdep
+  for (int j = 0; j < n; ++j) {
+    const T q[4] = {B.q[0][j], B.q[1][j], B.q[2][j], B.q[3][j]}, L[3] = {B.L[0][j], B.L[1][j], B.L[2][j]};
+    const T p[4] = {frame[0][j], frame[1][j], frame[2][j], frame[3][j]};
+    T qp[4], m[3];
+    quat_multiply(q, p, qp);
+    quat_rotate_back(qp, L, m);
+#pragma GCC unroll 16
+    for (int c = 0; c < 4; ++c) qps[c][j] = qp[c];
+#pragma GCC unroll 16
+    for (int c = 0; c < 3; ++c) ms[c][j] = m[c];
+    if (kTurn) {  // the thrusters' body-frame sums in the principal frame: R(p)ᵀ f_b, R(p)ᵀ τ_b
+      const T fb[3] = {k.fb[0][j], k.fb[1][j], k.fb[2][j]}, tb[3] = {k.tb[0][j], k.tb[1][j], k.tb[2][j]};
+      T fbp[3], tbp[3];
+      quat_rotate_back(p, fb, fbp);
+      quat_rotate_back(p, tb, tbp);
+#pragma GCC unroll 16
+      for (int c = 0; c < 3; ++c) {
+        fbps[c][j] = fbp[c];
+        tbps[c][j] = tbp[c];
+      }
+    }
+  }
+  for (int64_t st = 0; st < steps; ++st) {
 #pragma GCC ivdep
     for (int j = 0; j < n; ++j) {
-      T q[4], L[3], v[3], inv[9];
-      load_body(B, k, j, q, L, v, inv);
-      kick<T, kQuad, kThrust>(k, j, q, inv, half, v, L);  // with the forces at the start
-      const T p[4] = {frame[0][j], frame[1][j], frame[2][j], frame[3][j]};
       const T e[3] = {frame[4][j], frame[5][j], frame[6][j]};
+      const T k0 = e[0] - e[1], k2 = e[2] - e[1];
+      T qp[4] = {qps[0][j], qps[1][j], qps[2][j], qps[3][j]}, m[3] = {ms[0][j], ms[1][j], ms[2][j]};
+      T v[3] = {B.v[0][j], B.v[1][j], B.v[2][j]}, fbp[3] = {}, tbp[3] = {};
+      if (kTurn) {
+#pragma GCC unroll 16
+        for (int c = 0; c < 3; ++c) {
+          fbp[c] = fbps[c][j];
+          tbp[c] = tbps[c][j];
+        }
+      }
+      principal_kick<T, kQuad, kTurn>(k, j, qp, e, fbp, tbp, half, v, m);  // with the forces at the start
 #pragma GCC unroll 16
       for (int c = 0; c < 3; ++c) B.x[c][j] = B.x[c][j] + v[c] * dt;
-      T turn[4];
-      turn_about_L(L, e, dt, turn);
-      free_rotor(q, L, p, e, dt, turn);
-      kick<T, kQuad, kThrust>(k, j, q, inv, half, v, L);  // with the forces after the drift
-      store_body(B, j, q, L, v);
+      rotate_about<T, 2>(qp, m, k2, half);
+      rotate_about<T, 0>(qp, m, k0, dt);
+      rotate_about<T, 2>(qp, m, k2, half);
+      T c2, tl;  // H_L: the turn by |m| h e₂ about m
+      cayley(dt * e[1] / T(4), m[0] * m[0] + m[1] * m[1] + m[2] * m[2], c2, tl);
+      const T turn[4] = {c2, tl * m[0], tl * m[1], tl * m[2]};
+      T turned[4];
+      quat_multiply(qp, turn, turned);
+      principal_kick<T, kQuad, kTurn>(k, j, turned, e, fbp, tbp, half, v, m);  // with the forces after the drift
+#pragma GCC unroll 16
+      for (int c = 0; c < 4; ++c) qps[c][j] = turned[c];
+#pragma GCC unroll 16
+      for (int c = 0; c < 3; ++c) {
+        ms[c][j] = m[c];
+        B.v[c][j] = v[c];
+      }
     }
+  }
+#pragma GCC ivdep
+  for (int j = 0; j < n; ++j) {
+    T qp[4] = {qps[0][j], qps[1][j], qps[2][j], qps[3][j]};
+    const T m[3] = {ms[0][j], ms[1][j], ms[2][j]};
+    const T conj[4] = {frame[0][j], -frame[1][j], -frame[2][j], -frame[3][j]};
+    T q[4], L[3];
+    normalize(qp);
+    quat_rotate(qp, m, L);
+    quat_multiply(qp, conj, q);
+    normalize(q);
+    store_q(B, j, q);
+#pragma GCC unroll 16
+    for (int c = 0; c < 3; ++c) B.L[c][j] = L[c];
   }
 }
 
@@ -752,7 +832,7 @@ void method_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], int
                   int64_t method) {
   if (method == kSplitting) {
     if (!kForces) return splitting_free_steps<T>(B, frame, n, dt, steps);
-    return splitting_steps<T, kQuad, kThrust>(B, k, frame, n, dt, steps);
+    return splitting_steps<T, kQuad, kThrust>(B, k, frame, n, dt, steps);  // kThrust: the turn flag
   }
   if (method == kSemiImplicitEuler) return semi_implicit_steps<T, kForces, kQuad, kThrust>(B, k, n, dt, steps);
   if (method == kRk4Body) return rk4_body_steps<T, kForces, kQuad, kThrust>(B, k, n, dt, steps);
