@@ -107,8 +107,9 @@ def principal_frame(inertia: Array) -> tuple[Array, Array, Array]:
     ``I = P diag(d) Pᵀ`` with ``P`` (columns = principal axes in the body frame,
     ``det P = +1``) the rotation of ``p``.
 
-    Values are those of :func:`principal_frame_values`: the Jacobi sweeps of
-    :func:`rbjax._eigh3.eigh3` of ``stop_gradient(I)``, exactly. An
+    Values: the Jacobi sweeps of :func:`eigh3` of ``stop_gradient(I)`` and the
+    quaternion of their ``P`` (``matrix_to_quat_unchecked``), exactly (the native
+    kernel computes the same values in C++: rbjax/_native/steps.h). An
     eigen-decomposition's own derivative is NaN at repeated moments (spheres,
     axisymmetric bodies); derivatives come from first-order perturbation theory
     instead, through ``dM = P₀ᵀ (I - stop_gradient(I)) P₀`` (zero by value, its
@@ -147,11 +148,3 @@ def principal_frame(inertia: Array) -> tuple[Array, Array, Array]:
     split = tiny & ~jnp.eye(3, dtype=bool)
     w = jnp.where(split, -dM * (e0[:, None] * e0[None, :]), 0.0)
     return d, matrix_to_quat_unchecked(P), w
-
-
-def principal_frame_values(inertia: Array) -> tuple[Array, Array]:
-    """The values of :func:`principal_frame`'s ``d`` (..., 3) and ``p`` (..., 4), without its
-    derivative terms (for the native kernels, whose derivatives come from the JAX steps):
-    elementwise over any batch of inertias (..., 3, 3)."""
-    d, P = eigh3(inertia)
-    return d, matrix_to_quat_unchecked(P)

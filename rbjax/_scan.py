@@ -24,8 +24,8 @@ def frames_in_buffer(advance, carry0, xs, first, to_aos):
     scan, each chunk's state written in place at its index. Scan outputs would
     need the initial frame put in front afterwards, a second copy of every saved
     frame (peak memory); emitting each chunk's state before advancing it would
-    need a ``lax.cond`` to skip the last advance, and work in a cond branch is not
-    hoisted out of the loop (splitting's per-body ``eigh`` would run every step).
+    need a ``lax.cond`` to skip the last advance, and XLA hoists no loop-invariant
+    work out of a cond branch (it would run every step).
     The buffer is linear in the loop (``dynamic_update_slice``), so reverse mode
     stores no copy of it per chunk.
     """

@@ -233,6 +233,31 @@ def test_the_docs_name_every_method_with_a_kernel():
 
 @needs_kernels
 @pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_native_splitting_frames_of_any_inertia_match_jax(dtype):
+    # The kernel computes splitting's principal frames itself (steps.h: principal_frame, eigh3's
+    # sweeps, sort, sign and polar step, then the quaternion), where the JAX step takes
+    # rbjax._eigh3.principal_frame. Inertias turned by random rotations (full tensors, every plane
+    # rotated, every Shepperd candidate): generic, both symmetric tops, a sphere, and moments 1e-9
+    # apart (axes ill-determined in their plane, whose turn is as small); with and without
+    # gravity + drag. Held to the module's 8 · steps · eps.
+    rng = np.random.default_rng(7)
+    moments = [(1.0, 2.0, 2.6), (1.0, 1.0, 1.8), (1.0, 1.9, 1.9), (1.5, 1.5, 1.5), (1.0, 1.0 + 1e-9, 1.7)]
+    R = np.asarray(rb.quat_to_matrix(rb.quat_normalize(rng.normal(size=(4 * len(moments), 4)))))
+    inertia = np.stack([r @ np.diag(moments[k % len(moments)]) @ r.T for k, r in enumerate(R)])
+    n = len(inertia)
+    body = rb.Body(jnp.ones(n, dtype), jnp.asarray(inertia, dtype))
+    s = rb.State.create(
+        body,
+        orientation=rb.quat_normalize(jnp.asarray(rng.normal(size=(n, 4)), dtype)),
+        angular_velocity=jnp.asarray(rng.normal(size=(n, 3)) * 3.0, dtype),
+    )
+    for forces in (None, rb.Gravity() + rb.QuadraticDrag(0.05, 0.01)):
+        nat, ref = _both(s, forces, "splitting")
+        _assert_close(nat, ref, STEPS, dtype)
+
+
+@needs_kernels
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
 def test_native_semi_implicit_turns_through_every_quadrant(dtype):
     # the kernel's vectorised sin and cos of θ/2 reduce θ/2 by multiples of π/2 up to 8192 (float32)
     # or 1e6 (float64) and hand larger angles to libm. Spins about the x axis of a body with a

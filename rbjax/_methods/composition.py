@@ -120,9 +120,9 @@ def compose(base_step: StepFn, gammas: Sequence[float]) -> StepFn:
     plain ``"splitting"`` step; unrolling the sub-steps runs as fast as the
     carried pair but compiles several times longer (docs/performance.md,
     "Measured reasons behind the code"). The body (the fields no method
-    changes) is closed over rather than carried, so its per-body set-up (the
-    principal frame's ``eigh``) stays loop-invariant and XLA hoists it out of
-    both loops.
+    changes) is closed over rather than carried, so the per-body set-up
+    ``simulate`` gave it before its loop (the inverse inertia, the principal
+    frame: :func:`rbjax._body.prepare`) is read by every sub-step, not recomputed.
     """
     gammas = tuple(float(g) for g in gammas)
     starts = tuple(math.fsum(gammas[:i]) for i in range(len(gammas)))

@@ -45,7 +45,6 @@ import numpy as np
 from jax.experimental.xla_metadata import set_xla_metadata
 
 from .._attached import Thruster
-from .._eigh3 import principal_frame_values
 from .._force_model import ForceSum
 from .._forces import ConstantForce, Gravity, LinearDrag, QuadraticDrag
 from .._methods import Method, available
@@ -60,7 +59,7 @@ METHODS = dict(
     sorted(((m.name, m.native_code) for m in available().values() if m.native_code is not None), key=lambda p: p[1])
 )
 _TARGET = "rbjax_advance"
-_ABI = 3  # kernels.cc: rbjax_native_abi, the version of the call's operands and attributes
+_ABI = 4  # kernels.cc: rbjax_native_abi, the version of the call's operands and attributes
 _ISA = ("x86-64 baseline", "AVX2", "AVX-512")
 # RBJAX_NATIVE_ISA's values (kernels.cc: isa): the widest instruction set the kernels may use
 _ISA_CAPS = ("baseline", "avx2", "avx512")
@@ -307,13 +306,13 @@ def _thrust_sums(thruster: Thruster, n: int, dtype: Any) -> jax.Array:
     return jnp.concatenate([fb, jnp.zeros((n, 3), dtype).at[thruster.body].add(jnp.cross(p, f))], axis=1)
 
 
-def _frames(body: Any, shared: bool, batch: tuple[int, ...], n: int) -> jax.Array:
-    """``"splitting"``'s principal frames, ``(1, 7)`` or ``(n, 7)``: the axes' quaternion ``p`` and
-    the inverse moments ``e = 1/d``, the values :func:`rbjax._eigh3.principal_frame` gives."""
+def _inertias(body: Any, shared: bool, batch: tuple[int, ...], n: int) -> jax.Array:
+    """``(1, 6)`` or ``(n, 6)``: the inertia's upper triangle ``I00 I01 I02 I11 I12 I22``, from which
+    the kernel computes ``"splitting"``'s principal frames once per call (steps.h: ``principal_frame``,
+    the values of :func:`rbjax._eigh3.principal_frame`, to which tests/test_native.py holds it)."""
     inertia = body.inertia
     inertia = inertia.reshape(1, 3, 3) if shared else jnp.broadcast_to(inertia, batch + (3, 3)).reshape(n, 3, 3)
-    d, p = principal_frame_values(inertia)
-    return jnp.concatenate([p, 1 / d], axis=1)
+    return jnp.stack([inertia[:, i, j] for i in range(3) for j in range(i, 3)], axis=1)
 
 
 def _series_parameters(forces: Forces, steps: int, batch: tuple[int, ...], dtype: Any) -> dict[str, jax.Array]:
@@ -372,8 +371,8 @@ def _call(
         terms = 1 | (8 if forces.torque is not None else 0)
     else:
         params, terms = _parameters(forces, batch, dtype)
-    frame = _frames(body, shared, batch, n) if code == METHODS["splitting"] else jnp.zeros((1, 7), dtype)
-    operands = [m, inv, params["F"], params["tau"], params["g"], params["drag"], frame, params["thrust"]]
+    inertia = _inertias(body, shared, batch, n) if code == METHODS["splitting"] else jnp.zeros((1, 6), dtype)
+    operands = [m, inv, params["F"], params["tau"], params["g"], params["drag"], inertia, params["thrust"]]
     if sharded:
         operands = [jnp.broadcast_to(a, (n, a.shape[-1])) for a in operands]
     results = tuple(

@@ -48,6 +48,10 @@ struct Consts {
                                           float, int64_t, int64_t, bool, bool, bool);                  \
   extern template void block_steps<double>(Block<double>&, const Consts<double>&, const double (*)[kBlock], \
                                            int, double, int64_t, int64_t, bool, bool, bool);           \
+  template <typename T>                                                                                \
+  void block_frames(const T (*inertia)[kBlock], int n, T (*frame)[kBlock]);                            \
+  extern template void block_frames<float>(const float (*)[kBlock], int, float (*)[kBlock]);           \
+  extern template void block_frames<double>(const double (*)[kBlock], int, double (*)[kBlock]);        \
   }
 RBJAX_DECLARE_BLOCK_STEPS(baseline)
 #if defined(__x86_64__) && defined(__GNUC__)

@@ -59,6 +59,15 @@ int isa() {
 }
 
 template <typename T>
+inline void block_frames(const T (*inertia)[kBlock], int n, T (*frame)[kBlock]) {
+#ifdef RBJAX_X86
+  if (isa() == 2) return avx512::block_frames<T>(inertia, n, frame);
+  if (isa() == 1) return avx2::block_frames<T>(inertia, n, frame);
+#endif
+  baseline::block_frames<T>(inertia, n, frame);
+}
+
+template <typename T>
 inline void block_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], int n, T dt, int64_t steps,
                         int64_t method, bool forces, bool quad, bool turn) {
 #ifdef RBJAX_X86
@@ -88,7 +97,7 @@ struct Problem {
   const T *x0, *v0, *q0, *L0;        // inputs, (V, N, c)
   Param<T> m, inv, F, tau, g, drag;  // (V, n, c): mass 1, inverse 9, F/τ/g 3, drag 4 (b, b_r, c, c_r);
                                      // F and τ (V, steps, n, 3) when `series`
-  Param<T> frame;                    // (V, n, 7): the principal frame's quaternion and inverse moments
+  Param<T> inertia;                  // (V, n, 6): the inertia's upper triangle (splitting's principal frames)
   Param<T> thrusters;                // (V, n, 6): the thrusters' body-frame force and torque sums
   const T* dt;                       // (V,)
   int64_t V, N, steps, method;
@@ -115,7 +124,11 @@ void run_block(const Problem<T>& P, int64_t vb, int64_t i0, int n) {
   P.tau.load(vb, i0, n, 3, k.tau);
   P.g.load(vb, i0, n, 3, k.g);
   P.drag.load(vb, i0, n, 4, drag);
-  if (P.method == kSplitting) P.frame.load(vb, i0, n, 7, frame);
+  if (P.method == kSplitting) {  // the principal frames, once per call (steps.h: block_frames)
+    T inertia[6][kBlock];
+    P.inertia.load(vb, i0, n, 6, inertia);
+    block_frames(inertia, n, frame);
+  }
   if (P.thrust) {
     T fbtb[6][kBlock];
     P.thrusters.load(vb, i0, n, 6, fbtb);
@@ -183,7 +196,7 @@ void run(const Problem<T>& P, ffi::ThreadPool& pool) {
 template <typename T>
 ffi::Error advance_typed(ffi::ThreadPool& pool, ffi::AnyBuffer x, ffi::AnyBuffer v, ffi::AnyBuffer q,
                          ffi::AnyBuffer L, ffi::AnyBuffer m, ffi::AnyBuffer inv, ffi::AnyBuffer F,
-                         ffi::AnyBuffer tau, ffi::AnyBuffer g, ffi::AnyBuffer drag, ffi::AnyBuffer frame,
+                         ffi::AnyBuffer tau, ffi::AnyBuffer g, ffi::AnyBuffer drag, ffi::AnyBuffer inertia,
                          ffi::AnyBuffer thrust, ffi::AnyBuffer dt, ffi::Result<ffi::AnyBuffer> xo,
                          ffi::Result<ffi::AnyBuffer> vo, ffi::Result<ffi::AnyBuffer> qo,
                          ffi::Result<ffi::AnyBuffer> Lo, int64_t steps, int64_t method, int64_t terms,
@@ -224,7 +237,7 @@ ffi::Error advance_typed(ffi::ThreadPool& pool, ffi::AnyBuffer x, ffi::AnyBuffer
   bind(tau, P.tau);
   bind(g, P.g);
   bind(drag, P.drag);
-  bind(frame, P.frame);
+  bind(inertia, P.inertia);
   bind(thrust, P.thrusters);
   if (P.series) {
     P.F.rows = P.tau.rows = steps;
@@ -241,15 +254,15 @@ ffi::Error advance_typed(ffi::ThreadPool& pool, ffi::AnyBuffer x, ffi::AnyBuffer
 
 ffi::Error advance(ffi::ThreadPool pool, ffi::AnyBuffer x, ffi::AnyBuffer v, ffi::AnyBuffer q, ffi::AnyBuffer L,
                    ffi::AnyBuffer m, ffi::AnyBuffer inv, ffi::AnyBuffer F, ffi::AnyBuffer tau, ffi::AnyBuffer g,
-                   ffi::AnyBuffer drag, ffi::AnyBuffer frame, ffi::AnyBuffer thrust, ffi::AnyBuffer dt,
+                   ffi::AnyBuffer drag, ffi::AnyBuffer inertia, ffi::AnyBuffer thrust, ffi::AnyBuffer dt,
                    ffi::Result<ffi::AnyBuffer> xo, ffi::Result<ffi::AnyBuffer> vo, ffi::Result<ffi::AnyBuffer> qo,
                    ffi::Result<ffi::AnyBuffer> Lo, int64_t steps, int64_t method, int64_t terms, int64_t series) {
   switch (x.element_type()) {
     case ffi::DataType::F32:
-      return advance_typed<float>(pool, x, v, q, L, m, inv, F, tau, g, drag, frame, thrust, dt, xo, vo, qo, Lo,
+      return advance_typed<float>(pool, x, v, q, L, m, inv, F, tau, g, drag, inertia, thrust, dt, xo, vo, qo, Lo,
                                   steps, method, terms, series);
     case ffi::DataType::F64:
-      return advance_typed<double>(pool, x, v, q, L, m, inv, F, tau, g, drag, frame, thrust, dt, xo, vo, qo, Lo,
+      return advance_typed<double>(pool, x, v, q, L, m, inv, F, tau, g, drag, inertia, thrust, dt, xo, vo, qo, Lo,
                                    steps, method, terms, series);
     default:
       return ffi::Error::InvalidArgument("rbjax native kernels take float32 or float64 states");
@@ -264,8 +277,9 @@ extern "C" __attribute__((visibility("default"))) XLA_FFI_Error* RbjaxAdvance(XL
 // The version of the call's operands and attributes, which rbjax/_native/__init__.py checks on
 // load (_ABI there): a library built from an older kernels.cc is refused, not called wrongly.
 // 2: the thrusters' operand and the `series` attribute. 3: `terms` bit 3 (a world torque), and
-// rk4_body's forces on the unit quaternion q/|q|. (A library without this symbol is older.)
-extern "C" __attribute__((visibility("default"))) int rbjax_native_abi() { return 3; }
+// rk4_body's forces on the unit quaternion q/|q|. 4: the inertia's upper triangle in place of
+// splitting's principal frames, which the kernel computes. (A library without this symbol is older.)
+extern "C" __attribute__((visibility("default"))) int rbjax_native_abi() { return 4; }
 
 // The instruction set the steps run with here: 0 x86-64 baseline (or not x86), 1 AVX2, 2 AVX-512.
 extern "C" __attribute__((visibility("default"))) int rbjax_native_isa() { return rbjax_native::isa(); }
@@ -283,7 +297,7 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(RbjaxAdvance, rbjax_native::advance,
                                   .Arg<ffi::AnyBuffer>()  // torque
                                   .Arg<ffi::AnyBuffer>()  // gravity
                                   .Arg<ffi::AnyBuffer>()  // drag coefficients
-                                  .Arg<ffi::AnyBuffer>()  // principal frames (splitting)
+                                  .Arg<ffi::AnyBuffer>()  // inertia's upper triangle (splitting's frames)
                                   .Arg<ffi::AnyBuffer>()  // thrusters' body-frame sums
                                   .Arg<ffi::AnyBuffer>()  // dt
                                   .Ret<ffi::AnyBuffer>()

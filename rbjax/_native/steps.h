@@ -403,38 +403,47 @@ RBJAX_INLINE void kick(const Consts<T>& k, int j, const T q[4], const T inv[9], 
   }
 }
 
-// kick(h) of body j (rbjax._methods._common.kick: v += F/m h, L += τ h) in the principal frame of
-// splitting_steps: m += R(qp)ᵀ τ h, with the forces at (qp, m, v). R(qp) keeps lengths and turns
-// ω with L, so the drag torque is the same law of ω_p = e∘m (principal-frame ω = R(qp)ᵀ ω);
-// the world torque τ and thrusters (kTurn) are turned by R(qp) (the rotation of qp/|qp|), the
-// thrusters' sums having been turned into the principal frame (fbp, tbp) once per call.
+// Force (world) and torque (in the frame of the attitude q) on body j, with ω = w in that frame:
+// drag's torque is the same law of w, since R(q) keeps lengths (|ω| = |w|); the world torque
+// turns back by R̂ᵀ, thrusters push with R̂ fb and add their torque tb0 (both sums already in that
+// frame), R̂ = R(q)/|q|² the rotation of q/|q|, built only with kTurn (thrusters or a world torque).
+// Body frame for rk4_body (body_forces), principal frame for splitting (principal_kick).
 template <typename T, bool kQuad, bool kTurn>
-RBJAX_INLINE void principal_kick(const Consts<T>& k, int j, const T qp[4], const T e[3], const T fbp[3],
-                                 const T tbp[3], T h, T v[3], T m[3]) {
-  const T w[3] = {e[0] * m[0], e[1] * m[1], e[2] * m[2]};
+RBJAX_INLINE void frame_forces(const Consts<T>& k, int j, const T q[4], const T v[3], const T w[3], const T fb[3],
+                               const T tb0[3], T F[3], T tb[3]) {
   T sv = T(0), sw = -k.br[j];
   if (kQuad) {
     sv = -k.c[j] * norm3(v);
     sw = sw + -k.cr[j] * norm3(w);
   }
-  T F[3], tau[3];
 #pragma GCC unroll 16
   for (int c = 0; c < 3; ++c) {
     F[c] = ((k.F[c][j] + k.m[j] * k.g[c][j]) + -k.b[j] * v[c]) + sv * v[c];
-    tau[c] = sw * w[c];
+    tb[c] = sw * w[c];
   }
   if (kTurn) {
     T R[9], Fw[3], tw[3];
-    rotation(qp, R, T(2) / (((qp[0] * qp[0] + qp[1] * qp[1]) + qp[2] * qp[2]) + qp[3] * qp[3]));
-    const T tau_w[3] = {k.tau[0][j], k.tau[1][j], k.tau[2][j]};
-    matvec3(R, fbp, Fw);
-    matvec3_t(R, tau_w, tw);
+    rotation(q, R, T(2) / (((q[0] * q[0] + q[1] * q[1]) + q[2] * q[2]) + q[3] * q[3]));
+    const T tau[3] = {k.tau[0][j], k.tau[1][j], k.tau[2][j]};
+    matvec3(R, fb, Fw);
+    matvec3_t(R, tau, tw);
 #pragma GCC unroll 16
     for (int c = 0; c < 3; ++c) {
       F[c] = F[c] + Fw[c];
-      tau[c] = (tau[c] + tw[c]) + tbp[c];
+      tb[c] = (tb[c] + tw[c]) + tb0[c];
     }
   }
+}
+
+// kick(h) of body j (rbjax._methods._common.kick: v += F/m h, L += τ h) in the principal frame of
+// splitting_steps: m += R(qp)ᵀ τ h, with the forces at (qp, m, v) and ω_p = e∘m (frame_forces,
+// the thrusters' sums turned into the principal frame, fbp and tbp, once per call).
+template <typename T, bool kQuad, bool kTurn>
+RBJAX_INLINE void principal_kick(const Consts<T>& k, int j, const T qp[4], const T e[3], const T fbp[3],
+                                 const T tbp[3], T h, T v[3], T m[3]) {
+  const T w[3] = {e[0] * m[0], e[1] * m[1], e[2] * m[2]};
+  T F[3], tau[3];
+  frame_forces<T, kQuad, kTurn>(k, j, qp, v, w, fbp, tbp, F, tau);
 #pragma GCC unroll 16
   for (int c = 0; c < 3; ++c) {
     v[c] = v[c] + F[c] * k.inv_m[j] * h;
@@ -605,31 +614,18 @@ void splitting_free_steps(Block<T>& B, const T (*frame)[kBlock], int n, T dt, in
 // ω = R̂ ω_b, so |ω| = |ω_b| and a drag torque turned back is -(b_r + c_r |ω_b|) ω_b; a thruster
 // pushes with R̂ f_b and its torque turned back is R̂ᵀ cof(R̂) τ_b = τ_b (cof(R̂) = R̂ for a
 // rotation); the world torques (constant, time series) turn back as R̂ᵀ τ. The same map as
-// forces() followed by R̂ᵀ, regrouped: R̂ is built only with kTurn (thrusters or a world torque).
+// forces() followed by R̂ᵀ, regrouped (frame_forces in the body frame).
 template <typename T, bool kQuad, bool kTurn>
 RBJAX_INLINE void body_forces(const Consts<T>& k, int j, const T q[4], const T v[3], const T w[3], T F[3], T tb[3]) {
-  T sv = T(0), sw = -k.br[j];
-  if (kQuad) {
-    sv = -k.c[j] * norm3(v);
-    sw = sw + -k.cr[j] * norm3(w);
-  }
-#pragma GCC unroll 16
-  for (int c = 0; c < 3; ++c) {
-    F[c] = ((k.F[c][j] + k.m[j] * k.g[c][j]) + -k.b[j] * v[c]) + sv * v[c];
-    tb[c] = sw * w[c];
-  }
+  T fb[3] = {}, tb0[3] = {};
   if (kTurn) {
-    T R[9], Fw[3], tw[3];
-    rotation(q, R, T(2) / (((q[0] * q[0] + q[1] * q[1]) + q[2] * q[2]) + q[3] * q[3]));
-    const T fb[3] = {k.fb[0][j], k.fb[1][j], k.fb[2][j]}, tau[3] = {k.tau[0][j], k.tau[1][j], k.tau[2][j]};
-    matvec3(R, fb, Fw);
-    matvec3_t(R, tau, tw);
 #pragma GCC unroll 16
     for (int c = 0; c < 3; ++c) {
-      F[c] = F[c] + Fw[c];
-      tb[c] = (tb[c] + tw[c]) + k.tb[c][j];
+      fb[c] = k.fb[c][j];
+      tb0[c] = k.tb[c][j];
     }
   }
+  frame_forces<T, kQuad, kTurn>(k, j, q, v, w, fb, tb0, F, tb);
 }
 
 // The body-frame right-hand side of rbjax/_methods/rk4_body.py (_body_derivative) for
@@ -826,6 +822,140 @@ void semi_implicit_steps(Block<T>& B, const Consts<T>& k, int n, T dt, int64_t s
   }
 }
 
+// One Jacobi rotation in the plane (p, q) zeroing a_pq (rbjax/_eigh3.py: _rotate, the same
+// arithmetic in the same order): a holds the upper triangle, v the rows of P.
+template <typename T, int p, int q>
+RBJAX_INLINE void jacobi_rotate(T a[3][3], T v[3][3]) {
+  const T apq = a[p][q], app = a[p][p], aqq = a[q][q];
+  const bool nonzero = std::abs(apq) > std::numeric_limits<T>::epsilon() * std::sqrt(std::abs(app * aqq));
+  const T delta = aqq - app;
+  const T root = std::sqrt(delta * delta + T(4) * apq * apq);
+  T t = T(2) * (delta < T(0) ? -apq : apq) / (nonzero ? std::abs(delta) + root : T(1));
+  t = nonzero ? t : T(0);
+  const T c = T(1) / std::sqrt(t * t + T(1));
+  const T s = t * c;
+  a[p][p] = app - t * apq;
+  a[q][q] = aqq + t * apq;
+  a[p][q] = T(0);
+  constexpr int r = 3 - p - q;
+  constexpr int rp0 = r < p ? r : p, rp1 = r < p ? p : r, rq0 = r < q ? r : q, rq1 = r < q ? q : r;
+  const T arp = a[rp0][rp1], arq = a[rq0][rq1];
+  a[rp0][rp1] = c * arp - s * arq;
+  a[rq0][rq1] = s * arp + c * arq;
+#pragma GCC unroll 16
+  for (int i = 0; i < 3; ++i) {
+    const T vp = v[i][p], vq = v[i][q];
+    v[i][p] = c * vp - s * vq;
+    v[i][q] = s * vp + c * vq;
+  }
+}
+
+// The principal frame of a symmetric inertia (upper triangle I00 I01 I02 I11 I12 I22), as
+// rbjax._eigh3.principal_frame_values gives it: eigh3's five Jacobi sweeps, the moments sorted
+// ascending with their axes, det P = +1, one Newton–Schulz step, then matrix_to_quat_unchecked;
+// out: the axes' quaternion p and the inverse moments e = 1/d.
+template <typename T>
+RBJAX_INLINE void principal_frame(const T I6[6], T p[4], T e[3]) {
+  T a[3][3] = {{I6[0], I6[1], I6[2]}, {T(0), I6[3], I6[4]}, {T(0), T(0), I6[5]}};
+  T v[3][3] = {{T(1), T(0), T(0)}, {T(0), T(1), T(0)}, {T(0), T(0), T(1)}};
+#pragma GCC unroll 16
+  for (int sweep = 0; sweep < 5; ++sweep) {  // _SWEEPS
+    jacobi_rotate<T, 0, 1>(a, v);
+    jacobi_rotate<T, 0, 2>(a, v);
+    jacobi_rotate<T, 1, 2>(a, v);
+  }
+  T d[3] = {a[0][0], a[1][1], a[2][2]}, col[3][3];
+#pragma GCC unroll 16
+  for (int i = 0; i < 3; ++i)
+#pragma GCC unroll 16
+    for (int j = 0; j < 3; ++j) col[j][i] = v[i][j];
+  // ascending, by the three-comparison network; each swap carries its column along
+  constexpr int net[3][2] = {{0, 1}, {1, 2}, {0, 1}};
+#pragma GCC unroll 16
+  for (int k = 0; k < 3; ++k) {
+    const int i = net[k][0], j = net[k][1];
+    const bool swap = d[j] < d[i];
+    const T di = d[i], dj = d[j];
+    d[i] = swap ? dj : di;
+    d[j] = swap ? di : dj;
+#pragma GCC unroll 16
+    for (int c = 0; c < 3; ++c) {
+      const T x = col[i][c], y = col[j][c];
+      col[i][c] = swap ? y : x;
+      col[j][c] = swap ? x : y;
+    }
+  }
+  const T* x = col[0];
+  const T* y = col[1];
+  const T* z = col[2];
+  const T det = x[0] * (y[1] * z[2] - y[2] * z[1]) + x[1] * (y[2] * z[0] - y[0] * z[2]) + x[2] * (y[0] * z[1] - y[1] * z[0]);
+  const T sign = det < T(0) ? T(-1) : T(1);
+  T P[3][3], RtR[3][3], M[3][3], R[3][3];
+#pragma GCC unroll 16
+  for (int i = 0; i < 3; ++i)
+#pragma GCC unroll 16
+    for (int j = 0; j < 3; ++j) P[i][j] = sign * col[j][i];
+  // orthonormalize_unchecked(P, 1): P (3·1 - PᵀP) / 2, products summed as matmul3 sums them
+#pragma GCC unroll 16
+  for (int i = 0; i < 3; ++i)
+#pragma GCC unroll 16
+    for (int j = 0; j < 3; ++j) RtR[i][j] = (P[0][i] * P[0][j] + P[1][i] * P[1][j]) + P[2][i] * P[2][j];
+#pragma GCC unroll 16
+  for (int i = 0; i < 3; ++i)
+#pragma GCC unroll 16
+    for (int j = 0; j < 3; ++j) M[i][j] = (i == j ? T(3) : T(0)) - RtR[i][j];
+#pragma GCC unroll 16
+  for (int i = 0; i < 3; ++i)
+#pragma GCC unroll 16
+    for (int j = 0; j < 3; ++j) R[i][j] = T(0.5) * ((P[i][0] * M[0][j] + P[i][1] * M[1][j]) + P[i][2] * M[2][j]);
+  // matrix_to_quat_unchecked (Shepperd): the candidate of the largest 4 q_k², w ≥ 0, normalised
+  const T tr = (R[0][0] + R[1][1]) + R[2][2];
+  const T four[4] = {T(1) + tr, ((T(1) + R[0][0]) - R[1][1]) - R[2][2], ((T(1) - R[0][0]) + R[1][1]) - R[2][2],
+                     ((T(1) - R[0][0]) - R[1][1]) + R[2][2]};
+  T sq[4];
+#pragma GCC unroll 16
+  for (int k = 0; k < 4; ++k) sq[k] = T(2) * std::sqrt(std::max(four[k], std::numeric_limits<T>::epsilon()));
+  const T d21 = R[2][1] - R[1][2], d02 = R[0][2] - R[2][0], d10 = R[1][0] - R[0][1];
+  const T s01 = R[0][1] + R[1][0], s02 = R[0][2] + R[2][0], s12 = R[1][2] + R[2][1];
+  const T cand[4][4] = {{sq[0] / T(4), d21 / sq[0], d02 / sq[0], d10 / sq[0]},
+                        {d21 / sq[1], sq[1] / T(4), s01 / sq[1], s02 / sq[1]},
+                        {d02 / sq[2], s01 / sq[2], sq[2] / T(4), s12 / sq[2]},
+                        {d10 / sq[3], s02 / sq[3], s12 / sq[3], sq[3] / T(4)}};
+  // argmax (the first of equal largest), as selects
+  T qv[4] = {cand[0][0], cand[0][1], cand[0][2], cand[0][3]}, top = four[0];
+#pragma GCC unroll 16
+  for (int k = 1; k < 4; ++k) {
+    const bool better = four[k] > top;
+    top = better ? four[k] : top;
+#pragma GCC unroll 16
+    for (int c = 0; c < 4; ++c) qv[c] = better ? cand[k][c] : qv[c];
+  }
+  const T flip = qv[0] < T(0) ? T(-1) : T(1);
+#pragma GCC unroll 16
+  for (int c = 0; c < 4; ++c) qv[c] = flip * qv[c];
+  const T inv = T(1) / std::sqrt(((qv[0] * qv[0] + qv[1] * qv[1]) + qv[2] * qv[2]) + qv[3] * qv[3]);
+#pragma GCC unroll 16
+  for (int c = 0; c < 4; ++c) p[c] = qv[c] * inv;
+#pragma GCC unroll 16
+  for (int c = 0; c < 3; ++c) e[c] = T(1) / d[c];
+}
+
+// "splitting"'s principal frames of a block's bodies, from their inertias' upper triangles
+// (rows 0-5): the axes' quaternion p (rows 0-3) and inverse moments e (rows 4-6), once per call.
+template <typename T>
+void block_frames(const T (*inertia)[kBlock], int n, T (*frame)[kBlock]) {
+#pragma GCC ivdep
+  for (int j = 0; j < n; ++j) {
+    const T I6[6] = {inertia[0][j], inertia[1][j], inertia[2][j], inertia[3][j], inertia[4][j], inertia[5][j]};
+    T p[4], e[3];
+    principal_frame(I6, p, e);
+#pragma GCC unroll 16
+    for (int c = 0; c < 4; ++c) frame[c][j] = p[c];
+#pragma GCC unroll 16
+    for (int c = 0; c < 3; ++c) frame[4 + c][j] = e[c];
+  }
+}
+
 // All steps of one block with the method's and the forces' static choices made.
 template <typename T, bool kForces, bool kQuad, bool kThrust>
 void method_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], int n, T dt, int64_t steps,
@@ -858,3 +988,5 @@ template void block_steps<float>(Block<float>&, const Consts<float>&, const floa
                                  int64_t, bool, bool, bool);
 template void block_steps<double>(Block<double>&, const Consts<double>&, const double (*)[kBlock], int, double,
                                   int64_t, int64_t, bool, bool, bool);
+template void block_frames<float>(const float (*)[kBlock], int, float (*)[kBlock]);
+template void block_frames<double>(const double (*)[kBlock], int, double (*)[kBlock]);
