@@ -38,7 +38,7 @@ from ._batching import batch_shape, in_axes_of
 from ._math import quat_conjugate, quat_log, quat_multiply
 from ._methods import DEFAULT_METHOD, Method
 from ._pytree import replace
-from ._simulate import run_simulation, simulate
+from ._simulate import prepare_state, run_simulation, simulate
 from ._state import AnyState, ForceLike, Forces, State, split_constants
 from ._trajectory import stack_frames
 from ._typing import ArrayLike
@@ -47,13 +47,16 @@ from ._validate import as_force_fn, check_dt, check_state, start_time, warn_turn
 __all__ = ["shoot", "defects", "simulate_truncated"]
 
 
-def _scan_segment(state: Any, force_fn: Callable, dts: Array, t0: Array, step_fn: Callable) -> Any:
+def _scan_segment(state: Any, force_fn: Callable, dts: Array, t0: Array, method: Method) -> Any:
     """One segment: ``dts`` ``(n_save, save_every)`` per-step sizes; frames after each row.
 
     Returns the trajectory with a leading time axis of ``n_save + 1`` (initial
     state first). A step with ``dt = 0`` leaves the state unchanged (padding).
+    The body's inverse inertia (and principal frame, for a method that turns
+    about it) is computed once, before the loops, as ``simulate`` does.
     """
-    dyn0, consts = split_constants(state)
+    step_fn = method.step(type(state))
+    dyn0, consts = split_constants(prepare_state(state, method.principal_frame))
 
     def sub(carry, dt):
         dyn, t = carry
@@ -118,7 +121,8 @@ def shoot(
     if not bshape:
         raise ValueError("shoot: starts need a leading segment axis (batch shape (S, *B))")
     S, nd = bshape[0], len(bshape)
-    step_fn = _methods.resolve(method, "shoot").step(type(starts))
+    resolved = _methods.resolve(method, "shoot")
+    resolved.step(type(starts))  # ValueError now for a state type the method has no step for
     dtype = starts.dtype
     dt = jnp.asarray(dt, dtype)
     if dt.ndim == 0:
@@ -137,7 +141,7 @@ def shoot(
         raise ValueError(f"shoot: t0 must be a scalar or (S,) = {(S,)}, got {t0.shape}")
     force_fn = as_force_fn(forces)
     n_save = steps // save_every
-    run = lambda s, d, t: _scan_segment(s, force_fn, d.reshape(n_save, save_every), t, step_fn)
+    run = lambda s, d, t: _scan_segment(s, force_fn, d.reshape(n_save, save_every), t, resolved)
     traj = jax.vmap(run, in_axes=(in_axes_of(starts, 0, nd, last=False), 0, 0))(starts, dts, t0)
     consts = starts.constant_fields
     # vmap put segments first; time leads in rbjax trajectories

@@ -58,11 +58,12 @@ def _canonical(state: Any) -> Any:
     return replace(state, body=map_leaves(state.body, squeeze))
 
 
-def _prepared(state: Any) -> Any:
-    """``state`` with its body prepared for a time loop (see :func:`rbjax._body.prepare`); lifted."""
+def prepare_state(state: Any, principal: bool = False) -> Any:
+    """``state`` with its body prepared for a time loop (see :func:`rbjax._body.prepare`; with
+    ``principal``, its principal frame too, for a method with ``principal_frame``); lifted."""
     if isinstance(state, ParticleState):
         return state
-    return replace(state, body=lift(prepare)(state.body))
+    return replace(state, body=lift(lambda b: prepare(b, principal))(state.body))
 
 
 def step(
@@ -115,7 +116,7 @@ def step(
         forces.check(state)
     dt = jnp.asarray(dt, dtype)
     t = start_time(state) if t is None else jnp.asarray(t, dtype)
-    new = fn(_prepared(_canonical(state)), checked_force_fn(as_force_fn(forces)), t, dt)
+    new = fn(prepare_state(_canonical(state)), checked_force_fn(as_force_fn(forces)), t, dt)
     keep = {k: getattr(state, k) for k in state.constant_fields if k != "time"}
     return replace(new, **keep, time=jnp.broadcast_to(t + dt, jnp.shape(state.time)).astype(dtype))
 

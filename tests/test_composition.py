@@ -245,3 +245,10 @@ def test_principal_frame_is_computed_outside_the_loops(method):
     blocks = [b for b in hlo.split("\n\n") if any(" while(" in ln and "eigh3" in ln for ln in b.splitlines())]
     assert blocks, "no eigh3 loop found (has the lowering changed?)"
     assert all(b.lstrip().startswith("ENTRY") for b in blocks), [b.splitlines()[0] for b in blocks]
+
+
+def test_shoot_computes_the_principal_frame_outside_its_loops():
+    # multiple shooting's segments step in their own scans: the frame once, before them, as in simulate
+    starts = _state()
+    f = jax.jit(lambda s: rb.shoot(s, None, 0.01, 8, "splitting", save_every=4))
+    assert _sweep_loop_depths(jax.make_jaxpr(f)(starts).jaxpr) == [0]
