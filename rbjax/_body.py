@@ -7,7 +7,7 @@ not be the body axes.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import jax.numpy as jnp
 import numpy as np
@@ -230,21 +230,22 @@ def prepare(body: Body, principal: bool = False) -> Body:
     (jaxlib 0.11.2 on an H200) kept it in the step's loop body and ran it every
     step, 3-4x the step's own cost (benchmarks/results/gpu_h200_2026-12-04.md, run 4).
     """
-    have_frame = body._moments is not None or not principal
-    if body._inverse is not None and have_frame:
-        return body
-    I = symmetric_part(body.inertia) if body._inverse is None else body.inertia
-    inverse = _inverse_symmetric(I) if body._inverse is None else body._inverse
-    moments, axes, split = (body._moments, body._axes, body._split) if have_frame else principal_frame(I)
-    return new_unchecked(Body, mass=body.mass, inertia=I, _inverse=inverse, _moments=moments, _axes=axes, _split=split)
+    if body._inverse is None:
+        I = symmetric_part(body.inertia)
+        body = new_unchecked(Body, mass=body.mass, inertia=I, _inverse=_inverse_symmetric(I))
+    if principal and body._moments is None:
+        moments, axes, split = principal_frame(body.inertia)
+        fields = {f: getattr(body, f) for f in ("mass", "inertia", "_inverse")}
+        body = new_unchecked(Body, **fields, _moments=moments, _axes=axes, _split=split)
+    return body
 
 
 def principal_frame_of(body: Body) -> tuple[Array, Array, Array]:
     """:func:`rbjax._eigh3.principal_frame` of ``body``'s inertia: moments ``(3,)``, axes
     quaternion ``(4,)`` and split carrier ``(3, 3)``, read from a body :func:`prepare`
-    gave them to, else computed (one body)."""
-    if body._moments is not None and body._axes is not None and body._split is not None:
-        return body._moments, body._axes, body._split
+    gave them to (it sets the three together), else computed (one body)."""
+    if body._moments is not None:
+        return body._moments, cast(Array, body._axes), cast(Array, body._split)
     return principal_frame(inertia_of(body))
 
 

@@ -403,6 +403,16 @@ RBJAX_INLINE void kick(const Consts<T>& k, int j, const T q[4], const T inv[9], 
   }
 }
 
+// Body j's principal-frame attitude qp = q ⊗ p and momentum m = R(qp)ᵀ L, from the block's q and L
+// and the frame's p (rows 0-3): where the splitting kernels start a call.
+template <typename T>
+RBJAX_INLINE void to_principal(const Block<T>& B, const T (*frame)[kBlock], int j, T qp[4], T m[3]) {
+  const T q[4] = {B.q[0][j], B.q[1][j], B.q[2][j], B.q[3][j]}, L[3] = {B.L[0][j], B.L[1][j], B.L[2][j]};
+  const T p[4] = {frame[0][j], frame[1][j], frame[2][j], frame[3][j]};
+  quat_multiply(q, p, qp);
+  quat_rotate_back(qp, L, m);
+}
+
 // Force (world) and torque (in the frame of the attitude q) on body j, with ω = w in that frame:
 // drag's torque is the same law of w, since R(q) keeps lengths (|ω| = |w|); the world torque
 // turns back by R̂ᵀ, thrusters push with R̂ fb and add their torque tb0 (both sums already in that
@@ -466,16 +476,14 @@ void splitting_steps(Block<T>& B, const Consts<T>& k, const T (*frame)[kBlock], 
   T qps[4][kBlock], ms[3][kBlock], fbps[3][kBlock], tbps[3][kBlock];
 #pragma GCC ivdep
   for (int j = 0; j < n; ++j) {
-    const T q[4] = {B.q[0][j], B.q[1][j], B.q[2][j], B.q[3][j]}, L[3] = {B.L[0][j], B.L[1][j], B.L[2][j]};
-    const T p[4] = {frame[0][j], frame[1][j], frame[2][j], frame[3][j]};
     T qp[4], m[3];
-    quat_multiply(q, p, qp);
-    quat_rotate_back(qp, L, m);
+    to_principal(B, frame, j, qp, m);
 #pragma GCC unroll 16
     for (int c = 0; c < 4; ++c) qps[c][j] = qp[c];
 #pragma GCC unroll 16
     for (int c = 0; c < 3; ++c) ms[c][j] = m[c];
     if (kTurn) {  // the thrusters' body-frame sums in the principal frame: R(p)ᵀ f_b, R(p)ᵀ τ_b
+      const T p[4] = {frame[0][j], frame[1][j], frame[2][j], frame[3][j]};
       const T fb[3] = {k.fb[0][j], k.fb[1][j], k.fb[2][j]}, tb[3] = {k.tb[0][j], k.tb[1][j], k.tb[2][j]};
       T fbp[3], tbp[3];
       quat_rotate_back(p, fb, fbp);
@@ -555,12 +563,9 @@ void splitting_free_steps(Block<T>& B, const T (*frame)[kBlock], int n, T dt, in
   T qps[4][kBlock], ms[3][kBlock], turns[4][kBlock], pairs[4][kBlock];
 #pragma GCC ivdep
   for (int j = 0; j < n; ++j) {
-    const T q[4] = {B.q[0][j], B.q[1][j], B.q[2][j], B.q[3][j]}, L[3] = {B.L[0][j], B.L[1][j], B.L[2][j]};
-    const T p[4] = {frame[0][j], frame[1][j], frame[2][j], frame[3][j]};
-    const T e[3] = {frame[4][j], frame[5][j], frame[6][j]};
+    const T L[3] = {B.L[0][j], B.L[1][j], B.L[2][j]}, e[3] = {frame[4][j], frame[5][j], frame[6][j]};
     T qp[4], m[3], turn[4], pair[4];
-    quat_multiply(q, p, qp);
-    quat_rotate_back(qp, L, m);
+    to_principal(B, frame, j, qp, m);
     turn_about_L(L, e, dt, turn);
     turn_pair<T, 2>(m, e[2] - e[1], half, pair);
 #pragma GCC unroll 16
