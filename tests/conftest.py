@@ -20,8 +20,9 @@ jax.config.update("jax_numpy_dtype_promotion", "strict")
 
 
 # The default run (`pytest`) is the quick suite (< 10 minutes on 2 cores); `--runslow` adds the
-# long-horizon, notebook and heavy-compile cases marked `slow`. The README's test command and
-# .ci/run pass it, so CI runs everything.
+# long-horizon, notebook and heavy-compile cases marked `slow`, and the combinations of parameters
+# the quick suite leaves out (`_combinations_left_out`). The README's test command and .ci/run pass
+# it, so CI runs everything.
 def pytest_addoption(parser):
     parser.addoption("--runslow", action="store_true", help="also run tests marked slow (CI does)")
 
@@ -117,9 +118,50 @@ def pytest_collection_modifyitems(config, items):
     if config.getoption("--runslow"):
         return
     skip = pytest.mark.skip(reason="slow: run with --runslow (the README's test command and .ci/run do)")
+    combination = pytest.mark.skip(
+        reason="a combination of parameters whose every value the quick suite runs in other cases: --runslow runs it"
+    )
+    dropped = _combinations_left_out(items)
     for item in items:
         if "slow" in item.keywords:
             item.add_marker(skip)
+        elif item in dropped:
+            item.add_marker(combination)
+
+
+def _combinations_left_out(items) -> set:
+    """The parametrised cases the quick suite leaves out: it runs every value of every parameter,
+    not every combination.
+
+    A test parametrised over one list runs all its cases. One parametrised over several (method x
+    dtype x force model x batch shape) runs, of its cases not marked slow, a few that together take
+    each value of each parameter at least once (greedy: the case with the most values not yet seen,
+    first in collection order on a tie); the other combinations run with ``--runslow``, as CI does.
+    """
+    groups: dict = {}
+    for item in items:
+        spec = getattr(item, "callspec", None)
+        if spec is not None and "slow" not in item.keywords:
+            groups.setdefault((item.path, item.originalname), []).append(item)
+    left_out = set()
+    for cases in groups.values():
+        values = [{(name, _key(v)) for name, v in c.callspec.params.items()} for c in cases]
+        unseen, kept = set().union(*values), set()
+        while unseen:
+            best = max(range(len(cases)), key=lambda i: (len(values[i] & unseen), -i))
+            kept.add(best)
+            unseen -= values[best]
+        left_out.update(c for i, c in enumerate(cases) if i not in kept)
+    return left_out
+
+
+def _key(value):
+    """A parameter value as a set element: itself if hashable, else its identity (one list's object)."""
+    try:
+        hash(value)
+    except TypeError:
+        return id(value)
+    return (type(value).__name__, value)
 
 
 # Every program XLA:CPU compiles keeps its machine code in memory mappings of its own, and JAX's
