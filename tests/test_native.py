@@ -588,6 +588,8 @@ def test_the_narrower_instruction_sets_match_jax(cap, tmp_path):
     have = rb.native_status().instruction_set
     if _native._ISA.index(have) < _native._ISA.index(want):
         pytest.skip(f"this processor runs {have}, narrower than {want}")
+    if have == want != _native._ISA[0]:  # the cap changes nothing: this module's other tests hold them to JAX
+        pytest.skip(f"this processor's widest instruction set is {have}: this module's other tests run it")
     path = tmp_path / "native.npz"
     code = (
         "import jax; jax.config.update('jax_enable_x64', True); import rbjax, test_native; "
