@@ -3,12 +3,18 @@ as a callable, and the law plus springs on ten bodies, on the JAX path and the d
 kernel where it applies; a sum with springs runs on JAX), side by side.
 
 Each figure is a share of the same path's force-free rate, measured in one process: N boxes with
-per-body masses, float32, ``steps`` steps per call with only the last state saved, the best of 3
-timed calls after the first (whose time, compile included, is reported too), blocking on the whole
-final state (blocking on one field lets XLA drop the rotation from a force-free run).
+per-body masses, float32, ``steps`` steps per call with only the last state saved, blocking on the
+whole final state (blocking on one field lets XLA drop the rotation from a force-free run). Every
+case is compiled first (that first call, compile included, is reported); then ``--rounds`` rounds
+each time every case once, in an order that rotates from round to round, so that a slow spell of a
+shared machine falls on all cases alike. A share is taken within each round (the case against its
+force-free twin of the same round) and reported as the median with the lowest and highest round;
+so is each method's force-free rate against euler's (``vs euler``, default path), issue 29's second
+ratio.
 
     python benchmarks/forces_throughput.py [--methods euler,rk4,rk4_body,splitting] [--n 100000]
-        [--forces "none,gravity+quadratic drag"] [--json results/forces.json] [--md results/forces.md]
+        [--forces "none,gravity+quadratic drag"] [--rounds 7] [--json results/forces.json]
+        [--md results/forces.md]
 """
 
 from __future__ import annotations
@@ -19,9 +25,12 @@ import time
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+from _common import machine
 
 import rbjax as rb
 
+PATHS = {"jax": False, "default": None}
 FORCES = ("none", "gravity+quadratic drag", "callable (same law)", "gravity+quadratic drag+springs")
 
 
@@ -43,20 +52,24 @@ def forces(name: str):
     return law
 
 
-def measure(state, method: str, name: str, native, steps: int) -> dict:
+def compiled(state, method: str, name: str, native, steps: int):
+    """``(run, seconds of its first call)``: ``run(state)`` is ``steps`` steps, the final state saved."""
     f = forces(name)
     run = jax.jit(lambda s: rb.simulate(s, f, 1e-3, steps, method, save_every=steps, native=native))
     t = time.perf_counter()
     jax.block_until_ready(run(state))
-    first = time.perf_counter() - t
-    best = float("inf")
-    for _ in range(3):
-        t = time.perf_counter()
-        jax.block_until_ready(run(state))
-        best = min(best, time.perf_counter() - t)
-    n = state.position.shape[0]
-    path = "jax" if native is False else "default"
-    return dict(method=method, forces=name, path=path, rate=n * steps / best, first=first)
+    return run, time.perf_counter() - t
+
+
+def seconds(run, state) -> float:
+    t = time.perf_counter()
+    jax.block_until_ready(run(state))
+    return time.perf_counter() - t
+
+
+def spread(values) -> dict:
+    v = np.asarray(values, float)
+    return dict(median=float(np.median(v)), low=float(v.min()), high=float(v.max()))
 
 
 def main() -> None:
@@ -65,6 +78,7 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=100_000)
     ap.add_argument("--steps", type=int, default=100)
     ap.add_argument("--forces", default=",".join(FORCES), help="comma-separated, of: " + ", ".join(FORCES))
+    ap.add_argument("--rounds", type=int, default=7, help="timed calls of every case, interleaved")
     ap.add_argument("--json", default=None)
     ap.add_argument("--md", default=None)
     args = ap.parse_args()
@@ -75,32 +89,56 @@ def main() -> None:
     body = rb.box(mass=jnp.ones(n), size=jnp.tile(jnp.array([0.1, 0.2, 0.4]), (n, 1)))
     w = jax.random.normal(jax.random.PRNGKey(0), (n, 3))
     state = rb.State.create(body, angular_velocity=w, velocity=jnp.zeros((n, 3)))
+    cases = [(m, name, path) for m in args.methods.split(",") for name in names for path in ("jax", "default")]
+    runs, first = {}, {}
+    for case in cases:
+        runs[case], first[case] = compiled(state, case[0], case[1], PATHS[case[2]], args.steps)
+    rates: dict = {case: [] for case in cases}
+    for r in range(args.rounds):
+        for case in cases[r % len(cases) :] + cases[: r % len(cases)]:
+            rates[case].append(n * args.steps / seconds(runs[case], state))
     rows = []
-    for method in args.methods.split(","):
-        for name in names:
-            for native in (False, None):
-                row = measure(state, method, name, native, args.steps)
-                rows.append(row)
-                line = f"{method:>12} {name:>24} {row['path']:>8} {row['rate']:9.2e} first {row['first']:5.2f} s"
-                print(line, flush=True)
+    for case in cases:
+        m, name, path = case
+        row = dict(method=m, forces=name, path=path, first=first[case], rates=rates[case])
+        row["rate"] = float(np.median(rates[case]))
+        row["share"] = spread(np.divide(rates[case], rates[(m, "none", path)]))
+        if (("euler", "none", path)) in rates:
+            row["vs_euler"] = spread(np.divide(rates[case], rates[("euler", "none", path)]))
+        rows.append(row)
+        share = row["share"]
+        print(
+            f"{m:>12} {name:>24} {path:>8} {row['rate']:9.2e} share {share['median']:.2f}x "
+            f"({share['low']:.2f}-{share['high']:.2f}) first {row['first']:5.2f} s",
+            flush=True,
+        )
     if args.json:
         with open(args.json, "w") as fh:
-            json.dump(dict(n=n, steps=args.steps, native=str(rb.native_status()), rows=rows), fh, indent=1)
+            meta = dict(n=n, steps=args.steps, rounds=args.rounds, native=str(rb.native_status()), machine=machine())
+            json.dump(dict(meta, rows=rows), fh, indent=1)
     if args.md:
         r = {(x["method"], x["forces"], x["path"]): x for x in rows}
+
+        def cell(x, key):
+            v = x.get(key)
+            return "-" if v is None else f"{v['median']:.2f}x ({v['low']:.2f}-{v['high']:.2f})"
+
         out = [
+            f"N = {n}, float32, {args.steps} steps per call, {args.rounds} rounds; rates: the median; "
+            "shares: the median (lowest-highest) of the rounds' ratios.",
+            "",
             "| method | forces | JAX path | share of its force-free | default path | share of its force-free "
-            "| first call JAX / default (s) |",
-            "|---|---|---:|---:|---:|---:|---:|",
+            "| default vs euler | first call JAX / default (s) |",
+            "|---|---|---:|---:|---:|---:|---:|---:|",
         ]
-        for method in args.methods.split(","):
-            for name in names:
-                j, d = r[(method, name, "jax")], r[(method, name, "default")]
-                j0, d0 = r[(method, "none", "jax")], r[(method, "none", "default")]
-                out.append(
-                    f"| {method} | {name} | {j['rate']:.2e} | {j['rate'] / j0['rate']:.2f}x | {d['rate']:.2e} "
-                    f"| {d['rate'] / d0['rate']:.2f}x | {j['first']:.2f} / {d['first']:.2f} |"
-                )
+        for case in cases:
+            if case[2] != "jax":
+                continue
+            j, d = r[case], r[(case[0], case[1], "default")]
+            out.append(
+                f"| {case[0]} | {case[1]} | {j['rate']:.2e} | {cell(j, 'share')} | {d['rate']:.2e} "
+                f"| {cell(d, 'share')} | {cell(d, 'vs_euler')} | {j['first']:.2f} / {d['first']:.2f} |"
+            )
         with open(args.md, "w") as fh:
             fh.write("\n".join(out) + "\n")
 
