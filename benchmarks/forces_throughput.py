@@ -14,7 +14,7 @@ ratio.
 
     python benchmarks/forces_throughput.py [--methods euler,rk4,rk4_body,splitting] [--n 100000]
         [--forces "none,gravity+quadratic drag"] [--rounds 7] [--json results/forces.json]
-        [--md results/forces.md]
+        [--md results/forces.md] [--quick]   (--quick: N = 1000, euler and rk4, 2 rounds)
 """
 
 from __future__ import annotations
@@ -81,7 +81,10 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=7, help="timed calls of every case, interleaved")
     ap.add_argument("--json", default=None)
     ap.add_argument("--md", default=None)
+    ap.add_argument("--quick", action="store_true", help="N = 1000, euler and rk4, with and without forces, 2 rounds")
     args = ap.parse_args()
+    if args.quick:
+        args.n, args.methods, args.forces, args.rounds = 1000, "euler,rk4", "none,gravity+quadratic drag", 2
     n = args.n
     names = args.forces.split(",")
     if "none" not in names or any(name not in FORCES for name in names):

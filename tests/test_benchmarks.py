@@ -150,6 +150,29 @@ def test_run_all_lists_every_benchmark():
     assert not any(n.startswith("_") for n in names)
 
 
+def test_every_benchmark_takes_quick():
+    # run_all --quick (and `python -m rbjax bench --quick`) passes --quick to every script: one without
+    # the option stops there with argparse's error, or ignores it and runs its full study (four did)
+    import ast
+
+    sys.path.insert(0, BENCH)
+    import run_all
+
+    lacking = []
+    for path in run_all.scripts():
+        tree = ast.parse(open(path).read())
+        options = {
+            a.value
+            for node in ast.walk(tree)
+            if isinstance(node, ast.Call) and getattr(node.func, "attr", None) == "add_argument"
+            for a in node.args
+            if isinstance(a, ast.Constant)
+        }
+        if "--quick" not in options:
+            lacking.append(os.path.basename(path))
+    assert not lacking, f"benchmarks without --quick: {lacking}"
+
+
 def test_fit_accuracy_bound_maps_the_shape_covariance_to_the_moments_by_their_derivative():
     # fit_accuracy's Cramér–Rao bound pushes the covariance of the five shape parameters p to the
     # principal moments with dλ_k/dp_e = v_kᵀ E_e v_k (first-order perturbation of a symmetric
