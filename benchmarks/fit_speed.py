@@ -70,7 +70,8 @@ jax.monitoring.register_event_duration_secs_listener(_listen)
 
 def timed(fn, split=None):
     """``(result, wall s, CPU s)``; ``split``: a dict that receives the call's trace / lower / compile
-    seconds (jax's own stage timers) and the rest as ``run`` (NumPy checks, solve, result)."""
+    seconds (jax's own stage timers, summed over its programs) and the rest of the wall time as
+    ``run`` (NumPy checks, and what of the solve did not overlap the result pass's compile)."""
     _spent.clear()
     t, c = time.perf_counter(), time.process_time()
     out = fn()

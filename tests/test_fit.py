@@ -63,10 +63,12 @@ def new_fit_program(monkeypatch):
     """Call it after patching a global that the fit's solver reads while tracing: the next fit is
     traced and compiled anew. A new jax.jit of the same function would reuse the trace made before
     the patch (jax's trace cache is keyed on the function and its arguments, not on the globals it
-    reads), so the solver is jitted as a new function object; the other tests' programs stay."""
+    reads), so the solver and its result pass are jitted as new function objects; the other tests'
+    programs stay."""
 
     def new():
         monkeypatch.setattr(_solve, "_fit_batch", functools.partial(_solve._fit_batch))
+        monkeypatch.setattr(_solve, "_summarise_batch", functools.partial(_solve._summarise_batch))
         monkeypatch.setattr(_solve, "_JITS", {})
 
     return new

@@ -150,9 +150,10 @@ def test_a_batched_fit_runs_its_lapack_calls_one_after_another(monkeypatch):
     # Batched over a fit's members, each LAPACK call (eigh, SVD, det) waits for its batch on
     # XLA's intra-op thread pool; two at once can starve each other on a 2-core machine and hang
     # the fit (reproduced with two batched solves, see cholesky_solve, and with the result pass's
-    # SVDs: 100 recordings, 1 process in 3). The result pass chains them: in the batch program's jaxpr
-    # every two of them are ordered by a data dependency. Also where the result pass runs in
-    # slices of _SLOTS members and a partial slice is left (lax.map ran that one beside its loop)
+    # SVDs: 100 recordings, 1 process in 3). The result pass chains them: in the jaxpr of the
+    # solver's program followed by the result pass's, every two of them are ordered by a data
+    # dependency. Also where the result pass runs in slices of _SLOTS members and a partial slice
+    # is left (lax.map ran that one beside its loop)
     import rbjax as rb
     from rbjax.identification import _solve
 
@@ -177,9 +178,15 @@ def test_a_batched_fit_runs_its_lapack_calls_one_after_another(monkeypatch):
     ((args, kwargs),) = seen
     for slots in (_solve._SLOTS, 2):  # one partial slice of 3; a full slice of 2, then one of 1
         monkeypatch.setattr(_solve, "_SLOTS", slots)
-        jaxpr = jax.make_jaxpr(lambda *a: _solve._fit_batch(*a, **kwargs))(*args).jaxpr
+        jaxpr = jax.make_jaxpr(lambda *a: _solve_and_summarise(_solve, *a, **kwargs))(*args).jaxpr
         assert sum(_calls_lapack(e) for e in jaxpr.eqns), "the check found no LAPACK call to order"
         assert not _unordered_lapack_pairs(jaxpr), slots
+
+
+def _solve_and_summarise(_solve, y0, data, **kwargs):
+    """The solver's program and then the result pass's, as one function (they run one after the other)."""
+    sols = _solve._fit_batch(y0, data, **kwargs)
+    return _solve._summarise_batch(sols, data, **{k: kwargs[k] for k in ("model_opts", "loss", "unbatch")})
 
 
 @pytest.mark.parametrize("n", [3, 8, 10])  # a partial slice only; full slices only; both

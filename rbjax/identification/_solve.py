@@ -2,9 +2,10 @@
 
 :func:`pack` checks and packs one recording (NumPy, :mod:`._problem`);
 :func:`solve` runs a packed :class:`._problem.Problem` (one recording, a
-batch, or a joint problem) through one compiled program: Levenberg–Marquardt
-(:mod:`._solver`) per recording, a work queue (:mod:`._queue`) for a batch,
-then the covariance and diagnostics (:mod:`._result`).
+batch, or a joint problem) through two compiled programs: the solver,
+Levenberg–Marquardt (:mod:`._solver`) per recording and a work queue
+(:mod:`._queue`) for a batch; then the result pass, the covariance and
+diagnostics (:mod:`._result`).
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ __all__ = [
     "compiled_programs",
     "fit_batch_jit",
     "is_small",
+    "summary_jit",
     "fit_regular",
     "pack",
     "sample_weights",
@@ -51,22 +53,49 @@ def fit_batch_jit(backend: str, small: bool = False):
     :func:`solve` also has such a problem's model loop over the RK4 stages
     (``looped``, :func:`._flow.flow`), which halves the compile again.
     """
-    key = (backend, small)
+    key = ("solve", backend, small)
     if key not in _JITS:
-        options: dict[str, object] = {"xla_cpu_use_fusion_emitters": False} if backend == "cpu" else {}
-        if small and backend == "cpu":
-            options["xla_backend_optimization_level"] = 0
         static = ("model_opts", "loss", "rtol", "atol", "max_steps", "unbatch")
-        _JITS[key] = jax.jit(_fit_batch, static_argnames=static, compiler_options=options or None)
+        _JITS[key] = jax.jit(_fit_batch, static_argnames=static, compiler_options=_compiler_options(backend, small))
     return _JITS[key]
+
+
+def summary_jit(backend: str):
+    """The jitted result pass (:func:`_summarise_batch`) for ``backend``, always built for a short compile.
+
+    A program of its own, run once on the solver's output: it runs once per
+    recording (SVDs, eigenvectors, a few small solves), not once per solver step,
+    so LLVM's optimisation buys it nothing. Inside a batch's optimised solver
+    program (twice: full slices and the partial one, :func:`_map_in_order`) it
+    took about a quarter of the compile. The solver's program is dispatched
+    asynchronously and runs while this one is traced and compiled.
+    """
+    key = ("summary", backend)
+    if key not in _JITS:
+        static = ("model_opts", "loss", "unbatch")
+        options = _compiler_options(backend, small=True)
+        _JITS[key] = jax.jit(_summarise_batch, static_argnames=static, compiler_options=options)
+    return _JITS[key]
+
+
+def _compiler_options(backend: str, small: bool) -> dict | None:
+    if backend != "cpu":
+        return None
+    options: dict[str, object] = {"xla_cpu_use_fusion_emitters": False}
+    if small:
+        options["xla_backend_optimization_level"] = 0
+    return options
 
 
 _JITS: dict = {}
 
 
 def compiled_programs() -> int:
-    """How many solver programs have been compiled in this process (all variants): tests check reuse."""
-    return sum(f._cache_size() for f in _JITS.values())
+    """How many solver programs have been compiled in this process (all variants): tests check reuse.
+
+    (Each comes with one result-pass program, :func:`summary_jit`, for the same shapes.)
+    """
+    return sum(f._cache_size() for key, f in _JITS.items() if key[0] == "solve")
 
 
 def is_small(prob) -> bool:
@@ -83,25 +112,32 @@ def is_small(prob) -> bool:
 _SMALL_INTERVALS = 1536
 
 
+def _member(tree, i):
+    return jax.tree.map(lambda a: a[i], tree)
+
+
+def _keeps_jacobian(y0, data, model_opts, unbatch: bool) -> bool:
+    """Whether every solve keeps ``J`` at its accepted point: where the batch's ``J`` fit in
+    ``_KEEP_J_BYTES``. Then the result pass needs no model (its compile), see :func:`_summarise_batch`."""
+    _, J = model_shapes(y0[0], _member(data, 0), **dict(model_opts))
+    n, C = y0.shape[0], min(_SLOTS, y0.shape[0])
+    return unbatch or (n + 1 + C) * J.size * J.dtype.itemsize <= _KEEP_J_BYTES
+
+
 def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
-    """Fit ``N`` recordings (leading axes of ``y0``, ``data``); ``model_opts``: sorted ``(name, value)`` pairs.
+    """Solve ``N`` recordings (leading axes of ``y0``, ``data``); ``model_opts``: sorted ``(name, value)`` pairs.
 
     Each recording is one Levenberg–Marquardt solve (:class:`._solver.LMMember`),
     repeated with new weights for a robust loss (IRLS, :mod:`._robust`). A batch
     runs through a work queue (:mod:`._queue`): every recording stops on its own
-    instead of being stepped until the slowest one stops.
+    instead of being stepped until the slowest one stops. Returns each solve's
+    ``y``, ``converged``, ``iterations``, final weights ``rw`` and, where kept
+    (:func:`_keeps_jacobian`), ``r`` and ``J`` at ``y``: the input of :func:`_summarise_batch`.
     """
     opts = dict(model_opts)
-    member = lambda tree, i: jax.tree.map(lambda a: a[i], tree)
     model, shapes = (functools.partial(f, **opts) for f in (model_residuals, model_shapes))
-    _, J = shapes(y0[0], member(data, 0))
-    # every solve keeps J at its accepted point where the batch's J fit in _KEEP_J_BYTES: then the
-    # covariance needs no second model in the program (its compile), see `summary`
-    n, C = y0.shape[0], min(_SLOTS, y0.shape[0])
-    keep = unbatch or (n + 1 + C) * J.size * J.dtype.itemsize <= _KEEP_J_BYTES
+    keep = _keeps_jacobian(y0, data, model_opts, unbatch)
     lm = LMMember(model, rtol, atol, max_steps, keep_jacobian=keep, shapes=shapes)
-    kw = {k: opts[k] for k in _SUMMARY_OPTS}
-    outlier_weight = _robust.outlier_weight(loss)
     zero = jnp.zeros((), jnp.int32)
 
     def start(y, d, round=zero, total=zero):
@@ -121,23 +157,10 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
         restarted = start(y, {**d, "seg": replace(d["seg"], rw=rw_new)}, slot["round"] + 1, total)
         return again, restarted, out
 
-    def summary(sol, d):
-        """FitResult fields at the solution, with its final weights.
-
-        From the solve's kept ``J``; without it (a batch whose ``J`` would not
-        fit) the model is evaluated again at the solution, a second copy of it
-        in the program. (The covariance is formed from ``J``'s SVD; ``JᵀJ``
-        would square its condition number.)
-        """
-        d = {**d, "seg": replace(d["seg"], rw=sol["rw"])}
-        r, J = (sol["r"], sol["J"]) if "J" in sol else lm.model(sol["y"], d)
-        out = summarise(sol["y"], r, J, d, sol["converged"], sol["iterations"], **kw, outlier_weight=outlier_weight)
-        return dict(out, robust_weights=sol["rw"])
-
     if not unbatch:
-        sols = run_queue(
-            n,
-            lambda i: start(y0[i], member(data, i)),
+        return run_queue(
+            y0.shape[0],
+            lambda i: start(y0[i], _member(data, i)),
             lm.advance,
             lm.running,
             retire,
@@ -145,19 +168,42 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
             chunk=_CHUNK,
             steps_per_round=_STEPS_PER_ROUND,
         )
-        # in slices: the memory of one model evaluation (if any) per slice, few LAPACK calls
-        return _map_in_order(lambda a: summary(*a), (sols, data), C)
     # one recording: no queue (and no vmap, whose batching of the solver's loops doubles tracing)
 
     def body(c):
         slot = jax.lax.while_loop(lm.running, lm.advance, c[1])
         return retire(slot)
 
-    first = start(y0[0], member(data, 0))
+    first = start(y0[0], _member(data, 0))
     if loss == "squared":  # one round: no loop over the rounds
-        return summary(retire(jax.lax.while_loop(lm.running, lm.advance, first))[2], member(data, 0))
+        return retire(jax.lax.while_loop(lm.running, lm.advance, first))[2]
     out0 = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(lambda s: retire(s)[2], first))
-    return summary(jax.lax.while_loop(lambda c: c[0], body, (jnp.array(True), first, out0))[2], member(data, 0))
+    return jax.lax.while_loop(lambda c: c[0], body, (jnp.array(True), first, out0))[2]
+
+
+def _summarise_batch(sols, data, *, model_opts, loss, unbatch):
+    """FitResult fields of each solution of :func:`_fit_batch` (``sols``), with its final weights.
+
+    From the solve's kept ``J``; without it (a batch whose ``J`` would not fit)
+    the model is evaluated again at the solution. (The covariance is formed
+    from ``J``'s SVD; ``JᵀJ`` would square its condition number.) A batch runs
+    in slices of ``_SLOTS`` members (:func:`_map_in_order`).
+    """
+    opts = dict(model_opts)
+    model = functools.partial(model_residuals, **opts)
+    kw = {k: opts[k] for k in _SUMMARY_OPTS}
+    outlier_weight = _robust.outlier_weight(loss)
+
+    def summary(sol, d):
+        d = {**d, "seg": replace(d["seg"], rw=sol["rw"])}
+        r, J = (sol["r"], sol["J"]) if "J" in sol else model(sol["y"], d)
+        out = summarise(sol["y"], r, J, d, sol["converged"], sol["iterations"], **kw, outlier_weight=outlier_weight)
+        return dict(out, robust_weights=sol["rw"])
+
+    if unbatch:
+        return summary(sols, _member(data, 0))
+    # in slices: the memory of one model evaluation (if any) per slice, few LAPACK calls
+    return _map_in_order(lambda a: summary(*a), (sols, data), min(_SLOTS, sols["y"].shape[0]))
 
 
 def _map_in_order(f, xs, size: int):
@@ -228,17 +274,19 @@ def solve_with_starts(prob, options, per_sample: bool = True) -> tuple[FitResult
     """:func:`solve`, and every segment's fitted start: ``q``, ``q_std``, ``w``, ``w_std`` ``(*N, S, ...)``."""
     loss = options["loss"]
     data = dict(prob.data, loss_scale=np.full(prob.y0.shape[0], float(options["loss_scale"]), prob.y0.dtype))
-    small = is_small(prob)
-    out = fit_batch_jit(jax.default_backend(), small)(
+    small, backend = is_small(prob), jax.default_backend()
+    model_opts = tuple(sorted({**prob.static, "looped": small}.items()))
+    sols = fit_batch_jit(backend, small)(
         prob.y0,
         data,
-        model_opts=tuple(sorted({**prob.static, "looped": small}.items())),
+        model_opts=model_opts,
         loss=loss,
         rtol=float(options["rtol"]),
         atol=float(options["atol"]),
         max_steps=int(options["max_steps"]),
         unbatch=not prob.batched,
     )
+    out = summary_jit(backend)(sols, data, model_opts=model_opts, loss=loss, unbatch=not prob.batched)
     p_value = consistency(out.pop("consistency"))  # on the host: see ._tails
     consistent = p_value >= CONSISTENCY_ALPHA
     # host arrays go back with device_put: jnp.asarray compiles a small program per new shape (jax
