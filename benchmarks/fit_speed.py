@@ -70,8 +70,10 @@ jax.monitoring.register_event_duration_secs_listener(_listen)
 
 def timed(fn, split=None):
     """``(result, wall s, CPU s)``; ``split``: a dict that receives the call's trace / lower / compile
-    seconds (jax's own stage timers, summed over its programs) and the rest of the wall time as
-    ``run`` (NumPy checks, and what of the solve did not overlap the result pass's compile)."""
+    seconds (jax's own stage timers, summed over its programs and threads) and ``rest``, the wall time
+    less those: NumPy checks, and what of the solve did not overlap the result pass's compile.
+    ``rest`` is negative by as much as the stages ran side by side (the fit compiles its two programs
+    at once, _compile_side_by_side in rbjax/identification/_solve.py)."""
     _spent.clear()
     t, c = time.perf_counter(), time.process_time()
     out = fn()
@@ -79,7 +81,7 @@ def timed(fn, split=None):
     wall = time.perf_counter() - t
     if split is not None:
         stages = {k: _spent.get(k, 0.0) for k in ("trace", "lower", "compile")}
-        split.update(stages, run=wall - sum(stages.values()))
+        split.update(stages, rest=wall - sum(stages.values()))
     return out, wall, time.process_time() - c
 
 

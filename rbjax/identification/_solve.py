@@ -10,6 +10,7 @@ diagnostics (:mod:`._result`).
 
 from __future__ import annotations
 
+import concurrent.futures
 import functools
 import math
 
@@ -67,8 +68,8 @@ def summary_jit(backend: str):
     recording (SVDs, eigenvectors, a few small solves), not once per solver step,
     so LLVM's optimisation buys it nothing. Inside a batch's optimised solver
     program (twice: full slices and the partial one, :func:`_map_in_order`) it
-    took about a quarter of the compile. The solver's program is dispatched
-    asynchronously and runs while this one is traced and compiled.
+    took about a quarter of the compile. The two compile at once
+    (:func:`_compile_side_by_side`).
     """
     key = ("summary", backend)
     if key not in _JITS:
@@ -276,17 +277,14 @@ def solve_with_starts(prob, options, per_sample: bool = True) -> tuple[FitResult
     data = dict(prob.data, loss_scale=np.full(prob.y0.shape[0], float(options["loss_scale"]), prob.y0.dtype))
     small, backend = is_small(prob), jax.default_backend()
     model_opts = tuple(sorted({**prob.static, "looped": small}.items()))
-    sols = fit_batch_jit(backend, small)(
-        prob.y0,
-        data,
-        model_opts=model_opts,
-        loss=loss,
-        rtol=float(options["rtol"]),
-        atol=float(options["atol"]),
-        max_steps=int(options["max_steps"]),
-        unbatch=not prob.batched,
+    solver, summary = fit_batch_jit(backend, small), summary_jit(backend)
+    summary_kw = dict(model_opts=model_opts, loss=loss, unbatch=not prob.batched)
+    solver_kw = dict(
+        summary_kw, rtol=float(options["rtol"]), atol=float(options["atol"]), max_steps=int(options["max_steps"])
     )
-    out = summary_jit(backend)(sols, data, model_opts=model_opts, loss=loss, unbatch=not prob.batched)
+    _compile_side_by_side(solver, summary, (prob.y0, data), solver_kw, summary_kw)
+    sols = solver(prob.y0, data, **solver_kw)
+    out = summary(sols, data, **summary_kw)
     p_value = consistency(out.pop("consistency"))  # on the host: see ._tails
     consistent = p_value >= CONSISTENCY_ALPHA
     # host arrays go back with device_put: jnp.asarray compiles a small program per new shape (jax
@@ -319,6 +317,39 @@ def solve_with_starts(prob, options, per_sample: bool = True) -> tuple[FitResult
         **NOT_JOINT,
     )
     return res, starts
+
+
+def _compile_side_by_side(solver, summary, args: tuple, solver_kw: dict, summary_kw: dict) -> None:
+    """Compile the solver (``solver(*args, **solver_kw)``) and its result pass at once, before their first call.
+
+    Left to their calls, jax makes the two programs one after the other, on this
+    thread: the solver's trace, lowering and compile, then the result pass's. XLA's
+    compile does not hold Python's GIL, so here the solver's compile runs in a
+    worker thread while this thread traces and lowers the result pass (from the
+    solver's output shapes), and the result pass's compile runs in a second worker.
+    The calls that follow find both programs in jax's caches (trace, lowering and
+    executable: nothing is made twice). For a signature seen before this does
+    nothing; where jax's caches were cleared since, the calls compile as usual.
+    """
+    signature = (solver, summary, jax.tree.structure(args), tuple(map(jax.typeof, jax.tree.leaves(args))))
+    key = signature + tuple(sorted(solver_kw.items()))
+    if key in _COMPILED:
+        return
+    traced = solver.trace(*args, **solver_kw)
+    pool = _compile_pool()
+    building = [pool.submit(traced.lower().compile)]
+    building.append(pool.submit(summary.trace(traced.out_info, args[1], **summary_kw).lower().compile))
+    for b in building:
+        b.result()  # a compile error is raised here, on the caller's thread
+    _COMPILED.add(key)
+
+
+_COMPILED: set = set()
+
+
+@functools.cache
+def _compile_pool() -> concurrent.futures.ThreadPoolExecutor:
+    return concurrent.futures.ThreadPoolExecutor(max_workers=2, thread_name_prefix="rbjax-compile")
 
 
 # the static fields of a FitResult of recordings fitted one by one (see FitResult.joint)
