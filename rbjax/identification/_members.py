@@ -80,7 +80,7 @@ def fit_members(members, options) -> FitResult:
     if len(lengths) == 1 and all(members[i][0] is members[good[0]][0] for i in good):
         t = members[good[0]][0]
         stacked = {k: _stack_or_share([members[i][1][k] for i in good]) for k in PER_MEMBER_NDIM}
-        batch = fit_regular(t, stacked, options)
+        batch = jax.tree.map(np.asarray, fit_regular(t, stacked, options))  # see _fit_padded
         for j, i in enumerate(good):
             results[i] = jax.tree.map(lambda a, j=j: a[j], batch)
     else:
@@ -152,8 +152,10 @@ def _fit_padded(members, probs, options) -> dict:
             data=jax.tree.map(lambda *a: np.concatenate(a), *[packed[i].data for i in idx]),
             batched=True,
         )
-        res = solve(batch, options, per_sample=False)
-        rw = np.asarray(res.robust_weights)
+        # members are taken apart on the host (_stack_results joins them there): indexing jax arrays
+        # compiled a small program per field and shape, 14 per new ragged list
+        res = jax.tree.map(np.asarray, solve(batch, options, per_sample=False))
+        rw = res.robust_weights
         for j, i in enumerate(idx):
             one = jax.tree.map(lambda a, j=j: a[j], res)
             w, o = sample_weights(packed[i], rw[j], _robust.outlier_weight(options["loss"]))

@@ -307,7 +307,7 @@ def solve_with_starts(prob, options, per_sample: bool = True) -> tuple[FitResult
         out["robust_weights"], out["outliers"] = sample_weights(prob, rw, _robust.outlier_weight(loss))
     else:
         out["robust_weights"], out["outliers"] = jax.device_put(rw), jax.device_put(np.zeros(rw.shape[0], bool))
-    out["failed"] = jnp.zeros(prob.y0.shape[0] if prob.batched else (), bool)
+    out["failed"] = jax.device_put(np.zeros(prob.y0.shape[0] if prob.batched else (), bool))
     res = new_unchecked(
         FitResult,
         **out,
