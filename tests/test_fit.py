@@ -53,38 +53,6 @@ def test_clean_orientations_regular_and_irregular_times():
     assert _rel(res.inertia, I_BAR) < 1e-5
 
 
-def test_a_new_signature_makes_each_of_its_two_programs_once():
-    # fit_inertia builds the solver's program and the result pass's side by side before calling
-    # them (_solve._compile_side_by_side); the calls must then find both in jax's caches. Counted
-    # with jax's own compile events, in a process whose caches are cleared first: two traces, two
-    # lowerings and two compiles (or reads from the suite's persistent cache), not three or four;
-    # and none at all for the same shapes again
-    t = np.linspace(0.0, 0.5, 81)
-    _, wb = _record(t)
-    jax.clear_caches()
-    _solve._COMPILED.clear()
-    events = []
-    listen = lambda name, *_, **__: events.append(name)
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    jax.monitoring.register_event_listener(listen)
-    try:
-        res = rb.fit_inertia(t, body_rates=wb)
-        first, events[:] = list(events), []
-        # new data of the same shapes: the recording run backwards (-ω(-t) is a torque-free motion too)
-        again = rb.fit_inertia(t, body_rates=-wb[::-1])
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
-        jax.monitoring.unregister_event_listener(listen)
-    made = {e: first.count(f"/jax/core/compile/{e}") for e in ("jaxpr_trace_duration", "jaxpr_to_mlir_module_duration")}
-    assert made == {"jaxpr_trace_duration": 2, "jaxpr_to_mlir_module_duration": 2}, first
-    compiled = first.count("/jax/core/compile/backend_compile_duration")
-    assert compiled + first.count("/jax/compilation_cache/cache_hits") == 2, first
-    assert not [e for e in events if e.startswith("/jax/core/compile/")], events
-    # clean gyro data, 0.5 s: both fits are right too (model error ~1e-8; the same bound as above)
-    for r in (res, again):
-        assert _rel(r.inertia, I_BAR) < 1e-5 and bool(r.converged)
-
-
 def _six(M):
     """The entries ``(xx, yy, zz, xy, xz, yz)`` of symmetric ``(..., 3, 3)``: FitResult.inertia_covariance's order."""
     return np.asarray(M)[..., [0, 1, 2, 0, 0, 1], [0, 1, 2, 1, 2, 2]]
@@ -1070,3 +1038,36 @@ def test_linear_baseline_recovers_clean_data_and_refuses_what_no_body_has():
         rb.fit_inertia_linear(T_FAST, wb[:-1])
     with pytest.raises(ValueError, match=r"world-frame torques need orientations"):
         rb.fit_inertia_linear(T_FAST, wt, torques=taus)
+
+
+def test_a_new_signature_makes_each_of_its_two_programs_once():
+    # Last in this module: it clears jax's caches, which the tests above share.
+    # fit_inertia builds the solver's program and the result pass's side by side before calling
+    # them (_solve._compile_side_by_side); the calls must then find both in jax's caches. Counted
+    # with jax's own compile events, in a process whose caches are cleared first: two traces, two
+    # lowerings and two compiles (or reads from the suite's persistent cache), not three or four;
+    # and none at all for the same shapes again
+    t = np.linspace(0.0, 0.5, 81)
+    _, wb = _record(t)
+    jax.clear_caches()
+    _solve._COMPILED.clear()
+    events = []
+    listen = lambda name, *_, **__: events.append(name)
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    jax.monitoring.register_event_listener(listen)
+    try:
+        res = rb.fit_inertia(t, body_rates=wb)
+        first, events[:] = list(events), []
+        # new data of the same shapes: the recording run backwards (-ω(-t) is a torque-free motion too)
+        again = rb.fit_inertia(t, body_rates=-wb[::-1])
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+        jax.monitoring.unregister_event_listener(listen)
+    made = {e: first.count(f"/jax/core/compile/{e}") for e in ("jaxpr_trace_duration", "jaxpr_to_mlir_module_duration")}
+    assert made == {"jaxpr_trace_duration": 2, "jaxpr_to_mlir_module_duration": 2}, first
+    compiled = first.count("/jax/core/compile/backend_compile_duration")
+    assert compiled + first.count("/jax/compilation_cache/cache_hits") == 2, first
+    assert not [e for e in events if e.startswith("/jax/core/compile/")], events
+    # clean gyro data, 0.5 s: both fits are right too (model error ~1e-8; the same bound as above)
+    for r in (res, again):
+        assert _rel(r.inertia, I_BAR) < 1e-5 and bool(r.converged)
