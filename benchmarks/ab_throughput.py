@@ -7,11 +7,14 @@ in a fresh subprocess per measurement, alternating the two checkouts (A B A B
 best body-steps per second of each and their ratio ``new / base``.
 
     python benchmarks/ab_throughput.py --base 1f075bb            # base = a git revision
-    python benchmarks/ab_throughput.py --base 1f075bb --quick    # N = 1e4 only, euler
+    python benchmarks/ab_throughput.py --quick                   # N = 1e4, euler, JAX path, against HEAD
     python benchmarks/ab_throughput.py --base 1f075bb --path jax # simulate(native=False) on both
 
 The base revision is checked out into a temporary git worktree (removed at the
-end); the new side is this checkout.
+end); the new side is this checkout. ``--quick`` (what ``python -m rbjax bench
+--quick`` runs) is a smoke run: the working tree against ``HEAD`` unless
+``--base`` is given, on the JAX path unless ``--path`` is (no kernels to build
+for the base), and nothing saved unless ``--out`` is given.
 """
 
 from __future__ import annotations
@@ -62,7 +65,7 @@ def measure(src: str, method: str, dtype: str, n: int, steps: int, path: str) ->
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--base", required=True, help="git revision to compare against")
+    ap.add_argument("--base", help="git revision to compare against (--quick: HEAD)")
     ap.add_argument("--methods", default="euler,splitting,rk4")
     ap.add_argument("--dtypes", default="float32,float64")
     ap.add_argument("--sizes", default="10000,100000,1000000")
@@ -71,16 +74,26 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--path",
         choices=["default", "jax", "native"],
-        default="default",
-        help="simulate's native=None / False / True on both sides (the base's kernels are built for it)",
+        help="simulate's native=None / False / True on both sides (the base's kernels are built for it; "
+        "default: default, --quick: jax)",
     )
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--out", default=os.path.join(HERE, "results", "ab_throughput.json"))
+    ap.add_argument("--out", help="JSON to write (default results/ab_throughput.json; --quick: none)")
     args = ap.parse_args(argv)
     if args.quick:
         args.methods, args.dtypes, args.sizes, args.repeats = "euler", "float32", "10000", 1
+        args.base, args.path = args.base or "HEAD", args.path or "jax"
+    elif args.base is None:
+        ap.error("--base is required: the git revision to compare this checkout against (e.g. --base HEAD~1)")
+    else:
+        args.path, args.out = args.path or "default", args.out or os.path.join(HERE, "results", "ab_throughput.json")
     work = tempfile.mkdtemp(prefix="rbjax_base_")
-    subprocess.run(["git", "-C", ROOT, "worktree", "add", "--detach", work, args.base], check=True, capture_output=True)
+    add = subprocess.run(
+        ["git", "-C", ROOT, "worktree", "add", "--detach", work, args.base], capture_output=True, text=True
+    )
+    if add.returncode:
+        print(f"ab_throughput: cannot check out {args.base!r} (it needs a git checkout of rbjax): {add.stderr.strip()}")
+        return 2
     if args.path != "jax":  # the kernels are git-ignored build outputs: the base's own, built from its sources
         build = [sys.executable, "setup.py", "-q", "build_ext", "--inplace"]
         subprocess.run(build, cwd=work, check=True, capture_output=True)
@@ -104,9 +117,10 @@ def main(argv=None) -> int:
                     )
     finally:
         subprocess.run(["git", "-C", ROOT, "worktree", "remove", "--force", work], capture_output=True)
-    os.makedirs(os.path.dirname(args.out), exist_ok=True)
-    with open(args.out, "w") as f:
-        json.dump({"base": args.base, "path": args.path, "rows": rows}, f, indent=1)
+    if args.out:
+        os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
+        with open(args.out, "w") as f:
+            json.dump({"base": args.base, "path": args.path, "rows": rows}, f, indent=1)
     return 0
 
 

@@ -11,6 +11,7 @@ import importlib.util
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 
@@ -188,3 +189,30 @@ def test_fit_accuracy_bound_maps_the_shape_covariance_to_the_moments_by_their_de
     A = rng.normal(size=(5, 5))
     cov = A @ A.T
     np.testing.assert_allclose(fa._moment_sigma(cov), np.sqrt(np.einsum("ke,ef,kf->k", fd, cov, fd)), rtol=1e-8)
+
+
+@pytest.mark.slow  # two fresh processes simulate, one in a git worktree of HEAD (~10 s)
+def test_ab_throughput_quick_compares_the_working_tree_with_head():
+    # `python -m rbjax bench --quick` runs every script's --quick mode: ab_throughput's compares
+    # this checkout with its HEAD (no --base needed) on the JAX path, and saves nothing
+    if not os.path.exists(os.path.join(ROOT, ".git")):
+        pytest.skip("not a git checkout")
+    results = os.path.join(BENCH, "results")
+    before = {f: os.stat(os.path.join(results, f)).st_mtime_ns for f in os.listdir(results)}
+    r = subprocess.run(
+        [sys.executable, os.path.join(BENCH, "ab_throughput.py"), "--quick"],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    m = re.search(r"euler float32 N=\s*10000: base (\S+)\s+new (\S+)\s+new/base (\S+)", r.stdout)
+    assert m, r.stdout
+    base, new, ratio = map(float, m.groups())
+    # body-steps/s of 1e4 bodies: both sides ran (any working step is far above 1e5 on one core)
+    assert base > 1e5 and new > 1e5
+    np.testing.assert_allclose(ratio, new / base, rtol=5e-3)  # printed to 4 digits and 3 decimals
+    after = {f: os.stat(os.path.join(results, f)).st_mtime_ns for f in os.listdir(results)}
+    assert after == before
+    worktrees = subprocess.run(["git", "-C", ROOT, "worktree", "list"], capture_output=True, text=True).stdout
+    assert "rbjax_base_" not in worktrees  # the base's worktree is removed
