@@ -84,7 +84,7 @@ def _check_both_modes(final, args):
     so meets the central difference as ``check_grads``' reverse check does (``uᵀJ v``). One
     compiled program per mode, beside the function itself: ``check_grads`` and eager Jacobians
     compiled each mode two or three times, and a reverse-mode Jacobian (18 VJPs) compiles for
-    about twice as long as one VJP.
+    up to twice as long as one VJP.
     """
     final = jax.jit(final)
     # as NumPy arrays (strongly typed): the perturbed points below then run the same program
@@ -155,8 +155,10 @@ def test_checkpointing_gives_the_same_gradient(method):
 
     # inertia, initial rotation, initial spin, torque series, dt
     args = (1, 2, 5, 7, 8)
-    g0 = jax.grad(lambda *x: loss(None, *x), argnums=args)(*a)
-    g = jax.grad(lambda *x: loss(12, *x), argnums=args)(*a)
+    # jitted: an eager grad compiles the scan's forward and backward passes and each small
+    # operation around them on its own
+    g0 = jax.jit(jax.grad(lambda *x: loss(None, *x), argnums=args))(*a)
+    g = jax.jit(jax.grad(lambda *x: loss(12, *x), argnums=args))(*a)
     for x, y in zip(jax.tree.leaves(g), jax.tree.leaves(g0), strict=True):
         # the same arithmetic recomputed: equal up to XLA re-association, ~1e-15 relative
         np.testing.assert_allclose(x, y, rtol=1e-12, atol=1e-14)
