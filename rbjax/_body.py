@@ -44,6 +44,8 @@ TRIANGLE_RTOL = 1e-6
 def as_float(x: ArrayLike) -> Array:
     if x is None or isinstance(x, (str, bytes, dict)):
         raise TypeError(f"rbjax expected a real number or array, got {type(x).__name__} {x!r}")
+    if _holds_text(x):  # before jnp.asarray: it reads a string such as 'a' as a dtype name (a NumPy warning)
+        raise TypeError(f"rbjax expected a real number or array, got a {type(x).__name__} holding text: {x!r:.80}")
     try:
         x = jnp.asarray(x)
     except TypeError:
@@ -56,6 +58,11 @@ def as_float(x: ArrayLike) -> Array:
         # eigenvalues, unit quaternions and inertia checks need float32 at least
         raise TypeError(f"rbjax computes in float32 or float64; got dtype {x.dtype}: convert with .astype")
     return x
+
+
+def _holds_text(x: Any) -> bool:
+    """Whether a (nested) list or tuple ``x`` has a string among its entries."""
+    return isinstance(x, (list, tuple)) and any(isinstance(e, (str, bytes)) or _holds_text(e) for e in x)
 
 
 def floats(obj: Any, *names: str) -> None:

@@ -406,6 +406,23 @@ def test_state_create_refuses_in_rbjax_words(name):
     assert _from_rbjax(info.value), info.value
 
 
+def test_text_in_a_list_is_refused_before_jax_reads_it():
+    # jnp.asarray takes a string such as 'a' or 'f' for a dtype name (NumPy warns that 'a' is
+    # deprecated) before it fails: rbjax refuses the list first, in its own words and quietly
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for make in (
+            lambda: rb.box(1.0, ["a", "b", "f"]),
+            lambda: rb.LinearDrag([["a"], ["d"]]),
+            lambda: rb.State.create(_body(), position=("x", 1.0, 2.0)),
+        ):
+            with pytest.raises(TypeError, match="holding text") as info:
+                make()
+            assert _from_rbjax(info.value), info.value
+
+
 # ------------------------------------------------------------------ silent wrong answers off the tested path
 
 
@@ -855,7 +872,12 @@ def test_animate_labels_its_axes_and_draws_the_arrow_over_the_body(_batch_traj, 
     from matplotlib import animation
 
     figs = []
-    monkeypatch.setattr(animation.FuncAnimation, "save", lambda self, *a, **k: figs.append(self._fig))
+
+    def save(self, *args, **kwargs):  # keeps the figure instead of rendering it
+        figs.append(self._fig)
+        self._draw_was_started = True  # or matplotlib warns, when it is collected, that it never drew
+
+    monkeypatch.setattr(animation.FuncAnimation, "save", save)
     (tmp_path / "a.gif").write_bytes(b"")
     rb.animate(_batch_traj, tmp_path / "a.gif", dpi=20, panel_size=1.0)
     axes = figs[0].axes
