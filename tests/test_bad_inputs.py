@@ -23,6 +23,7 @@ import dataclasses
 import inspect
 import re
 import traceback
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -409,8 +410,6 @@ def test_state_create_refuses_in_rbjax_words(name):
 def test_text_in_a_list_is_refused_before_jax_reads_it():
     # jnp.asarray takes a string such as 'a' or 'f' for a dtype name (NumPy warns that 'a' is
     # deprecated) before it fails: rbjax refuses the list first, in its own words and quietly
-    import warnings
-
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         for make in (

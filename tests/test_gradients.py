@@ -6,6 +6,8 @@ state (orientation as a rotation vector, so perturbations stay unit
 quaternions), a per-step force/torque time series, and ``dt``.
 """
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -73,18 +75,27 @@ def _args(seed=0, w0=(0.4, 2.0, -0.3), r0=(0.2, -0.1, 0.3), I=(1.0, 2.0, 2.6, 0.
     )
 
 
-def _check_both_modes(final, args):
-    """Forward and reverse mode of ``final(*args)`` (a vector) against float64 central differences.
+class _Derivatives(NamedTuple):
+    Jv: np.ndarray  # forward mode: J v, (18,)
+    fd: np.ndarray  # the central difference along v, (18,)
+    uJ: np.ndarray  # reverse mode: the VJP of u, every argument's components in one vector
+    uJ_fwd: np.ndarray  # uᵀJ from the forward-mode J, the same layout
+    uJv: float  # reverse mode along v: (uᵀJ) v
+    u_fd: float  # u · fd
+
+
+def _derivatives(final, args) -> _Derivatives:
+    """Forward and reverse mode of ``final(*args)`` (a vector) and float64 central differences.
 
     Forward mode: the full Jacobian ``J`` with respect to every argument (``jit`` of ``jacfwd``),
-    applied to a random direction ``v`` in all arguments at once, gives the central difference of
-    every output component along ``v`` (step 1e-4: truncation ~1e-8 relative; 1e-5 absolute and
-    relative is ``jax.test_util.check_grads``' float64 tolerance, a wide margin). Reverse mode: the
-    VJP of a random cotangent ``u`` is ``uᵀJ`` to round-off in each of the inputs' components, and
-    so meets the central difference as ``check_grads``' reverse check does (``uᵀJ v``). One
-    compiled program per mode, beside the function itself: ``check_grads`` and eager Jacobians
-    compiled each mode two or three times, and a reverse-mode Jacobian (18 VJPs) compiles for
-    up to twice as long as one VJP.
+    applied to a random direction ``v`` in all arguments at once; the central difference of every
+    output component along ``v`` (step 1e-4: truncation ~1e-8 relative, so 1e-5 absolute and
+    relative, ``jax.test_util.check_grads``' float64 tolerance, has a wide margin). Reverse mode:
+    the VJP of a random cotangent ``u``, to be ``uᵀJ`` to round-off in each of the inputs'
+    components, and ``uᵀJ v`` against ``u · fd`` as ``check_grads``' reverse check. One compiled
+    program per mode, beside the function itself: ``check_grads`` and eager Jacobians compiled each
+    mode two or three times, and a reverse-mode Jacobian (18 VJPs) compiles for up to twice as
+    long as one VJP.
     """
     final = jax.jit(final)
     # as NumPy arrays (strongly typed): the perturbed points below then run the same program
@@ -97,16 +108,23 @@ def _check_both_modes(final, args):
     uJ = jax.jit(lambda *a: jax.vjp(final, *a)[1](u))(*args)
     eps = 1e-4  # perturbed in NumPy: no eager JAX operation (each a compile of its own)
     fd = (final(*(a + eps * d for a, d in zip(args, v))) - final(*(a - eps * d for a, d in zip(args, v)))) / (2 * eps)
-    Jv = sum(np.tensordot(Ji, d, axes=d.ndim) for Ji, d in zip(J, v, strict=True))
-    np.testing.assert_allclose(Jv, fd, rtol=1e-5, atol=1e-5)
-    for rev, Ji in zip(uJ, J, strict=True):
-        np.testing.assert_allclose(rev, np.tensordot(u, Ji, axes=1), rtol=1e-10, atol=1e-12)
-    np.testing.assert_allclose(sum(np.vdot(r, d) for r, d in zip(uJ, v, strict=True)), u @ fd, rtol=1e-5, atol=1e-5)
+    flat = lambda parts: np.concatenate([np.ravel(p) for p in parts])
+    return _Derivatives(
+        Jv=sum(np.tensordot(Ji, d, axes=d.ndim) for Ji, d in zip(J, v, strict=True)),
+        fd=np.asarray(fd),
+        uJ=flat(uJ),
+        uJ_fwd=flat(np.tensordot(u, Ji, axes=1) for Ji in J),
+        uJv=float(flat(uJ) @ flat(v)),
+        u_fd=float(u @ fd),
+    )
 
 
 @pytest.mark.parametrize("method", FD_METHODS)
 def test_fwd_and_rev_match_finite_differences(method):
-    _check_both_modes(lambda *a: _final(method, *a), _args())
+    d = _derivatives(lambda *a: _final(method, *a), _args())
+    np.testing.assert_allclose(d.Jv, d.fd, rtol=1e-5, atol=1e-5)  # forward mode: central differences
+    np.testing.assert_allclose(d.uJ, d.uJ_fwd, rtol=1e-10, atol=1e-12)  # reverse = forward, to round-off
+    np.testing.assert_allclose(d.uJv, d.u_fd, rtol=1e-5, atol=1e-5)  # reverse mode: central differences
 
 
 @pytest.mark.parametrize("method", DEGENERATE_METHODS)
@@ -279,5 +297,8 @@ def test_matrix_state_gradients_match_finite_differences(method):
     # angular_acceleration, ω̇ in the body frame) and projection (R re-orthonormalised): both
     # modes against float64 central differences with step 1e-4 (truncation ~1e-8 relative;
     # check_grads' float64 tolerance 1e-5), with respect to mass, inertia, initial state, the
-    # force/torque series and dt (:func:`_check_both_modes`).
-    _check_both_modes(lambda *a: _final_matrix(method, *a), _args())
+    # force/torque series and dt (:func:`_derivatives`).
+    d = _derivatives(lambda *a: _final_matrix(method, *a), _args())
+    np.testing.assert_allclose(d.Jv, d.fd, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(d.uJ, d.uJ_fwd, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(d.uJv, d.u_fd, rtol=1e-5, atol=1e-5)
