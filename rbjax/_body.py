@@ -15,7 +15,7 @@ from jax import Array
 from jaxtyping import Float
 
 from ._eigh3 import principal_frame
-from ._math import array_arg, check_rotations, is_concrete, skew
+from ._math import array_arg, check_rotations, holds_text, is_concrete, skew
 from ._pytree import field, new_unchecked, pytree_dataclass
 from ._trajectory import BatchIndexing
 from ._typing import ArrayLike, array_like
@@ -44,7 +44,7 @@ TRIANGLE_RTOL = 1e-6
 def as_float(x: ArrayLike) -> Array:
     if x is None or isinstance(x, (str, bytes, dict)):
         raise TypeError(f"rbjax expected a real number or array, got {type(x).__name__} {x!r}")
-    if _holds_text(x):  # before jnp.asarray: it reads a string such as 'a' as a dtype name (a NumPy warning)
+    if holds_text(x):  # before jnp.asarray reads a string as a dtype name (holds_text)
         raise TypeError(f"rbjax expected a real number or array, got a {type(x).__name__} holding text: {x!r:.80}")
     try:
         x = jnp.asarray(x)
@@ -58,11 +58,6 @@ def as_float(x: ArrayLike) -> Array:
         # eigenvalues, unit quaternions and inertia checks need float32 at least
         raise TypeError(f"rbjax computes in float32 or float64; got dtype {x.dtype}: convert with .astype")
     return x
-
-
-def _holds_text(x: Any) -> bool:
-    """Whether a (nested) list or tuple ``x`` has a string among its entries."""
-    return isinstance(x, (list, tuple)) and any(isinstance(e, (str, bytes)) or _holds_text(e) for e in x)
 
 
 def floats(obj: Any, *names: str) -> None:

@@ -52,6 +52,15 @@ _NORMALISE = "; normalise it first with rb.quat_normalize(q)"
 _WHAT = {(3,): "3-vectors", (4,): "quaternions [w, x, y, z]", (3, 3): "3x3 matrices", (6,): "6-vectors"}
 
 
+def holds_text(x: Any) -> bool:
+    """Whether ``x`` is a (nested) list or tuple with a string among its entries.
+
+    Checked before ``jnp.asarray``, which reads a string such as ``'a'`` as a dtype name (and NumPy
+    warns that alias is deprecated) before it fails: rbjax refuses such input in its own words.
+    """
+    return isinstance(x, (list, tuple)) and any(isinstance(e, (str, bytes)) or holds_text(e) for e in x)
+
+
 def array_arg(fn: str, name: str, x: Any, core: tuple[int, ...] = ()) -> Array:
     """``x`` as a float array whose shape ends in ``core``; ``TypeError``/``ValueError`` naming ``fn``'s ``name``.
 
@@ -61,6 +70,8 @@ def array_arg(fn: str, name: str, x: Any, core: tuple[int, ...] = ()) -> Array:
     """
     if x is None or isinstance(x, (str, bytes, dict, bool, np.bool_)):
         raise TypeError(f"{fn}: {name} must be a real float array, got {type(x).__name__} {x!r:.60}")
+    if holds_text(x):
+        raise TypeError(f"{fn}: {name} must be a real float array, got a {type(x).__name__} holding text: {x!r:.60}")
     try:
         a = jnp.asarray(x)
     except (TypeError, ValueError):

@@ -416,6 +416,8 @@ def test_text_in_a_list_is_refused_before_jax_reads_it():
             lambda: rb.box(1.0, ["a", "b", "f"]),
             lambda: rb.LinearDrag([["a"], ["d"]]),
             lambda: rb.State.create(_body(), position=("x", 1.0, 2.0)),
+            lambda: rb.from_particles(["a", "b"], np.zeros((2, 3))),  # through array_arg
+            lambda: rb.quat_normalize(["a", "b", "f", "d"]),
         ):
             with pytest.raises(TypeError, match="holding text") as info:
                 make()
