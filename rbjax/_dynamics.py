@@ -21,12 +21,16 @@ from jax import Array
 from ._batching import lift
 from ._body import Body, inertia_of
 from ._math import (
-    cross,
+    apply3,
+    cross_components,
+    entries3,
     matvec3,
     over,
     pure_quat_multiply,
     quat_rotate_inverse_unchecked,
     quat_rotate_unchecked,
+    stack3x3,
+    transpose3,
 )
 from ._pytree import replace
 from ._state import AnyState, Forces, ParticleState, State, StateT
@@ -65,41 +69,50 @@ def _one_derivative(s: AnyState, f: Forces) -> AnyState:
             orientation=0.5 * pure_quat_multiply(w, s.orientation),
             angular_momentum=tau,
         )
-    R, w = s.rotation, s.angular_velocity
-    return replace(
-        s,
-        position=s.velocity,
-        velocity=a,
-        rotation=rotation_rate(R, w),
-        angular_velocity=angular_acceleration(R, w, s.body, tau),
-    )
+    R_dot, w_dot = matrix_rates(s.rotation, s.angular_velocity, s.body, tau)
+    return replace(s, position=s.velocity, velocity=a, rotation=R_dot, angular_velocity=w_dot)
+
+
+def _rotation_rate(r: tuple, w: tuple) -> Array:
+    # column j of Ṙ is ω × R e_j (18 products, where skew(ω) @ R takes 27)
+    columns = [cross_components(w, (r[0][j], r[1][j], r[2][j])) for j in range(3)]
+    return stack3x3(zip(*columns))
 
 
 def rotation_rate(R: Array, w: Array) -> Array:
-    """``Ṙ = ω̃ R`` (1/s, (3, 3)) for ``R`` (3, 3) body to world and world ``ω`` (3,) (rad/s):
-    column ``j`` is ``ω × R e_j`` (18 products, where ``skew(ω) @ R`` takes 27)."""
-    return jnp.stack([cross(w, R[..., :, j]) for j in range(3)], axis=-1)
+    """``Ṙ = ω̃ R`` (1/s, (3, 3)) for ``R`` (3, 3) body to world and world ``ω`` (3,) (rad/s)."""
+    return _rotation_rate(entries3(R), (w[..., 0], w[..., 1], w[..., 2]))
 
 
-def angular_acceleration(R: Array, w: Array, body: Body, torque: Array | None) -> Array:
-    """``ω̇ = I_w⁻¹ (τ - ω × I_w ω)`` (rad/s², world frame, (3,)) of one body in the ``(x, v, R, ω)`` form.
+def matrix_rates(R: Array, w: Array, body: Body, torque: Array | None) -> tuple[Array, Array]:
+    """``(Ṙ, ω̇)`` of one body in the ``(x, v, R, ω)`` form: ``Ṙ = ω̃ R`` (1/s, (3, 3)) and
+    ``ω̇ = I_w⁻¹ (τ - ω × I_w ω)`` (rad/s², world frame, (3,)).
 
     ``R`` (3, 3) body to world, ``ω`` (rad/s) and ``τ`` (N·m) (3,) world frame
-    (``torque=None``: no torque). With ``I_w = R I_L Rᵀ`` it is evaluated in
+    (``torque=None``: no torque). With ``I_w = R I_L Rᵀ``, ``ω̇`` is evaluated in
     the body frame, ``ω̇ = R I_L⁻¹ (Rᵀτ - ω_b × I_L ω_b)`` with ``ω_b = Rᵀ ω``:
     the same on rotations, and four products of a 3x3 with a vector where
     building ``I_w`` and ``I_w⁻¹`` takes four 3x3 products, which made gradients
     through the Runge–Kutta methods compile several times slower (figures in
     the CHANGELOG, 2026-12-04). Within a Runge–Kutta stage ``R`` is ``O(dt²)``
     off orthogonal, where the two forms differ: both are the same ODE on
-    rotations, so the method's order is kept. :func:`derivative` (hence the
-    Runge–Kutta methods), ``"euler"`` and the Scene's general kernel take ``ω̇``
-    from here.
+    rotations, so the method's order is kept. The two rates read ``R``'s entries
+    from one set of slices (:func:`rbjax._math.entries3`). :func:`derivative`
+    (hence the Runge–Kutta methods), ``"euler"`` and the Scene's general kernel
+    take their rates from here.
     """
-    Rt = jnp.swapaxes(R, -1, -2)
-    w_b = matvec3(Rt, w)
-    gyro = cross(w_b, matvec3(inertia_of(body), w_b))
-    return matvec3(R, matvec3(body.inverse_inertia, -gyro if torque is None else matvec3(Rt, torque) - gyro))
+    r = entries3(R)
+    rt = transpose3(r)
+    w_world = (w[..., 0], w[..., 1], w[..., 2])
+    w_b = apply3(rt, w_world)
+    gyro = cross_components(w_b, apply3(entries3(inertia_of(body)), w_b))
+    if torque is None:
+        rhs = tuple(-g for g in gyro)
+    else:
+        tau_b = apply3(rt, (torque[..., 0], torque[..., 1], torque[..., 2]))
+        rhs = tuple(t - g for t, g in zip(tau_b, gyro))
+    w_dot = apply3(r, apply3(entries3(body.inverse_inertia), rhs))
+    return _rotation_rate(r, w_world), jnp.stack(w_dot, axis=-1)
 
 
 def derivative(state: StateT, forces: Forces) -> StateT:

@@ -293,11 +293,11 @@ def _final_matrix(method, m, I_entries, r0, x0, v0, w0, F, tau, dt):
 
 @pytest.mark.parametrize("method", ["euler", *(pytest.param(m, marks=pytest.mark.slow) for m in ("rk4", "rk8"))])
 def test_matrix_state_gradients_match_finite_differences(method):
-    # The (x, v, R, ω) form has its own rates (rbjax._dynamics.rotation_rate and
-    # angular_acceleration, ω̇ in the body frame) and projection (R re-orthonormalised): both
-    # modes against float64 central differences with step 1e-4 (truncation ~1e-8 relative;
-    # check_grads' float64 tolerance 1e-5), with respect to mass, inertia, initial state, the
-    # force/torque series and dt (:func:`_derivatives`).
+    # The (x, v, R, ω) form has its own rates (rbjax._dynamics.matrix_rates, ω̇ in the body
+    # frame) and projection (R re-orthonormalised): both modes against float64 central
+    # differences with step 1e-4 (truncation ~1e-8 relative; check_grads' float64 tolerance
+    # 1e-5), with respect to mass, inertia, initial state, the force/torque series and dt
+    # (:func:`_derivatives`).
     d = _derivatives(lambda *a: _final_matrix(method, *a), _args())
     np.testing.assert_allclose(d.Jv, d.fd, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(d.uJ, d.uJ_fwd, rtol=1e-10, atol=1e-12)

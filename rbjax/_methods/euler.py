@@ -21,7 +21,7 @@ import math
 import jax
 
 from .._batching import lift
-from .._dynamics import angular_acceleration, omega_world, rotation_rate
+from .._dynamics import matrix_rates, omega_world
 from .._math import (
     kick3,
     orthonormalize_unchecked,
@@ -58,8 +58,9 @@ def euler_matrix(s: MatrixState, f: Forces, dt) -> MatrixState:
     """One explicit-Euler step of one body in the ``(x, v, R, ω)`` form."""
     x, v = _translate(s.position, s.velocity, s.body.mass, f, dt)
     R, w = s.rotation, s.angular_velocity
-    R_new = orthonormalize_unchecked(R + rotation_rate(R, w) * dt)
-    w_new = w + angular_acceleration(R, w, s.body, f.torque) * dt
+    R_dot, w_dot = matrix_rates(R, w, s.body, f.torque)
+    R_new = orthonormalize_unchecked(R + R_dot * dt)
+    w_new = w + w_dot * dt
     return replace(s, position=x, velocity=v, rotation=R_new, angular_velocity=w_new)
 
 
