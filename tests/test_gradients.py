@@ -302,3 +302,24 @@ def test_matrix_state_gradients_match_finite_differences(method):
     np.testing.assert_allclose(d.Jv, d.fd, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(d.uJ, d.uJ_fwd, rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(d.uJv, d.u_fd, rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("method", [None, "euler"])
+def test_matrix_state_reverse_pass_stores_each_rotation_entry_once(method):
+    # Reverse mode stores every slice a product reads as a residual of its own, and a scan stacks
+    # each one per step: the rates read R's entries from one set of slices (rbjax._math.entries3),
+    # where three slicings of R (Rᵀ ω, R (...), ω̃ R) stored each entry three times and made a VJP
+    # through 12 rk8 steps compile for 36 s instead of 21 s (XLA's defaults;
+    # benchmarks/results/matrix_rates_residuals_ab_2026-12-05.md). A structural check, not a
+    # timing: the residuals of one evaluation of the rates (and of one "euler" step) hold each of
+    # R's nine entries (distinct values) exactly once; the three slicings give 3 for each.
+    rng = np.random.default_rng(3)
+    R = np.asarray(rb.quat_to_matrix(rb.quat_normalize(rng.normal(size=4))))
+    I = np.array([[1.0, 0.1, -0.05], [0.1, 2.0, 0.08], [-0.05, 0.08, 2.6]])
+    s = rb.MatrixState.create(rb.Body(1.0, I), orientation=R, angular_velocity=rng.normal(size=3))
+    forces = rb.Forces(torque=jnp.asarray(rng.normal(size=3)))
+    fn = (lambda s: rb.derivative(s, forces)) if method is None else (lambda s: rb.step(s, forces, 1e-3, method))
+    _, pullback = jax.vjp(fn, s)
+    residuals = [np.asarray(leaf) for leaf in jax.tree.leaves(pullback)]
+    stored = [sum(int(np.sum(leaf == r)) for leaf in residuals) for r in R.ravel()]
+    assert stored == [1] * 9, stored
