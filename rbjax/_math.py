@@ -306,6 +306,7 @@ def transpose3(a: tuple) -> tuple:
 def matmul3(A: Array, B: Array) -> Array:
     """``A @ B`` of ``(..., 3, 3)`` matrices by components: a batched ``dot`` of 3x3
     blocks is a separate, unfused XLA:CPU kernel per product."""
+    # (A B)_ij = (row i of A) · (column j of B): Bᵀ applied to each row of A
     a, bt = entries3(A), transpose3(entries3(B))
     return stack3x3(apply3(bt, row) for row in a)
 

@@ -89,20 +89,20 @@ def _rates(s: Any, f: Forces, kind: str) -> dict[str, Any]:
         out["angular_momentum"] = f.torque
         return out
     R, w = s.rotation, s.angular_velocity
-    if kind == "general":
-        out["rotation"], out["angular_velocity"] = matrix_rates(R, w, s.body, f.torque)
-        return out
-    out["rotation"] = rotation_rate(R, w)
     if kind == "isotropic":
         # gyroscopic term i ω × ω = 0; I_w⁻¹ = 1/i
+        out["rotation"] = rotation_rate(R, w)
         out["angular_velocity"] = None if f.torque is None else s.body.inverse_inertia[0, 0] * f.torque
         return out
-    # axisymmetric
-    n = R[:, 2]
-    a, c = s.body.inertia[0, 0], s.body.inertia[2, 2]
-    gyro = (c - a) * dot3(n, w) * cross(w, n)
-    tau = -gyro if f.torque is None else f.torque - gyro
-    out["angular_velocity"] = _axisym_inv(s.body, n, tau)
+    if kind == "axisymmetric":
+        n = R[:, 2]
+        a, c = s.body.inertia[0, 0], s.body.inertia[2, 2]
+        gyro = (c - a) * dot3(n, w) * cross(w, n)
+        tau = -gyro if f.torque is None else f.torque - gyro
+        out["rotation"] = rotation_rate(R, w)
+        out["angular_velocity"] = _axisym_inv(s.body, n, tau)
+        return out
+    out["rotation"], out["angular_velocity"] = matrix_rates(R, w, s.body, f.torque)
     return out
 
 
