@@ -349,6 +349,17 @@ def hamilton(p: Iterable[Any], q: Iterable[Any]) -> tuple[Any, Any, Any, Any]:
     )
 
 
+def rotate_components(q: tuple, v: tuple) -> tuple:
+    """Components of ``q ⊗ (0, v) ⊗ q*`` from those of ``q = (w, u)`` and ``v``: ``v + w t + u × t``, ``t = 2 u × v``.
+
+    A rotation for a unit ``q`` only (no check here; see :func:`quat_rotate`).
+    """
+    w, u = q[0], tuple(q[1:])
+    t = tuple(2 * c for c in cross_components(u, v))
+    ut = cross_components(u, t)
+    return tuple(v[i] + w * t[i] + ut[i] for i in range(3))
+
+
 def rotation_rows(q: Iterable[Any]) -> tuple[tuple[Any, Any, Any], ...]:
     """Rows of ``R(q) = (w² - u·u) 1 + 2 u uᵀ + 2 w ũ`` from the components ``(w, x, y, z)`` of a unit ``q``."""
     w, x, y, z = q
@@ -385,10 +396,7 @@ def quat_rotate_unchecked(q: ArrayLike, v: ArrayLike) -> Array:
     """:func:`quat_rotate` without the unit-norm check (the steps rotate by RK4 stage values, off the sphere)."""
     q, v = array_arg("quat_rotate", "q", q, (4,)), array_arg("quat_rotate", "v", v, (3,))
     _batches("quat_rotate", q=(q, 1), v=(v, 1))
-    w, u = q[..., 0], (q[..., 1], q[..., 2], q[..., 3])
-    t = tuple(2 * c for c in cross_components(u, _unstack(v)))
-    ut = cross_components(u, t)
-    return jnp.stack([v[..., i] + w * t[i] + ut[i] for i in range(3)], axis=-1)
+    return jnp.stack(rotate_components(_unstack(q), _unstack(v)), axis=-1)
 
 
 def quat_rotate_inverse_unchecked(q: ArrayLike, v: ArrayLike) -> Array:

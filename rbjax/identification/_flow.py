@@ -32,23 +32,12 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
+from .._math import apply3, cross_components, rotate_components
 from .._methods.explicit_rk import CLASSICAL_RK4
 
 __all__ = ["flow"]
 
 _A, _B, _C = CLASSICAL_RK4
-
-
-def _cross(a, b):
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
-def _rotate(q, v):
-    """``q ⊗ (0, v) ⊗ q*`` as ``v + w t + u × t``, ``t = 2 u × v`` (:func:`rbjax.quat_rotate`)."""
-    w, u = q[0], q[1:]
-    t = tuple(2 * c for c in _cross(u, v))
-    ut = _cross(u, t)
-    return tuple(v[i] + w * t[i] + ut[i] for i in range(3))
 
 
 def _conj(q):
@@ -57,14 +46,14 @@ def _conj(q):
 
 def _apply(m, v):
     """``M v`` for a 3x3 matrix as a row-major 9-tuple."""
-    return tuple(m[3 * i] * v[0] + m[3 * i + 1] * v[1] + m[3 * i + 2] * v[2] for i in range(3))
+    return apply3((m[0:3], m[3:6], m[6:9]), v)
 
 
 def _q_rate(q, L, inv):
     """``½ (0, ω_w) ⊗ q`` with ``ω_w = R I⁻¹ Rᵀ L`` (world frame), as :func:`rbjax.derivative`."""
-    w = _rotate(q, _apply(inv, _rotate(_conj(q), L)))
+    w = rotate_components(q, _apply(inv, rotate_components(_conj(q), L)))
     u = q[1:]
-    c = _cross(w, u)
+    c = cross_components(w, u)
     return (-0.5 * (w[0] * u[0] + w[1] * u[1] + w[2] * u[2]),) + tuple(0.5 * (q[0] * w[i] + c[i]) for i in range(3))
 
 
@@ -119,12 +108,12 @@ def _stage_torque(x, j, substeps, frame, drag, qs, Ls, inv, k, c):
     if frame is not None:
         f = (j + c) / substeps  # where the stage lies in its sample interval
         tau = tuple(a + f * (b - a) for a, b in zip(x["lo"], x["hi"], strict=True))
-        tau = _rotate(qs, tau) if frame == "body" else tau
+        tau = rotate_components(qs, tau) if frame == "body" else tau
     if drag:
-        w = _apply(inv, _rotate(_conj(qs), Ls))
+        w = _apply(inv, rotate_components(_conj(qs), Ls))
         speed = jnp.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
         damping = k[0] + k[1] * speed
-        tau_d = _rotate(qs, tuple(-damping * wi for wi in w))
+        tau_d = rotate_components(qs, tuple(-damping * wi for wi in w))
         tau = tuple(a + b for a, b in zip(tau, tau_d, strict=True))
     return tau
 
