@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -24,6 +25,19 @@ FIT_OPTIONS = {  # CLI flag destination -> fit_inertia keyword, passed only when
     "loss_scale": "loss_scale",
     "drag": "drag",
 }
+
+
+def _pm(x: float, s: float) -> str:
+    """``x ± s`` with ``s`` to two significant digits and ``x`` to the same decimal place (at least
+    four): a σ of 3e-5 printed to four decimals read "± 0.0000", as if the fit had none."""
+    if not math.isfinite(s) or s <= 0:
+        return f"{x:.4f} ± {s:.2g}"
+    decimals = min(max(4, 1 - math.floor(math.log10(s))), 12)
+    return f"{x:.{decimals}f} ± {s:.{decimals}f}"
+
+
+def _pm_list(values, sigmas) -> str:
+    return ", ".join(_pm(float(x), float(s)) for x, s in zip(values, sigmas, strict=True))
 
 
 def run_fit(args: argparse.Namespace) -> int:
@@ -189,8 +203,7 @@ def _fit_throws(args: argparse.Namespace) -> int:
         if row["failed"]:
             print(head + f"not fitted: {row['error']}")
             continue
-        moments = ", ".join(f"{m:.4f} ± {s:.4f}" for m, s in zip(row["moments"], row["moment_std"]))
-        ratios = ", ".join(f"{m:.4f} ± {s:.4f}" for m, s in zip(row["ratios"], row["ratio_std"]))
+        moments, ratios = _pm_list(row["moments"], row["moment_std"]), _pm_list(row["ratios"], row["ratio_std"])
         print(head + f"I/trI = {moments}; I1/I3, I2/I3 = {ratios}")
         print(
             f"    converged {row['converged']} (chi2 p-value {row['pvalue']:.3g}, "
@@ -203,19 +216,18 @@ def _fit_throws(args: argparse.Namespace) -> int:
         )
     comb = report["combined"]
     if comb is not None and comb.get("joint"):
-        m = ", ".join(f"{m:.4f} ± {s:.4f}" for m, s in zip(comb["moments"], comb["moment_std"]))
-        rat = ", ".join(f"{m:.4f} ± {s:.4f}" for m, s in zip(comb["ratios"], comb["ratio_std"]))
+        m, rat = _pm_list(comb["moments"], comb["moment_std"]), _pm_list(comb["ratios"], comb["ratio_std"])
         print(f"combined: one inertia fitted to {comb['throws']} throw(s) jointly: I/trI = {m}; I1/I3, I2/I3 = {rat}")
         print(
             f"    joint fit converged: {comb['converged']} (chi2 p-value {comb['pvalue']:.3g}, gyro rms "
             f"{comb['rate_rms']:.3g} rad/s); spread of the separate fits: "
-            + ", ".join(f"{x:.4f}" for x in comb["moments_spread"])
+            + ", ".join(f"{x:.2g}" for x in comb["moments_spread"])
         )
     elif comb is None:
         print("combined: no throw converged; nothing to combine (see the diagnostics above)")
     else:
-        med = ", ".join(f"{m:.4f} ± {s:.4f}" for m, s in zip(comb["moments"], comb["moments_spread"]))
-        rat = ", ".join(f"{m:.4f} ± {s:.4f}" for m, s in zip(comb["ratios"], comb["ratios_spread"]))
+        med = _pm_list(comb["moments"], comb["moments_spread"])
+        rat = _pm_list(comb["ratios"], comb["ratios_spread"])
         print(
             f"combined over {comb['throws']} converged throw(s), median ± spread: I/trI = {med}; I1/I3, I2/I3 = {rat}"
         )

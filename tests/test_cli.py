@@ -287,3 +287,22 @@ def test_fit_keeps_compiled_programs_on_disk(tmp_path):
     assert outs[0] == outs[1]
     got = np.sort(np.asarray(outs[0]["principal_moments"]))
     np.testing.assert_allclose(got, moments / moments.sum(), atol=4 * max(outs[0]["moment_std"]))
+
+
+@pytest.mark.parametrize(
+    "x, s, printed",
+    [
+        # σ to two significant digits, the value to the same decimal place (at least four decimals)
+        (0.1204771, 3.71e-5, "0.120477 ± 0.000037"),
+        (0.385528, 1.04e-4, "0.38553 ± 0.00010"),
+        (0.12594, 0.00481, "0.1259 ± 0.0048"),
+        (0.5, 0.25, "0.5000 ± 0.2500"),
+        # no σ (a direction the data leave undetermined): said, not printed as a number
+        (0.3, float("inf"), "0.3000 ± inf"),
+        (0.3, float("nan"), "0.3000 ± nan"),
+    ],
+)
+def test_fit_prints_sigma_to_its_significant_digits(x, s, printed):
+    from rbjax._cli_fit import _pm
+
+    assert _pm(x, s) == printed
