@@ -81,6 +81,12 @@ def test_joint_fit_recovers_the_inertia(five):
     # per throw: residuals at the joint level (measured 0.88-1.08), none flagged (measured p ≥ 0.03)
     assert len(joint.member_rms) == 5 and all(0.7 < r < 1.3 for r in joint.member_rms)
     assert min(joint.member_pvalue) > 1e-3
+    # the per-throw statistics split the joint fit's: χ² and the degrees of freedom add up (the
+    # whole fit's come from its result pass; the members' from their own residual rows), plain floats
+    stats = (*joint.member_chi2, *joint.member_dof, *joint.member_rms, *joint.member_pvalue)
+    assert all(type(x) is float for x in stats)
+    np.testing.assert_allclose(sum(joint.member_chi2), float(joint.chi2), rtol=1e-12)  # float64 sums
+    np.testing.assert_allclose(sum(joint.member_dof), float(joint.dof), rtol=1e-12)
     assert abs(float(joint.rate_rms) - GYRO_STD) < 0.2 * GYRO_STD  # ~1000 residuals: rms within ~5%
 
 

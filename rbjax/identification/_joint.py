@@ -96,7 +96,7 @@ def fit_joint(members, options) -> FitResult:
         # test): which throw stands out from the others
         ratio = chi2 / (dof * s2)
         pval = float(chi2_sf(dof, ratio * dof))
-        stats[i] = (float(np.sqrt(ratio)), chi2, dof, pval)
+        stats[i] = (float(np.sqrt(ratio)), chi2, float(dof), pval)
     nan4 = (np.nan,) * 4
     per = [stats.get(i, nan4) for i in range(len(members))]
     # each member's start state: that of its first segment (segments stacked in member order)
