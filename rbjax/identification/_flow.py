@@ -85,9 +85,18 @@ def _rk4(q, L, inv, k, dt, torque, looped: bool = False):
         return k_i, weighted if acc is None else jax.tree.map(jnp.add, acc, weighted)
 
     if looped:
+        # The carry (the stage's rates and the running sum, each component with its tangents) is one
+        # stacked array: carried as separate components, XLA:CPU fused a copy of the whole stage
+        # into the loop of each, eight copies (benchmarks/results/fit_stage_carry_stacked_2026-12-06.md)
         zero = jax.tree.map(jnp.zeros_like, y)
-        body = lambda carry, abc: (stage(*carry, *abc), None)
-        (_, acc), _ = jax.lax.scan(body, (zero, zero), tuple(jnp.asarray(_STAGES, dt.dtype).T))
+        leaves, tree = jax.tree.flatten((zero, zero))
+
+        def body(carry, abc):
+            k_prev, acc = jax.tree.unflatten(tree, list(carry))
+            return jnp.stack(jax.tree.leaves(stage(k_prev, acc, *abc))), None
+
+        carry, _ = jax.lax.scan(body, jnp.stack(leaves), tuple(jnp.asarray(_STAGES, dt.dtype).T))
+        _, acc = jax.tree.unflatten(tree, list(carry))
     else:
         k_prev = acc = None
         for a, b, c in _STAGES:
