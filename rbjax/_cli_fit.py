@@ -1,4 +1,17 @@
-"""``python -m rbjax fit``: an inertia fitted to a recording file, or to the throws of a phyphox export."""
+"""``python -m rbjax fit``: an inertia fitted to a recording file, or to the throws of a phyphox export.
+
+The exit status tells a script whether what it asked for converged (:func:`exit_status`):
+
+- 0: all of it: the recording's fit; of a phyphox export, every throw's own fit and,
+  with two or more throws and no ``--separate``, the joint fit.
+- 1: nothing usable: the recording's (or the only throw's) fit did not converge; the
+  joint fit did not (whatever the throws' own fits did: the joint one is the answer
+  asked for); with ``--separate``, no throw's fit converged.
+- 2: an error (bad arguments, an unreadable recording, an output path that cannot be written).
+- 3: part of it: the joint fit converged but not every throw's own fit did; with
+  ``--separate``, some throws' fits converged and some did not (the combination is
+  over those that did).
+"""
 
 from __future__ import annotations
 
@@ -10,7 +23,18 @@ from pathlib import Path
 from ._cli_common import CLIError, use_compile_cache
 from ._cli_plot import plot_throw_fits
 
-__all__ = ["FIT_OPTIONS", "add_fit_parser", "run_fit"]
+__all__ = ["EXIT_STATUS_HELP", "FIT_OPTIONS", "add_fit_parser", "exit_status", "run_fit"]
+
+EXIT_STATUS_HELP = """\
+exit status:
+  0  everything asked for converged: the recording's fit; of a phyphox export, every
+     throw's own fit and (two or more throws, without --separate) the joint fit
+  1  nothing usable converged: the recording's or the only throw's fit; the joint fit
+     (whatever the throws' own fits did); with --separate, no throw's fit
+  2  an error: bad arguments, an unreadable recording, an output path that cannot be written
+  3  part of it converged: the joint fit but not every throw's own fit; with --separate,
+     some throws' fits but not all (the combination is over those that converged)
+"""
 
 
 FIT_OPTIONS = {  # CLI flag destination -> fit_inertia keyword, passed only when given
@@ -128,7 +152,26 @@ def run_fit(args: argparse.Namespace) -> int:
     if args.out:
         Path(args.out).write_text(json.dumps(out, indent=1))
         print(f"saved: {args.out}")
-    return 0 if out["converged"] else 1
+    return exit_status([out["converged"]])
+
+
+def exit_status(converged, joint: bool | None = None) -> int:
+    """The exit status of ``fit`` (:data:`EXIT_STATUS_HELP`): 0 all converged, 1 nothing usable, 3 part.
+
+    ``converged``: per fit of its own (the recording, or each throw; a throw that
+    could not be fitted counts as not converged); ``joint``: whether the joint fit
+    converged, ``None`` where there is none (one recording, one throw, ``--separate``).
+    A script that trusts the status is never told 0 while part of what it asked
+    for failed, nor anything but 1 when the answer it asked for did not converge.
+    """
+    converged = [bool(c) for c in converged]
+    if joint is not None:
+        if not joint:
+            return 1
+        return 0 if all(converged) else 3
+    if all(converged) and converged:
+        return 0
+    return 3 if any(converged) else 1
 
 
 def _is_phyphox(path: Path) -> bool:
@@ -237,7 +280,8 @@ def _fit_throws(args: argparse.Namespace) -> int:
     if args.out:
         Path(args.out).write_text(json.dumps(report, indent=1, default=lambda v: np.asarray(v).tolist()))
         print(f"saved: {args.out}")
-    return 0 if comb is not None else 1
+    converged = np.asarray(res.converged) & ~np.asarray(res.failed)
+    return exit_status(converged.tolist(), None if joint is None else bool(joint.converged))
 
 
 def _normalised(res):
@@ -383,15 +427,15 @@ def add_fit_parser(sub, common: argparse.ArgumentParser) -> None:
         "fit",
         parents=[common],
         help="fit an inertia tensor to recorded motion",
-        description="Fit an inertia tensor to recorded motion. Exit status 0: converged; 1: not "
-        "converged (see the diagnostics printed); 2: an error.\n\n" + _recording_help(),
+        description="Fit an inertia tensor to recorded motion (exit status: see the end).\n\n" + _recording_help(),
+        epilog=EXIT_STATUS_HELP,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     fit.add_argument(
         "recording",
         help="a .csv or .npz recording (see above), or a phyphox export (a directory or .zip of CSVs, "
         "or one CSV with 'Time (s)' columns): its throws are found and each is fitted from the gyroscope "
-        "(exit status 0 when at least one throw converged)",
+        "(exit status: see the end)",
     )
     fit.add_argument("--out", default=None, help="write the result as JSON to this path")
     fit.add_argument("--time-unit", choices=["s", "ms", "us"], default=None, help="unit of the t column (default s)")

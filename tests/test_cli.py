@@ -306,3 +306,51 @@ def test_fit_prints_sigma_to_its_significant_digits(x, s, printed):
     from rbjax._cli_fit import _pm
 
     assert _pm(x, s) == printed
+
+
+@pytest.mark.parametrize(
+    "converged, joint, status",
+    [
+        # one recording, or a phyphox export of one throw: no joint fit
+        ([True], None, 0),
+        ([False], None, 1),
+        # several throws, --separate: the median of those that converged
+        ([True, True, True], None, 0),
+        ([True, False, True], None, 3),
+        ([False, False, False], None, 1),
+        # several throws, joint (the default): the joint fit is the answer asked for
+        ([True, True, True], True, 0),
+        ([True, False, True], True, 3),
+        ([False, False, False], True, 3),
+        ([True, True, True], False, 1),
+        ([True, False, True], False, 1),
+        ([False, False, False], False, 1),
+    ],
+)
+def test_exit_status_says_whether_what_was_asked_for_converged(converged, joint, status, capsys):
+    from rbjax._cli import main
+    from rbjax._cli_fit import exit_status
+
+    assert exit_status(converged, joint) == status
+    # every status is explained in fit --help
+    with pytest.raises(SystemExit):
+        main(["fit", "--help"])
+    text = capsys.readouterr().out
+    assert "exit status:" in text and all(f"\n  {k}  " in text for k in (0, 1, 2, 3))
+
+
+def test_a_phyphox_export_of_throws_none_converged_exits_1(tmp_path, capsys):
+    # two throws and --gyro-bias, each fit and the joint one stopped after one step: nothing the
+    # script asked for converged, so the status must not be 0 (it was: the joint fit's report
+    # counted as a combination whether or not it converged)
+    from _phyphox_data import make_recording, write_phyphox
+
+    from rbjax._cli import main
+
+    tg, gyro, ta, accel, _ = make_recording(seed=3, flights=((1.0, 0.5), (2.0, 0.5)), hold_end=0.5)
+    export = write_phyphox(tmp_path / "export", tg, gyro, ta, accel)
+    assert main(["fit", str(export), "--gyro-bias", "--max-steps", "1"]) == 1
+    text = capsys.readouterr().out
+    assert "2 throw(s)" in text and "converged False" in text and "joint fit converged: False" in text
+    assert main(["fit", str(export), "--gyro-bias", "--max-steps", "1", "--separate"]) == 1
+    assert "no throw converged" in capsys.readouterr().out
