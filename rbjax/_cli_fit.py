@@ -64,9 +64,28 @@ def _pm_list(values, sigmas) -> str:
     return ", ".join(_pm(float(x), float(s)) for x, s in zip(values, sigmas, strict=True))
 
 
+def _check_outputs(args: argparse.Namespace) -> None:
+    """``CLIError`` for an output path (``--out``, ``--plot``) that cannot be written: before the fit, not after it."""
+    import os
+
+    for flag in ("out", "plot"):
+        value = getattr(args, flag, None)
+        if value is None:
+            continue
+        path = Path(value)
+        parent = path.parent if str(path.parent) else Path(".")
+        if path.is_dir():
+            raise CLIError(f"--{flag} {value} is a directory; give a file name, e.g. {path / 'fit.json'}")
+        if not parent.is_dir():
+            raise CLIError(f"--{flag} {value}: no directory {parent}; create it first (mkdir -p {parent})")
+        if not os.access(parent, os.W_OK | os.X_OK) or (path.exists() and not os.access(path, os.W_OK)):
+            raise CLIError(f"--{flag} {value}: not writable; choose a path you may write")
+
+
 def run_fit(args: argparse.Namespace) -> int:
     import json
 
+    _check_outputs(args)
     import jax
 
     jax.config.update("jax_enable_x64", True)

@@ -354,3 +354,19 @@ def test_a_phyphox_export_of_throws_none_converged_exits_1(tmp_path, capsys):
     assert "2 throw(s)" in text and "converged False" in text and "joint fit converged: False" in text
     assert main(["fit", str(export), "--gyro-bias", "--max-steps", "1", "--separate"]) == 1
     assert "no throw converged" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("flag", ["--out", "--plot"])
+def test_an_output_path_that_cannot_be_written_is_refused_before_the_fit(tmp_path, capsys, flag):
+    from rbjax._cli import main
+
+    csv = tmp_path / "rec.csv"
+    csv.write_text(_GOOD)
+    missing = tmp_path / "missing" / "fit.json"
+    # the recording is not even read: the fit would take its time and then fail to write
+    assert main(["fit", str(tmp_path / "not_read.csv"), flag, str(missing)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("rbjax: error: ") and err.count("\n") == 1
+    assert f"{flag} {missing}: no directory {missing.parent}; create it first" in err
+    assert main(["fit", str(csv), flag, str(tmp_path)]) == 2
+    assert f"{flag} {tmp_path} is a directory" in capsys.readouterr().err
