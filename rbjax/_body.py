@@ -15,7 +15,7 @@ from jax import Array
 from jaxtyping import Float
 
 from ._eigh3 import principal_frame
-from ._math import array_arg, check_rotations, holds_text, is_concrete, skew
+from ._math import array_arg, check_rotations, first_index, holds_text, is_concrete, skew
 from ._pytree import field, new_unchecked, pytree_dataclass
 from ._trajectory import BatchIndexing
 from ._typing import ArrayLike, array_like
@@ -115,10 +115,9 @@ def _check_body(mass: Array, inertia: Array) -> None:
     asym = np.max(np.abs(I - np.swapaxes(I, -1, -2)), axis=(-1, -2))
     bad = asym > 64 * eps * scale
     if np.any(bad):
-        idx = np.argwhere(np.atleast_1d(bad))[0]
+        idx = first_index(bad)
         raise ValueError(
-            f"Body: inertia must be symmetric; |I - Iᵀ| = {np.atleast_1d(asym)[tuple(idx)]:.3g} "
-            f"at batch index {tuple(idx)}"
+            f"Body: inertia must be symmetric; |I - Iᵀ| = {asym[idx]:.3g}" + (f" at batch index {idx}" if idx else "")
         )
     moments = np.linalg.eigvalsh(0.5 * (I + np.swapaxes(I, -1, -2)))
     if np.any(moments[..., 0] <= 0):

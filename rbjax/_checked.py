@@ -32,7 +32,7 @@ import jax.core
 import jax.numpy as jnp
 import numpy as np
 
-from ._math import quat_tolerance
+from ._math import index_tuple, quat_tolerance
 from ._methods import Method
 from ._pytree import core_ndim_of
 from ._quantities import body_angular_velocity, kinetic_energy
@@ -227,7 +227,7 @@ class _Messages:
         where, kind = divmod(int(index), len(_KINDS))
         if _encodes_body(self.steps, n):
             step, flat = divmod(where, max(n, 1))
-            where_in_batch = tuple(int(i) for i in np.unravel_index(flat, self.batch_shape))
+            where_in_batch = index_tuple(np.unravel_index(flat, self.batch_shape))
             body = f"body {where_in_batch}" if self.batch_shape else "the body"
         else:
             step, body = where, "a body (index not recorded: steps x bodies overflows int32; enable x64)"

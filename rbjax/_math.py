@@ -133,9 +133,23 @@ def quat_tolerance(dtype: Any) -> float:
     return max(1e-6, 128 * float(np.finfo(dtype).eps))
 
 
+def index_tuple(index: Any) -> tuple[int, ...]:
+    """A NumPy index (a row of ``np.argwhere``, the result of ``np.unravel_index``) as plain ints.
+
+    For messages: a tuple of NumPy integers prints as ``(np.int64(0),)``; this one as ``(0,)``.
+    """
+    return tuple(int(i) for i in np.ravel(np.asarray(index, dtype=np.int64)))
+
+
+def first_index(bad: Any) -> tuple[int, ...]:
+    """The index of the first ``True`` in ``bad`` (``()`` for a single value), as plain ints."""
+    bad = np.asarray(bad)
+    return index_tuple(np.argwhere(bad)[0]) if bad.ndim else ()
+
+
 def _first_bad(bad: np.ndarray) -> str:
     """`` at batch index (i, j)`` of the first ``True`` in ``bad``, or nothing for a single value."""
-    return f" at batch index {tuple(int(i) for i in np.argwhere(bad)[0])}" if bad.ndim else ""
+    return f" at batch index {first_index(bad)}" if bad.ndim else ""
 
 
 def check_unit_quaternions(fn: str, name: str, q: Array, remedy: str = "") -> None:
@@ -168,7 +182,7 @@ def check_rotations(fn: str, name: str, R: Array, remedy: str = "", proper: bool
     tol = quat_tolerance(R.dtype)
     bad = ~(err <= tol) | (~(det > 0) if proper else False)
     if np.any(bad):
-        at = tuple(np.argwhere(bad)[0]) if bad.ndim else ()
+        at = first_index(bad)
         what = "a proper rotation matrix (RᵀR = 1, det R = +1)" if proper else "orthogonal (RᵀR = 1)"
         if proper and not det[at] > 0:  # no rotation is near a reflection: orthonormalize cannot help
             remedy = ": a reflection or a singular matrix, which no rotation approximates"
@@ -447,7 +461,7 @@ def quat_normalize(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
         n = np.linalg.norm(np.asarray(q, np.float64), axis=-1)
         bad = ~(np.isfinite(n) & (n > 0))
         if np.any(bad):
-            worst = n[tuple(np.argwhere(bad)[0])] if bad.ndim else n
+            worst = n[first_index(bad)]
             why = "a zero quaternion has no direction" if worst == 0 else "non-finite entries"
             raise ValueError(f"quat_normalize: q must be finite and non-zero; ‖q‖ = {worst}{_first_bad(bad)} ({why})")
     return quat_normalize_unchecked(q)

@@ -25,7 +25,7 @@ import numpy as np
 from jax import Array
 
 from . import _methods
-from ._math import broadcasts_to
+from ._math import broadcasts_to, index_tuple
 from ._methods import Method
 from ._pytree import data_fields, is_rbjax_dataclass, new_unchecked, replace
 from ._quantities import body_angular_velocity
@@ -129,7 +129,7 @@ def warn_turn_per_step(state: Any, dt: Any, fn: str) -> None:
     most = float(turn.reshape(-1)[worst])
     if not most > math.pi:
         return
-    which = f" (body {tuple(int(i) for i in np.unravel_index(worst, turn.shape))})" if turn.ndim else ""
+    which = f" (body {index_tuple(np.unravel_index(worst, turn.shape))})" if turn.ndim else ""
     rate = most / float(dt)
     warnings.warn(
         f"{fn}: dt·|ω| = {most:.3g} rad at the start{which}: each step turns the body by more than half a "

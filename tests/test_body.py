@@ -165,6 +165,13 @@ def test_invalid_bodies_raise(rule):
         rb.Body(mass, inertia)
 
 
+def test_a_bad_body_in_a_batch_is_named_by_plain_integers():
+    # a tuple of NumPy integers prints as (np.int64(1),): the message says (1,), as one types it
+    inertia = np.stack([np.eye(3), np.array([[1.0, 0.1, 0], [0, 1, 0], [0, 0, 1]])])
+    with pytest.raises(ValueError, match=r"must be symmetric; \|I - Iᵀ\| = 0.1 at batch index \(1,\)$"):
+        rb.Body(np.ones(2), inertia)
+
+
 def test_triangle_inequality_tolerance():
     # a flat plate meets I1 + I2 = I3 exactly: valid, even with round-off
     rb.Body(1.0, np.diag([1.0, 2.0, 3.0 * (1 + 0.5 * rb.TRIANGLE_RTOL)]))
