@@ -98,18 +98,30 @@ def inverse_3x3(A: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 3 3"]:
     return jnp.stack([c0, c1, c2], axis=-1) / det[..., None, None]
 
 
-def _check_body(mass: Array, inertia: Array) -> None:
-    """Raise ``ValueError`` unless ``mass``, ``inertia`` describe valid rigid bodies."""
+def check_body(
+    mass: ArrayLike, inertia: ArrayLike, owner: str = "Body", names: tuple[str, str] = ("mass", "inertia")
+) -> None:
+    """Raise ``ValueError`` unless concrete ``mass``, ``inertia`` describe valid rigid bodies.
+
+    The one definition of a valid body: mass finite and ``> 0``; inertia finite,
+    symmetric, positive definite and within the triangle inequality
+    ``I1 + I2 ≥ I3``. ``Body(...)`` and :func:`rbjax.load` both call it;
+    ``owner`` starts the message and ``names`` are what it calls the two arrays
+    (a file's field names for ``load``).
+    """
     m = np.asarray(mass)
     I = np.asarray(inertia)
+    mass_name, inertia_name = names
     if I.shape[-2:] != (3, 3) or I.shape[:-2] != m.shape:
-        raise ValueError(f"Body: inertia must have shape mass.shape + (3, 3) = {m.shape + (3, 3)}, got {I.shape}")
+        raise ValueError(
+            f"{owner}: {inertia_name} must have shape {mass_name}.shape + (3, 3) = {m.shape + (3, 3)}, got {I.shape}"
+        )
     if not np.all(np.isfinite(m)):
-        raise ValueError(f"Body: mass must be finite, got {m[~np.isfinite(m)].ravel()[:3]}")
+        raise ValueError(f"{owner}: {mass_name} must be finite, got {m[~np.isfinite(m)].ravel()[:3]}")
     if not np.all(np.isfinite(I)):
-        raise ValueError("Body: inertia must be finite, got non-finite entries")
+        raise ValueError(f"{owner}: {inertia_name} must be finite, got non-finite entries")
     if np.any(m <= 0):
-        raise ValueError(f"Body: mass must be > 0, got {m[m <= 0].ravel()[:3]}")
+        raise ValueError(f"{owner}: {mass_name} must be > 0, got {m[m <= 0].ravel()[:3]}")
     scale = np.max(np.abs(I), axis=(-1, -2))
     eps = np.finfo(I.dtype).eps
     asym = np.max(np.abs(I - np.swapaxes(I, -1, -2)), axis=(-1, -2))
@@ -117,18 +129,19 @@ def _check_body(mass: Array, inertia: Array) -> None:
     if np.any(bad):
         idx = first_index(bad)
         raise ValueError(
-            f"Body: inertia must be symmetric; |I - Iᵀ| = {asym[idx]:.3g}" + (f" at batch index {idx}" if idx else "")
+            f"{owner}: {inertia_name} must be symmetric; |I - Iᵀ| = {asym[idx]:.3g}"
+            + (f" at batch index {idx}" if idx else "")
         )
     moments = np.linalg.eigvalsh(0.5 * (I + np.swapaxes(I, -1, -2)))
     if np.any(moments[..., 0] <= 0):
         bad = np.atleast_2d(moments)[np.atleast_2d(moments)[:, 0] <= 0][0]
-        raise ValueError(f"Body: inertia must be positive definite; principal moments {bad} include one <= 0")
+        raise ValueError(f"{owner}: {inertia_name} must be positive definite; principal moments {bad} include one <= 0")
     # sorted ascending: the binding inequality is I1 + I2 >= I3
     slack = moments[..., 0] + moments[..., 1] - moments[..., 2]
     if np.any(slack < -TRIANGLE_RTOL * np.sum(moments, axis=-1)):
         bad = np.atleast_2d(moments)[np.atleast_1d(slack < -TRIANGLE_RTOL * np.sum(moments, axis=-1))][0]
         raise ValueError(
-            f"Body: principal moments {bad} break the triangle inequality I1 + I2 >= I3 "
+            f"{owner}: {inertia_name}'s principal moments {bad} break the triangle inequality I1 + I2 >= I3 "
             f"(relative tolerance {TRIANGLE_RTOL}); no mass distribution has this inertia"
         )
 
@@ -186,7 +199,7 @@ class Body(BatchIndexing):
         if inertia.shape[-2:] != (3, 3):
             raise ValueError(f"Body: inertia must end in (3, 3), got shape {inertia.shape}")
         if is_concrete(mass, inertia):
-            _check_body(mass, inertia)
+            check_body(mass, inertia)
         object.__setattr__(self, "mass", mass)
         object.__setattr__(self, "inertia", symmetric_part(inertia))
 

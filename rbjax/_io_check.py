@@ -10,6 +10,11 @@ length. Two semantic checks know field names, the
 orientation kinds: ``orientation`` must hold unit quaternions and ``rotation``
 rotation matrices (tolerance :func:`rbjax._state.quat_tolerance`), in every
 frame that is finite; non-finite frames load as saved (a run that blew up).
+A :class:`Body` (alone, or a state's) and a :class:`ParticleState`'s masses
+go through the constructors' own checks (:func:`rbjax._body.check_body`,
+:func:`rbjax._state.check_particle_mass`): a file edited to a negative mass or
+an indefinite inertia would otherwise run, and report negative energies. A
+simulation never changes them, so a run that blew up still loads.
 Errors are ``ValueError`` naming the file and the field.
 """
 
@@ -21,9 +26,11 @@ from typing import Any
 
 import numpy as np
 
+from ._body import Body, check_body
 from ._math import quat_tolerance
 from ._npz import TYPES
 from ._pytree import core_shape_of
+from ._state import ParticleState, check_particle_mass
 
 __all__ = ["check_arrays", "core_shape"]
 
@@ -104,7 +111,27 @@ def _check_object(spec, prefix, arrays, path, dtypes, expected, stacked, lengths
         raise ValueError(
             f"load: {path}: the batch shapes of {cls.__name__}'s fields do not broadcast: {batches}"
         ) from None
+    _check_masses(cls, prefix, arrays, path)
     return batches
+
+
+def _check_masses(cls: type, prefix: str, arrays: dict[str, np.ndarray], path: Path) -> None:
+    """The constructors' checks of a :class:`Body` or :class:`ParticleState` read from a file."""
+    owner = f"load: {path}"
+    try:
+        if cls is Body:
+            mass, inertia = arrays[prefix + "mass"], arrays[prefix + "inertia"]
+            batch = np.broadcast_shapes(mass.shape, inertia.shape[:-2])
+            check_body(
+                np.broadcast_to(mass, batch),
+                np.broadcast_to(inertia, batch + (3, 3)),
+                owner,
+                (repr(prefix + "mass"), repr(prefix + "inertia")),
+            )
+        elif cls is ParticleState:
+            check_particle_mass(arrays[prefix + "mass"], owner, repr(prefix + "mass"))
+    except ValueError as e:
+        raise ValueError(f"{e} (the file was edited or corrupted)") from None
 
 
 def _check_orientation(name: str, key: str, a: np.ndarray, core: int, path: Path) -> None:

@@ -336,6 +336,17 @@ class MatrixState(_RigidStateBase):
         return cls(body, bc(x), bc(v), jnp.broadcast_to(R, t.shape + (3, 3)), bc(w), t)
 
 
+def check_particle_mass(mass: Any, owner: str = "ParticleState", name: str = "mass") -> None:
+    """Raise ``ValueError`` unless the concrete particle masses (kg) are finite and ``> 0``.
+
+    :class:`ParticleState` and :func:`rbjax.load` both call it; ``owner`` starts the
+    message and ``name`` is what it calls the array.
+    """
+    m = np.asarray(mass)
+    if not np.all(np.isfinite(m)) or np.any(m <= 0):
+        raise ValueError(f"{owner}: {name} must be finite and > 0, got {m[~(np.isfinite(m) & (m > 0))].ravel()[:3]}")
+
+
 @pytree_dataclass
 class ParticleState(_StateBase):
     """Point masses (the notes' first slide): no orientation, nothing rotational.
@@ -357,9 +368,7 @@ class ParticleState(_StateBase):
     def __post_init__(self) -> None:
         _convert_and_check(self)
         if is_concrete(self.mass):
-            m = np.asarray(self.mass)
-            if not np.all(np.isfinite(m)) or np.any(m <= 0):
-                raise ValueError(f"ParticleState: mass must be finite and > 0, got {m.ravel()[:3]}")
+            check_particle_mass(self.mass)
 
     @classmethod
     def create(

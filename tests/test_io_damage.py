@@ -117,3 +117,41 @@ def test_malformed_metadata_is_named(tmp_path):
     bad = dict(arrays, __rbjax__=np.array(json.dumps(meta)))
     with pytest.raises(ValueError, match=r"bad\.npz: the metadata's fields of State are not"):
         rb.load(_rewrite(tmp_path, bad))
+
+
+def test_a_body_edited_to_no_body_at_all_is_refused_as_the_constructor_refuses_it(tmp_path):
+    # a negative mass or an indefinite inertia would load and run, reporting negative kinetic
+    # energy: load checks a body with Body's own check, naming the field and the file
+    path = tmp_path / "state.npz"
+    rb.save(path, rb.State.create(rb.box(2.0, jnp.array([0.1, 0.2, 0.4])), angular_velocity=jnp.array([1.0, 0, 0])))
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    inertia = arrays["body.inertia"]
+    cases = [
+        ({"body.mass": -arrays["body.mass"]}, r"'body.mass' must be > 0, got \[-2\.\]"),
+        ({"body.inertia": inertia * np.array([1.0, 1.0, -1.0])}, r"'body.inertia' must be positive definite"),
+        ({"body.inertia": inertia + np.triu(np.full((3, 3), 1e-3), 1)}, r"'body.inertia' must be symmetric"),
+        ({"body.inertia": np.diag([1.0, 1.0, 3.0])}, r"'body.inertia''s principal moments .* triangle inequality"),
+    ]
+    for edit, message in cases:
+        bad = _rewrite(tmp_path, dict(arrays, **edit))
+        with pytest.raises(ValueError, match=rf"^load: {bad}: {message}.*edited or corrupted"):
+            rb.load(bad)
+    # a saved Body alone, a trajectory's body (with its time axis), a particle's mass: the same
+    rb.save(path, rb.box(2.0, jnp.array([0.1, 0.2, 0.4])))
+    with np.load(path) as z:
+        body = {k: z[k] for k in z.files}
+    with pytest.raises(ValueError, match=r"'inertia' must be positive definite"):
+        rb.load(_rewrite(tmp_path, dict(body, inertia=-body["inertia"])))
+    _, traj = _saved(tmp_path)
+    mass = traj["body.mass"].copy()
+    mass[3, 1] = -1.0
+    with pytest.raises(ValueError, match=r"'body.mass' must be > 0, got \[-1\.\]"):
+        rb.load(_rewrite(tmp_path, dict(traj, **{"body.mass": mass})))
+    rb.save(path, rb.ParticleState.create(jnp.array([1.0, 2.0])))
+    with np.load(path) as z:
+        particles = {k: z[k] for k in z.files}
+    with pytest.raises(ValueError, match=r"'mass' must be finite and > 0, got \[0\.\]"):
+        rb.load(_rewrite(tmp_path, dict(particles, mass=np.array([1.0, 0.0]))))
+    # the files as saved load
+    assert float(rb.load(_rewrite(tmp_path, traj)).body.mass[0, 0]) == 1.0
