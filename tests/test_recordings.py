@@ -109,6 +109,21 @@ def test_from_phyphox_reads_semicolons_with_decimal_commas(tmp_path):
     assert rec.accelerations is None
 
 
+@pytest.mark.parametrize("decimal", [".", ","])
+def test_from_phyphox_reads_tab_separated_exports(export, tmp_path, decimal):
+    # phyphox's "CSV (Tabulator, decimal point)" and "(Tabulator, decimal comma)": the same samples
+    # as the comma-separated export (they read "no gyroscope or accelerometer columns found" before)
+    tabbed = tmp_path / "tabs"
+    for f in export.rglob("*.csv"):
+        out = tabbed / f.relative_to(export)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(f.read_text().replace(",", "\t").replace(".", decimal))
+    rec, want = rb.Recording.from_phyphox(tabbed), rb.Recording.from_phyphox(export)
+    np.testing.assert_array_equal(rec.times, want.times)
+    np.testing.assert_array_equal(rec.gyro, want.gyro)
+    np.testing.assert_array_equal(rec.accelerations, want.accelerations)
+
+
 def test_from_phyphox_ignores_linear_acceleration_and_refuses_two_gyro_files(export, tmp_path):
     import shutil
 

@@ -170,7 +170,8 @@ class Recording:
         and one combined table work; a shorter sensor's trailing empty cells
         end its samples. Other files and columns ("Linear Acceleration",
         "Absolute ...", the ``meta/`` folder) are ignored. Comma-separated
-        with decimal points, or semicolon-separated with decimal commas.
+        with decimal points, or tab- or semicolon-separated with decimal points
+        or commas (phyphox's CSV export formats).
 
         The accelerometer and the gyroscope run on different clocks: the
         result's ``times`` are the gyro's, restricted to the span the
@@ -249,8 +250,10 @@ def _read_phyphox_csv(name: str, data: bytes) -> dict[str, tuple[np.ndarray, np.
     if not lines:
         return {}
     header_no, header_line = lines[0]
-    semicolon = header_line.count(";") > header_line.count(",")
-    delimiter = ";" if semicolon else ","
+    # phyphox exports comma-, tab- or semicolon-separated: the header's most frequent of the three
+    delimiter = max((",", "\t", ";"), key=header_line.count)
+    # with tabs or semicolons the decimal mark may be a comma (phyphox's "decimal comma" exports)
+    decimal_comma = delimiter != ","
     header = [c.strip().lower() for c in next(csv.reader([header_line], delimiter=delimiter))]
     groups: dict[str, dict] = {}
     time_col = None
@@ -306,10 +309,10 @@ def _read_phyphox_csv(name: str, data: bytes) -> dict[str, tuple[np.ndarray, np.
                     f"{name}: line {n}: the {group} columns have {where}; every sample needs its time and x, y, z"
                 )
             try:
-                rows[group].append([float(c.replace(",", ".") if semicolon else c) for c in cells])
+                rows[group].append([float(c.replace(",", ".") if decimal_comma else c) for c in cells])
                 line_of[group].append(n)
             except ValueError:
-                bad = next(c for c in cells if not _is_number(c.replace(",", ".") if semicolon else c))
+                bad = next(c for c in cells if not _is_number(c.replace(",", ".") if decimal_comma else c))
                 raise RecordingError(
                     f"{name}: line {n}: {bad[:30]!r} in the {group} columns is not a number "
                     "(export as 'CSV (Comma, decimal point)')"
