@@ -50,6 +50,7 @@ from ._quantities import (
 
 # forces and scenes
 from ._force_model import ForceModel, ForceSum, PerBodyForce
+from ._pytree import field, static_field
 from ._forces import ConstantForce, CustomForce, ExternalForce, Gravity, LinearDrag, QuadraticDrag, TimeSeriesForce
 from ._attached import Spring, Thruster
 from ._scene import Scene, body_kind, register_kernel
@@ -148,6 +149,8 @@ __all__ = [
     "ForceModel",
     "ForceSum",
     "PerBodyForce",
+    "field",
+    "static_field",
     "ConstantForce",
     "CustomForce",
     "ExternalForce",

@@ -23,7 +23,7 @@ from ._body import floats
 from ._force_checks import cast_to, check_core, check_fits, check_non_negative, rigid_only
 from ._force_model import ForceModel, PerBodyForce
 from ._math import cross, is_concrete, matvec3, quat_rotate_unchecked, safe_norm, scale3
-from ._pytree import field, pytree_dataclass
+from ._pytree import field
 from ._quantities import angular_velocity
 from ._state import AnyState, Forces, MatrixState, ParticleState, RigidState, State
 from ._typing import ArrayLike, array_like, optional_array_like
@@ -128,7 +128,6 @@ def _per_item(model: Any, s: int, vectors: tuple[str, ...], scalars: tuple[str, 
         check_fits(model, name, 0, (s,), items)
 
 
-@pytree_dataclass
 class Spring(ForceModel):
     """Springs (with optional linear dampers) from body points to world anchors or other bodies.
 
@@ -167,7 +166,7 @@ class Spring(ForceModel):
     _NON_NEGATIVE = ("stiffness", "rest_length", "damping")
     _FIELD_LABELS = {"other": "other (body_b of Spring.between)"}
 
-    def __post_init__(self) -> None:
+    def __check_init__(self) -> None:
         object.__setattr__(self, "body", _as_index("Spring", "body", self.body))
         if self.other is not None:
             object.__setattr__(self, "other", _as_index("Spring", "other", self.other))
@@ -252,7 +251,6 @@ class Spring(ForceModel):
         return Forces(force=force, torque=torque)
 
 
-@pytree_dataclass
 class Thruster(ForceModel):
     """Body-fixed thrusters: force ``F = T R d`` at body point ``p``, turning with the body.
 
@@ -277,7 +275,7 @@ class Thruster(ForceModel):
     point: Float[Array, "S 3"] | None = field(default=None, converter=optional_array_like)
     _INDEX_FIELDS = ("body",)
 
-    def __post_init__(self) -> None:
+    def __check_init__(self) -> None:
         object.__setattr__(self, "body", _as_index("Thruster", "body", self.body))
         floats(self, "direction", "thrust", "point")
         _per_item(self, self.body.shape[0], ("direction", "point"), ("thrust",))
@@ -323,7 +321,6 @@ class Thruster(ForceModel):
         return _OneThrusterPerBody(per_body(self.direction, (3,)), per_body(self.thrust, ()), point)
 
 
-@pytree_dataclass
 class _OneThrusterPerBody(PerBodyForce):
     """:class:`Thruster` with at most one thruster on each body, as a per-body law: ``F = T R d`` and
     ``τ = (R p) × F`` (``p`` ``None``: no torque), the same formulas, so the same values.

@@ -8,32 +8,81 @@ index); :class:`ForceSum` is what ``+`` builds. The checks of their fields are i
 
 from __future__ import annotations
 
-from typing import Any
+import abc
+import dataclasses
+from typing import Any, ClassVar, TypeGuard
 
 import jax
 import jax.core
+import numpy as np
 from jax import Array
 from jaxtyping import Float
 
 from ._batching import lift
 from ._math import quat_rotate_inverse_unchecked
-from ._pytree import pytree_dataclass, replace
+from ._pytree import dataclass_transform, field, pytree_dataclass, replace, static_field
 from ._state import AnyState, Forces, State
 from ._typing import ArrayLike
 
-__all__ = ["ForceModel", "ForceSum"]
+__all__ = ["ForceModel", "PerBodyForce", "ForceSum", "own_law", "check_force_model"]
 
 
-class ForceModel:
+class _ForceModelMeta(abc.ABCMeta):
+    """Builds force models: refuses an abstract one in rbjax's words, then runs every
+    ``__check_init__`` of the class and its bases (bases first) after ``__init__``, so that a
+    subclass cannot skip the checks of the law it extends by writing a ``__post_init__``."""
+
+    def __call__(cls, *args: Any, **kwargs: Any) -> Any:
+        missing = sorted(getattr(cls, "__abstractmethods__", ()))
+        if missing:
+            raise TypeError(
+                f"{cls.__name__} cannot be built: it does not define {', '.join(missing)}. A force model "
+                "defines __call__(self, state, t) -> rb.Forces (subclass rb.ForceModel), or, for a law in "
+                "which each body feels a force of its own state alone, on_body(self, state, t) for one body "
+                "(subclass rb.PerBodyForce)"
+            )
+        obj = super().__call__(*args, **kwargs)
+        for klass in reversed(cls.__mro__):
+            check = klass.__dict__.get("__check_init__")
+            if check is not None:
+                check(obj)
+        return obj
+
+
+# subclasses are frozen dataclasses (see __init_subclass__): tells type checkers so
+@dataclass_transform(frozen_default=True, field_specifiers=(field, static_field, dataclasses.field))
+class ForceModel(metaclass=_ForceModelMeta):
     """Base of force models: ``model(state, t) -> Forces`` (world frame), ``+`` composes.
 
     A model maps a state batch of shape ``B`` and a time ``t`` (s) to world-frame
     :class:`rbjax.Forces` (force ``(*B, 3)`` in N on the centre of mass, torque
     ``(*B, 3)`` in N m about it, either ``None`` when the model has none).
+
+    Every subclass is a frozen dataclass and a pytree, as equinox's ``Module`` is: its
+    annotated fields are the model's parameters, arrays that ``jit`` traces and ``grad``
+    differentiates, or static configuration declared with :func:`rbjax.static_field`.
+    A subclass defines ``__call__`` (a missing one is refused when the model is built)
+    and may define ``__check_init__`` to validate its fields: it runs after ``__init__``
+    for the class and every base that defines one, so a subclass of a built-in law
+    keeps that law's checks. Every path of :func:`rbjax.simulate` (native kernels, JAX,
+    body-frame methods, :class:`rbjax.Scene`, chunked runs) evaluates the model's own
+    ``__call__``; the kernels run a law of their own only for the built-in laws' exact
+    types (:func:`own_law`).
     """
 
-    def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:  # pragma: no cover - abstract
-        raise NotImplementedError
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if "__init__" in cls.__dict__:
+            raise TypeError(
+                f"{cls.__name__}: a force model is a frozen dataclass and writes no __init__: declare its "
+                "parameters as annotated fields (e.g. 'stiffness: jax.Array') and check them in "
+                "__check_init__(self)"
+            )
+        pytree_dataclass(cls)
+
+    @abc.abstractmethod
+    def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
+        """World-frame :class:`rbjax.Forces` on the batch ``state`` at time ``t`` (s)."""
 
     def check(self, state: AnyState) -> None:
         """``ValueError`` naming the argument unless this model's arrays fit ``state``'s batch.
@@ -45,10 +94,10 @@ class ForceModel:
         """
 
     # fields holding body indices, and coefficients that must be >= 0 (see _run_time_checked)
-    _INDEX_FIELDS: tuple[str, ...] = ()
-    _NON_NEGATIVE: tuple[str, ...] = ()
+    _INDEX_FIELDS: ClassVar[tuple[str, ...]] = ()
+    _NON_NEGATIVE: ClassVar[tuple[str, ...]] = ()
     # how an error message names a field, where its name alone would mislead
-    _FIELD_LABELS: dict[str, str] = {}
+    _FIELD_LABELS: ClassVar[dict[str, str]] = {}
 
     def _run_time_checked(self, state: AnyState, fn: str) -> ForceModel:
         """This model with its *traced* indices and coefficients checked at run time (checked mode).
@@ -118,16 +167,27 @@ class PerBodyForce(ForceModel):
 
     Subclasses write :meth:`on_body` for one body; ``model(state, t)`` lifts it over the
     batch with ``vmap`` (``rbjax._batching.lift``), each array of the model mapped with the
-    bodies where it is per body (its fields declare their per-body rank) and shared where
-    it is not. ``simulate`` lifts :meth:`on_body` itself inside its steps, in the layout its
-    scan carries the state in, so the law fuses with the step instead of needing the batch
-    transposed around it (see :func:`split_per_body`).
+    bodies where it is per body and shared where it is not: a field declared with
+    ``rb.field(core_shape=(3,))`` (a vector per body) or ``core_ndim`` is per body when it
+    has more dimensions than that, a plain field when it has any. ``simulate`` lifts
+    :meth:`on_body` itself inside its steps, in the layout its scan carries the state in, so
+    the law fuses with the step instead of needing the batch transposed around it (see
+    :func:`split_per_body`): the fast path for a law of your own.
+
+    Example, buoyancy ``F = -ρ V g`` (world frame, N) per body::
+
+        class Buoyancy(rb.PerBodyForce):
+            volume: jax.Array  # m³, scalar or (N,)
+            density: float = 1000.0  # kg/m³
+
+            def on_body(self, state, t):
+                return rb.Forces(force=jnp.array([0.0, 0.0, 9.81]) * self.density * self.volume)
     """
 
-    def on_body(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:  # pragma: no cover - abstract
+    @abc.abstractmethod
+    def on_body(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         """World-frame :class:`Forces` (force ``(3,)`` N, torque ``(3,)`` N m or ``None``) on one
         body of batch shape ``()``, with this model's arrays for that body."""
-        raise NotImplementedError
 
     def on_body_in_body_frame(self, state: State, omega_body: Array, t: Float[ArrayLike, ""]) -> Forces:
         """:meth:`on_body` with the torque in the body frame: ``(F, R(q)ᵀ τ)`` for one body.
@@ -180,7 +240,10 @@ def sum_on_body(terms: tuple[PerBodyForce, ...], state: AnyState, t: Any, omega_
         if omega_body is None:
             total = total + term.on_body(state, t)
         elif isinstance(state, State):
-            total = total + term.on_body_in_body_frame(state, omega_body, t)
+            if own_law(term, "on_body_in_body_frame"):
+                total = total + term.on_body_in_body_frame(state, omega_body, t)
+            else:
+                total = total + torque_to_body(term.on_body(state, t), state)
         else:  # pragma: no cover - only rk4_body asks, with a State
             raise TypeError(f"sum_on_body: the body-frame form needs a State, got {type(state).__name__}")
     return total
@@ -193,8 +256,8 @@ def split_per_body(forces: ForceModel) -> tuple[tuple[PerBodyForce, ...], ForceM
     :class:`ForceSum`; the order of the terms within each part is kept.
     """
     terms = forces.terms if isinstance(forces, ForceSum) else (forces,)
-    per_body = tuple(term for term in terms if isinstance(term, PerBodyForce))
-    others = tuple(term for term in terms if not isinstance(term, PerBodyForce))
+    per_body = tuple(term for term in terms if _is_per_body(term))
+    others = tuple(term for term in terms if not _is_per_body(term))
     rest = None if not others else others[0] if len(others) == 1 else ForceSum(others)
     return per_body, rest
 
@@ -207,13 +270,12 @@ def with_per_body_terms(forces: ForceModel, state: AnyState) -> ForceModel:
     are kept as they are.
     """
     terms = forces.terms if isinstance(forces, ForceSum) else (forces,)
-    new = tuple(term.as_per_body(state) or term for term in terms)
+    new = tuple((term.as_per_body(state) if own_law(term, "as_per_body") else None) or term for term in terms)
     if all(a is b for a, b in zip(new, terms)):
         return forces
     return ForceSum(new) if isinstance(forces, ForceSum) else new[0]
 
 
-@pytree_dataclass
 class ForceSum(ForceModel):
     """Sum of force models: ``F = Σ F_i``, ``τ = Σ τ_i`` (``None`` when every ``τ_i`` is).
 
@@ -222,7 +284,7 @@ class ForceSum(ForceModel):
 
     terms: tuple = ()
 
-    def __post_init__(self) -> None:
+    def __check_init__(self) -> None:
         for term in self.terms:
             if not isinstance(term, ForceModel):
                 raise TypeError(f"ForceSum: terms must be force models, got {type(term).__name__}")
@@ -239,3 +301,64 @@ class ForceSum(ForceModel):
         for term in self.terms:
             total = total + term(state, t)
         return total
+
+
+# Each shortcut a path may take instead of a model's ``__call__``, and the method whose law it
+# restates: the shortcut stands for the model only where the class that wrote it also wrote (or
+# inherits unchanged) that method, or where it is the generic form defined on the base itself.
+_SHORTCUTS: dict[str, tuple[str, type]] = {
+    # lifting on_body inside the step instead of calling the model on the batch
+    "on_body": ("__call__", PerBodyForce),
+    # rk4_body's torque in the body frame instead of on_body's turned back
+    "on_body_in_body_frame": ("on_body", PerBodyForce),
+    # an index-based model rewritten as a per-body law
+    "as_per_body": ("__call__", ForceModel),
+}
+
+
+def _owner(cls: type, name: str) -> type:
+    """The class of ``cls``'s MRO that defines the attribute ``name``."""
+    return next(klass for klass in cls.__mro__ if name in klass.__dict__)
+
+
+def own_law(model: Any, shortcut: str) -> bool:
+    """Whether the path named by ``shortcut`` computes ``model``'s own law.
+
+    ``"on_body"`` (lift :meth:`PerBodyForce.on_body` inside the step),
+    ``"on_body_in_body_frame"`` (rk4_body's body-frame torque) and ``"as_per_body"``
+    (an index-based model rewritten per body) each restate another method of the model.
+    A subclass that overrides that method and not the shortcut (``__call__`` of a
+    :class:`rbjax.Gravity` subclass, ``on_body`` of a :class:`rbjax.LinearDrag` one)
+    would have the shortcut run its parent's law: then this is ``False`` and the path
+    calls the overridden method instead.
+    """
+    reference, generic = _SHORTCUTS[shortcut]
+    if not isinstance(model, generic):
+        return False
+    cls = type(model)
+    owner = _owner(cls, shortcut)
+    return owner is generic or issubclass(owner, _owner(cls, reference))
+
+
+def _is_per_body(term: Any) -> TypeGuard[PerBodyForce]:
+    """Whether ``term`` may be lifted per body through its ``on_body`` (see :func:`own_law`)."""
+    return isinstance(term, PerBodyForce) and own_law(term, "on_body")
+
+
+def check_force_model(forces: ForceModel, state: AnyState, fn: str) -> None:
+    """``forces.check(state)``, after ``TypeError`` naming the field for a parameter ``jit`` cannot trace.
+
+    A force model's fields are traced as arrays by :func:`rbjax.simulate`; a string, a
+    function or another Python object there would reach JAX as "Error interpreting
+    argument": it belongs in a :func:`rbjax.static_field`.
+    """
+    for path, leaf in jax.tree_util.tree_flatten_with_path(forces)[0]:
+        if isinstance(leaf, (jax.Array, np.ndarray, np.generic, int, float, complex)) and not isinstance(leaf, str):
+            continue
+        where = type(forces).__name__ + jax.tree_util.keystr(path)
+        raise TypeError(
+            f"{fn}: forces: {where} holds a {type(leaf).__name__}, which jit cannot trace as an array: "
+            "declare that field with rb.static_field() (static configuration, part of the compiled "
+            "program) or give it as an array"
+        )
+    forces.check(state)

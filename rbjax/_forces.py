@@ -41,7 +41,7 @@ from ._body import as_float, floats
 from ._force_checks import cast_to, check_core, check_fits, check_non_negative, full_batch, rigid_only
 from ._force_model import ForceModel, PerBodyForce
 from ._math import broadcasts_to, is_concrete, norm3, scale3
-from ._pytree import field, pytree_dataclass, static_field
+from ._pytree import field, static_field
 from ._quantities import angular_velocity
 from ._state import AnyState, Forces, State
 from ._typing import ArrayLike, array_like, optional_array_like
@@ -57,7 +57,6 @@ __all__ = [
 ]
 
 
-@pytree_dataclass
 class Gravity(PerBodyForce):
     """Uniform gravity ``F = m g`` on the centre of mass; no torque.
 
@@ -68,7 +67,7 @@ class Gravity(PerBodyForce):
 
     g: Float[Array, "*B 3"] = field(core_shape=(3,), default=(0.0, 0.0, -9.81), converter=array_like)
 
-    def __post_init__(self) -> None:
+    def __check_init__(self) -> None:
         if self.g is None:
             raise TypeError("Gravity: g must be a (3,) acceleration vector in m/s², e.g. (0, 0, -9.81); got None")
         floats(self, "g")
@@ -102,7 +101,7 @@ class _Drag(PerBodyForce):
     angular: Array | None
     _NON_NEGATIVE = ("linear", "angular")
 
-    def __post_init__(self) -> None:
+    def __check_init__(self) -> None:
         floats(self, "linear", "angular")
         check_non_negative(self, "linear", "angular")
 
@@ -133,7 +132,6 @@ class _Drag(PerBodyForce):
         return self._law(state, None if self.angular is None else omega_body)
 
 
-@pytree_dataclass
 class LinearDrag(_Drag):
     """Viscous drag ``F = -b v`` and, if ``angular`` is given, ``τ = -b_r ω``.
 
@@ -152,7 +150,6 @@ class LinearDrag(_Drag):
         return Forces(force=f, torque=scale3(-cast_to(self.angular, state), w))
 
 
-@pytree_dataclass
 class QuadraticDrag(_Drag):
     """Quadratic drag ``F = -c ‖v‖ v`` and, if ``angular`` is given, ``τ = -c_r ‖ω‖ ω``.
 
@@ -175,7 +172,6 @@ class QuadraticDrag(_Drag):
 # ---------------------------------------------------------------- prescribed loads
 
 
-@pytree_dataclass
 class ConstantForce(PerBodyForce):
     """Constant world-frame force and torque: ``F(t) = F₀``, ``τ(t) = τ₀``.
 
@@ -186,7 +182,7 @@ class ConstantForce(PerBodyForce):
     force: Float[Array, "*B 3"] | None = field(core_shape=(3,), default=None, converter=optional_array_like)
     torque: Float[Array, "*B 3"] | None = field(core_shape=(3,), default=None, converter=optional_array_like)
 
-    def __post_init__(self) -> None:
+    def __check_init__(self) -> None:
         floats(self, "force", "torque")
         check_core(self, "force", (3,), " (a force vector, N)")
         check_core(self, "torque", (3,), " (a torque vector, N m)")
@@ -215,7 +211,6 @@ def _sample(times: Array, values: Array, t: Array, interpolation: str) -> Array:
     return (1 - w) * values[i] + w * values[i + 1]
 
 
-@pytree_dataclass
 class TimeSeriesForce(ForceModel):
     """Force and torque sampled at increasing ``times`` ``(K,)`` (s), world frame.
 
@@ -231,7 +226,7 @@ class TimeSeriesForce(ForceModel):
     torque: Float[Array, "K *B 3"] | None = field(default=None, converter=optional_array_like)
     interpolation: str = static_field(default="linear")
 
-    def __post_init__(self) -> None:
+    def __check_init__(self) -> None:
         if self.interpolation not in ("linear", "hold"):
             raise ValueError(f"TimeSeriesForce: interpolation must be 'linear' or 'hold', got {self.interpolation!r}")
         floats(self, "times")
@@ -277,7 +272,6 @@ class TimeSeriesForce(ForceModel):
         return Forces(force=get(self.force), torque=get(self.torque))
 
 
-@pytree_dataclass
 class ExternalForce(ForceModel):
     """Force and torque given as functions of time: ``force(t)``, ``torque(t)`` (world, N / N m).
 
@@ -288,7 +282,7 @@ class ExternalForce(ForceModel):
     force: Callable[[Any], Float[ArrayLike, "*B 3"]] | None = static_field(default=None)
     torque: Callable[[Any], Float[ArrayLike, "*B 3"]] | None = static_field(default=None)
 
-    def __post_init__(self) -> None:
+    def __check_init__(self) -> None:
         for name in ("force", "torque"):
             fn = getattr(self, name)
             if fn is not None and not callable(fn):
@@ -317,7 +311,6 @@ class ExternalForce(ForceModel):
         return Forces(force=f, torque=self._value("torque", state, t))
 
 
-@pytree_dataclass
 class CustomForce(ForceModel):
     """A user's force law ``fn(state, t) -> Forces`` or, with ``params``, ``fn(state, t, params)``.
 
@@ -329,7 +322,7 @@ class CustomForce(ForceModel):
     fn: Callable[..., Forces] = static_field()
     params: Any = None
 
-    def __post_init__(self) -> None:
+    def __check_init__(self) -> None:
         if not callable(self.fn):
             raise TypeError(f"CustomForce: fn must be a callable fn(state, t[, params]) -> Forces, got {self.fn!r:.60}")
 

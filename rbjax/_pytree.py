@@ -42,7 +42,12 @@ def field(
     converter: Callable[[Any], Any] | None = None,
     **kwargs: Any,
 ) -> Any:
-    """A data field (a pytree leaf or subtree) of rank ``core_ndim`` per body.
+    """A data field (a pytree leaf or subtree) of rank ``core_ndim`` per body, for a force model's fields.
+
+    ``rb.field(core_shape=(3,))`` declares a vector per body: an array ``(3,)`` is
+    shared by the batch, ``(N, 3)`` gives each body its own when a
+    :class:`rbjax.PerBodyForce` is lifted over the batch (a plain field is per body
+    when it has any dimension).
 
     ``core_ndim`` is the rank of the field for a single body (0 for a mass, 1 for
     a vector, 2 for a 3x3 tensor). Leading dimensions beyond it are batch
@@ -50,7 +55,7 @@ def field(
     single-body shape itself (``(3,)``, ``(4,)``, ``(3, 3)``; its length is the
     rank): constructors and :func:`rbjax.load` check arrays against it.
     ``converter`` is applied to the constructor's argument before
-    ``__post_init__``; type checkers take its parameter type as the
+    ``__post_init__`` and ``__check_init__``; type checkers take its parameter type as the
     constructor's (e.g. :func:`rbjax._typing.array_like`).
     """
     metadata = dict(kwargs.pop("metadata", {}))
@@ -63,7 +68,13 @@ def field(
 
 
 def static_field(**kwargs: Any) -> Any:
-    """A field stored in the treedef (hashable, part of the compiled program)."""
+    """A field stored in the treedef: hashable static configuration, part of the compiled program.
+
+    For a force model's options that are not arrays (a mode string, a count, a
+    function): ``mode: str = rb.static_field(default="push")``. Changing one compiles
+    a new program; ``jit`` and ``grad`` never see it as data. It has no shape or
+    unit of its own: it is not an array.
+    """
     metadata = dict(kwargs.pop("metadata", {}))
     metadata["static"] = True
     return dataclasses.field(metadata=metadata, **kwargs)
@@ -84,7 +95,9 @@ def _summary_repr(self: Any) -> str:
 # tells type checkers that decorated classes are frozen dataclasses with these field specifiers
 @dataclass_transform(frozen_default=True, field_specifiers=(field, static_field, dataclasses.field))
 def pytree_dataclass(cls: type[T]) -> type[T]:
-    """Make ``cls`` a frozen dataclass registered as a pytree with keyed paths."""
+    """Make ``cls`` a frozen dataclass registered as a pytree with keyed paths (once: again is a no-op)."""
+    if "_rbjax_data_fields" in cls.__dict__:
+        return cls
     own_repr = "__repr__" in cls.__dict__
     _convert_before_post_init(cls)
     cls = dataclasses.dataclass(frozen=True, repr=False)(cls)

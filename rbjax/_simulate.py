@@ -15,7 +15,7 @@ from jaxtyping import Float
 from . import _checked, _methods, _native
 from ._batching import batch_last, batch_shape, lift, map_leaves, to_batch_first, to_batch_last
 from ._body import prepare
-from ._force_model import ForceModel, PerBodyForces, split_per_body, with_per_body_terms
+from ._force_model import ForceModel, PerBodyForces, check_force_model, split_per_body, with_per_body_terms
 from ._math import broadcasts_to
 from ._methods import DEFAULT_METHOD, Method
 from ._pytree import replace
@@ -113,7 +113,7 @@ def step(
                     "series (steps, *batch, 3) is for simulate)"
                 )
     elif isinstance(forces, ForceModel):
-        forces.check(state)
+        check_force_model(forces, state, "step")
     dt = jnp.asarray(dt, dtype)
     t = start_time(state) if t is None else jnp.asarray(t, dtype)
     new = fn(prepare_state(_canonical(state)), checked_force_fn(as_force_fn(forces)), t, dt)
@@ -275,7 +275,7 @@ def run_simulation(
         if not series:
             batch_shape(state, forces)
     elif isinstance(forces, ForceModel):
-        forces.check(state)  # shapes and body indices against the batch, before they are traced
+        check_force_model(forces, state, "simulate")  # shapes and body indices, before they are traced
         series, force_fn = False, None  # a pytree: its arrays are traced data, not static
     elif forces is None or callable(forces):
         series, force_fn, forces = False, forces, None

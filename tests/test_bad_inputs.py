@@ -303,7 +303,10 @@ EXCUSED: dict[str, str] = {
     "native_status": "takes no argument; reports whether the native kernels loaded",
     "NativeStatus": "the report native_status returns; built by rbjax, not by users",
     "StepSizeWarning": "a warning class: given by simulate and step, not called with data",
-    "ForceModel": "abstract base class",
+    "ForceModel": "abstract base class (its refusals: FORCE_MODEL_CASES['PerBodyForce'], test_force_protocol.py)",
+    "PerBodyForce": "abstract base class: FORCE_MODEL_CASES['PerBodyForce'] holds its refusals",
+    "field": "declares a dataclass field when a class is defined; holds no data to check",
+    "static_field": "declares a dataclass field when a class is defined; holds no data to check",
     "ForceSum": "built by + from validated models",
     "CustomForce": "wraps a user's callable: its output is checked as a force callable's (slot simulate(forces()))",
     "ExternalForce": "wraps user callables of t; checked like a force callable when simulated",
@@ -691,6 +694,10 @@ FORCE_MODEL_CASES: dict[str, dict[str, tuple[str, Callable[[], Any]]]] = {
         "fn not callable": ("fn", lambda: rb.CustomForce(3.0)),
         "fn returning a wrong shape": ("force", lambda: _sim3(rb.CustomForce(lambda s, t: rb.Forces(np.ones((2, 3)))))),
     },
+    "PerBodyForce": {
+        "a law without on_body": ("on_body", lambda: type("NoLaw", (rb.PerBodyForce,), {})()),
+        "a text field jit cannot trace": ("forces: _TextField.mode", lambda: _sim3(_TextField())),
+    },
     "ForceSum": {
         "a term that is not a model": ("terms", lambda: rb.ForceSum((rb.Gravity(), 3.0))),
         "a bad term inside a sum": ("Thruster: body", lambda: _sim3(rb.Gravity() + rb.Thruster([4], _Z, 1.0))),
@@ -700,6 +707,20 @@ FORCE_MODEL_CASES: dict[str, dict[str, tuple[str, Callable[[], Any]]]] = {
 
 def _sim3(model):
     return rb.simulate(_three(), model, 0.01, 2, "euler")
+
+
+class _TextField(rb.PerBodyForce):
+    """A per-body law with a text option that was not declared static."""
+
+    mode: str = "push"
+
+    def on_body(self, state, t):
+        return rb.Forces(force=jnp.ones(3, state.dtype))
+
+
+def _subclass_of(cls: type) -> type:
+    """A user's subclass of ``cls`` whose ``__post_init__`` does nothing: the law's checks must still run."""
+    return type(f"My{cls.__name__}", (cls,), {"__post_init__": lambda self: None, "__module__": __name__})
 
 
 def test_every_public_force_model_has_bad_input_cases():
@@ -722,6 +743,21 @@ def test_force_models_refuse_what_they_cannot_mean_naming_the_argument(case):
     assert _from_rbjax(info.value), f"{case}: raw error {type(info.value).__name__}: {msg}"
     assert arg in msg, f"{case}: the message does not name {arg!r}: {msg}"
     assert model in msg or "force callable" in msg or ": " in arg, f"{case}: the message does not name {model}: {msg}"
+
+
+@pytest.mark.parametrize(
+    "case", [f"{m}: {c}" for m, cases in FORCE_MODEL_CASES.items() for c in cases], ids=lambda c: c
+)
+def test_subclasses_of_force_models_refuse_the_same_inputs(case, monkeypatch):
+    """Every case above with the model replaced by a user's subclass of it (``rb.<Model>`` patched)."""
+    model, name = case.split(": ", 1)
+    arg, build = FORCE_MODEL_CASES[model][name]
+    monkeypatch.setattr(rb, model, _subclass_of(getattr(rb, model)))
+    with pytest.raises((ValueError, TypeError)) as info:
+        jax.block_until_ready(build())
+    msg = str(info.value)
+    assert _from_rbjax(info.value), f"{case}: raw error {type(info.value).__name__}: {msg}"
+    assert arg in msg, f"{case}: the message does not name {arg!r}: {msg}"
 
 
 @settings(max_examples=15, deadline=None)

@@ -144,7 +144,46 @@ def native_status() -> NativeStatus:
 
 # --- which runs the kernels take -------------------------------------------------------------
 
-_SIMPLE = (Gravity, LinearDrag, QuadraticDrag, ConstantForce, Thruster)
+# How each law the kernel computes itself adds to its parameters (see _parameters): ``add(key,
+# array, components)`` with the law's arrays, ``n`` bodies, the state's dtype.
+_Add = Callable[[str, Any, int], None]
+
+
+def _constant(f: Any, add: _Add, n: int, dtype: Any) -> None:
+    add("F", f.force, 3)
+    add("tau", f.torque, 3)
+
+
+def _gravity(f: Gravity, add: _Add, n: int, dtype: Any) -> None:
+    add("g", f.g, 3)
+
+
+def _linear_drag(f: LinearDrag, add: _Add, n: int, dtype: Any) -> None:
+    add("b", f.linear, 1)
+    add("br", f.angular, 1)
+
+
+def _quadratic_drag(f: QuadraticDrag, add: _Add, n: int, dtype: Any) -> None:
+    add("c", f.linear, 1)
+    add("cr", f.angular, 1)
+
+
+def _thruster(f: Thruster, add: _Add, n: int, dtype: Any) -> None:
+    add("thrust", _thrust_sums(f, n, dtype), 6)
+
+
+# The laws the kernel computes itself, listed once, by exact type: a subclass may compute
+# anything, so it is evaluated by XLA like any other model (the JAX path, or at each step's
+# start with AT_STEP_START), never with its parent's formula.
+_LAWS: dict[type, Callable[[Any, _Add, int, Any], None]] = {
+    Forces: _constant,
+    ConstantForce: _constant,
+    Gravity: _gravity,
+    LinearDrag: _linear_drag,
+    QuadraticDrag: _quadratic_drag,
+    Thruster: _thruster,
+}
+NATIVE_LAWS = tuple(t.__name__ for t in _LAWS if t is not Forces)
 
 # The methods whose steps evaluate the forces once, at the step's start state and time (euler.py:
 # euler_state, semi_implicit_euler.py: semi_implicit_state, whose kick sees the old state): with a
@@ -162,13 +201,8 @@ def _terms(forces: Any) -> tuple[Any, ...] | None:
     """The terms of ``forces`` the kernel evaluates itself, or ``None`` when it cannot."""
     if forces is None:
         return ()
-    if isinstance(forces, Forces):
-        return (forces,)
-    if isinstance(forces, ForceSum) and all(isinstance(t, _SIMPLE) for t in forces.terms):
-        return tuple(forces.terms)
-    if isinstance(forces, _SIMPLE):
-        return (forces,)
-    return None
+    terms = forces.terms if type(forces) is ForceSum else (forces,)
+    return terms if all(type(t) in _LAWS for t in terms) else None
 
 
 def native_plan(
@@ -194,8 +228,9 @@ def native_plan(
     if not series and _terms(forces) is None and method.name not in AT_STEP_START:
         return (
             f"method {method.name!r} needs the forces at intermediate states, and these are evaluated by XLA "
-            "(the kernel evaluates none, constant or time-series Forces, Gravity, LinearDrag, QuadraticDrag, "
-            "ConstantForce, Thruster and their sums itself; other force models and callables run natively with "
+            f"(the kernel evaluates none, constant or time-series Forces, {', '.join(NATIVE_LAWS)} and their "
+            "sums itself, by their exact types, so not a subclass of one, whose own code runs on the JAX path "
+            "(native=None or False); other force models and callables run natively with "
             f"{' and '.join(AT_STEP_START)}, which evaluate the forces once per step, at its start)"
         )
     if default and not series and _terms(forces) is None:
@@ -273,19 +308,7 @@ def _parameters(forces: Any, batch: tuple[int, ...], dtype: Any) -> tuple[dict[s
         used.add(key)
 
     for term in _terms(forces) or ():
-        if isinstance(term, (Forces, ConstantForce)):
-            add("F", term.force, 3)
-            add("tau", term.torque, 3)
-        elif isinstance(term, Gravity):
-            add("g", term.g, 3)
-        elif isinstance(term, LinearDrag):
-            add("b", term.linear, 1)
-            add("br", term.angular, 1)
-        elif isinstance(term, QuadraticDrag):
-            add("c", term.linear, 1)
-            add("cr", term.angular, 1)
-        elif isinstance(term, Thruster):
-            add("thrust", _thrust_sums(term, n, dtype), 6)
+        _LAWS[type(term)](term, add, n, dtype)
     rows = max(acc[k].shape[0] for k in ("b", "br", "c", "cr"))
     drag = jnp.concatenate([jnp.broadcast_to(acc[k], (rows, 1)) for k in ("b", "br", "c", "cr")], axis=1)
     terms = (1 if used else 0) | (2 if used & {"c", "cr"} else 0) | (4 if "thrust" in used else 0)
@@ -344,7 +367,7 @@ def _call(
     """``steps`` steps of the kernel's method ``code`` on a batch-first state ``dyn`` (fields ``(*B, c)``).
 
     ``forces``: ``None``, a constant :class:`Forces`, a sum of the laws of
-    ``_SIMPLE``, or with ``series`` a :class:`Forces` of fields ``(steps, *B', 3)``,
+    the laws of ``_LAWS``, or with ``series`` a :class:`Forces` of fields ``(steps, *B', 3)``,
     one slice per step. ``sharded`` (a 1-D batch, no series): every operand is
     made ``(N, c)`` (shared rows broadcast) and the call is marked with
     ``num_batch_dims = 1``, so XLA's batch partitioner splits it over the
