@@ -591,6 +591,23 @@ def test_world_frame_gyro_is_detected():
     assert float(res.consistency_pvalue) < 1e-10 and np.all(np.isfinite(np.asarray(res.moment_std)))
 
 
+def test_scalar_last_quaternions_are_named_as_such():
+    # [x, y, z, w] orientations (scipy's as_quat order) read as [w, x, y, z]: the first start was
+    # blamed on a world-frame gyro, the second passed the check and went on to fit nonsense
+    t = np.linspace(0, 1, 101)
+    for q0, w0 in (([-0.4, 0.19, -0.88, -0.18], [-0.5, 1.6, 0.6]), ([0.19, -0.2, 0.95, 0.16], [-1.6, 1.1, 3.9])):
+        q, w_world = reference_rotation(np.diag([1.0, 2.0, 2.6]), np.array(q0) / np.linalg.norm(q0), np.array(w0), t)
+        noise = np.random.default_rng(3).normal(0, 0.01, w_world.shape)
+        wb = to_body(q, w_world) + noise
+        xyzw = q[:, [1, 2, 3, 0]]
+        with pytest.raises(
+            ValueError, match=r"orientations look scalar-last, \[x, y, z, w\].*q\[\.\.\., \[3, 0, 1, 2\]\]"
+        ):
+            rb.fit_inertia(t, xyzw, body_rates=wb)
+        # the remedy the message gives restores the order the check accepts
+        _checks.gyro_frame_check(t, xyzw[:, [3, 0, 1, 2]], wb, 4)
+
+
 def test_gyro_frame_check_misfits():
     # the check's numbers directly: body-frame gyro fits the body frame far better, and a
     # recording with almost no rotation (frames nearly agree) raises for neither

@@ -83,7 +83,9 @@ def gyro_frame_check(times: np.ndarray, q: np.ndarray, w: np.ndarray, k: int, ra
     trapezoid mean over the window. Only if the world-frame rate fits more than
     ``ratio`` times better (median residual norms) is the gyro taken for
     world-frame; where the two frames barely differ (little rotation) neither
-    fits better and nothing is raised.
+    fits better and nothing is raised. Orientations in scalar-last order
+    ``[x, y, z, w]`` are named as such when, read in that order, they fit the
+    gyro ``ratio`` times better than in either frame as ``[w, x, y, z]``.
     """
     T = q.shape[0]
     if T <= k:
@@ -95,6 +97,20 @@ def gyro_frame_check(times: np.ndarray, q: np.ndarray, w: np.ndarray, k: int, ra
     w_mean = (cum[k:] - cum[:-k]) / dt
     r_body = np.median(np.linalg.norm(w_mean - w_body, axis=-1))
     r_world = np.median(np.linalg.norm(w_mean - w_world, axis=-1))
+    # scalar-last quaternions [x, y, z, w] (scipy's, ROS's order) read as [w, x, y, z] give a motion
+    # that matches the gyro in neither frame, and by chance the world frame's better; read back as
+    # scalar-last they match it in the body frame
+    xyzw = q[:, [3, 0, 1, 2]]
+    w_xyzw = np_qlog(np_qmul(xyzw[:-k] * CONJ, xyzw[k:])) / dt
+    r_xyzw = np.median(np.linalg.norm(w_mean - w_xyzw, axis=-1))
+    if r_xyzw * ratio < min(r_body, r_world):
+        raise ValueError(
+            "fit_inertia: orientations look scalar-last, [x, y, z, w]: read so they match the gyro "
+            f"(median misfit {r_xyzw:.3g} rad/s) far better than as rbjax's [w, x, y, z] ({r_body:.3g} "
+            "rad/s in the body frame, "
+            f"{r_world:.3g} in the world frame). Reorder them, q[..., [3, 0, 1, 2]] (scipy's "
+            "Rotation.as_quat() is scalar-last), or pass check_gyro_frame=False to skip this check"
+        )
     if r_body > ratio * r_world:
         raise ValueError(
             "fit_inertia: body_rates look like world-frame angular velocities: they match the rate "
