@@ -120,7 +120,20 @@ def init_record(state: Any, checks: Checks) -> dict[str, Any]:
         "failed": jnp.zeros((), bool),
         "code": jnp.zeros((), _index_dtype()),
         "emax": energy,
+        # |ω| per body at the start and then at each saved frame up to the failure, and dt (set at
+        # the saved frames, which follow a failure too): the message blames the rotation only
+        # where dt·|ω| was large
+        "rate": _rate(state, energy.dtype),
+        "dt": jnp.full((), jnp.nan, energy.dtype),
     }
+
+
+def _rate(state: Any, dtype: Any) -> jax.Array:
+    """``|ω|`` per body (rad/s); NaN for particles."""
+    if isinstance(state, (State, MatrixState)):
+        rate = jnp.linalg.norm(body_angular_velocity(state), axis=-1)  # body frame: the same norm
+        return jnp.broadcast_to(rate, state.batch_shape).astype(dtype)
+    return jnp.full(state.batch_shape, jnp.nan, dtype)
 
 
 def _per_body_any(x: Any, core: int, batch: tuple[int, ...]) -> jax.Array:
@@ -176,6 +189,11 @@ def after_step(rec: dict, state: Any, step: Any, checks: Checks, steps: int) -> 
 def after_save(rec: dict, state: Any, step: Any, checks: Checks, steps: int, dt: Any) -> dict:
     """Test the saved frame at step ``step`` for a turn past ``max_turn`` per step of ``dt`` and
     for an energy jump; update the running maximum."""
+    if isinstance(state, (State, MatrixState)):
+        # a failure in the steps before this frame keeps the last sound frame's rate
+        rate = _rate(state, rec["rate"].dtype)
+        rec = {**rec, "rate": jnp.where(rec["failed"], rec["rate"], rate)}
+    rec = {**rec, "dt": jnp.asarray(dt).astype(rec["dt"].dtype)}
     if checks.max_turn is not None and isinstance(state, (State, MatrixState)):
         # at the saved frames, not every step: |ω| costs a rotation and a matvec per body (measured,
         # benchmarks/checked_cost.py: every step took a quarter to a third of the checked run's rate)
@@ -192,16 +210,37 @@ def after_save(rec: dict, state: Any, step: Any, checks: Checks, steps: int, dt:
     return {**rec, "emax": jnp.maximum(emax, energy)}
 
 
-def _advice(method: Method) -> str:
-    """What to try, with the method's measured stability limit where it has one."""
+def _advice(method: Method, state_type: str, turn: float | None) -> str:
+    """What to try: the method's rotation limit for ``state_type`` only where the rotation can be to blame.
+
+    ``turn``: the failing body's ``dt·|ω|``, ``ω`` at the start or the last
+    saved frame before the failure; ``None`` or NaN where it is not known (a
+    run inside a caller's ``jit``; particles). A run diverges from a
+    step too coarse for the rotation (``dt·|ω|`` near the method's measured
+    limit for this state type) or for a force law (a spring's
+    ``dt·sqrt(k/m)``, which the rotation limit says nothing about).
+    """
     note = f" ({method.failure_note})" if method.failure_note else ""
-    limits = {k: v for k, v in (method.stable_dt_omega or {}).items() if np.isfinite(v)}
-    if not limits:
-        return f"Method {method.name!r}{note}: try a smaller dt or a more stable method"
-    where = " / ".join(f"{v:g} ({k})" for k, v in limits.items())
+    limit = (method.stable_dt_omega or {}).get(state_type, math.inf)
+    force = (
+        "a force law may be too stiff for dt (a spring of stiffness k on mass m needs dt·sqrt(k/m) well "
+        "below 1 with an explicit method): take a smaller dt"
+    )
+    rotation = (
+        f"Method {method.name!r} diverges beyond dt·|ω| ≈ {limit:g} for {state_type} (measured, 1000 "
+        'torque-free steps; see rbjax.methods()): keep dt·|ω| well below that, or use "splitting" (stable at any dt)'
+    )
+    known = turn is not None and math.isfinite(turn)
+    if not math.isfinite(limit) or state_type == "ParticleState":
+        measured = f"dt·|ω| = {turn:.3g} before the failure; " if known and turn > 0 else ""
+        return f"Method {method.name!r}{note}: {measured}{force}, or use a more stable method"
+    if not known:
+        return f"{rotation}; if dt·|ω| was well below that, {force}"
+    if turn >= 0.5 * limit:
+        return f"dt·|ω| = {turn:.3g} before the failure. {rotation}"
     return (
-        f"Method {method.name!r} diverges beyond dt·|ω| ≈ {where} (measured, 1000 torque-free steps; see "
-        'rbjax.methods()): keep dt·|ω| well below that, or use "splitting" (stable at any dt)'
+        f"dt·|ω| = {turn:.3g} before the failure, well below where {method.name!r} diverges for "
+        f"{state_type} (≈ {limit:g}): not the rotation; {force}"
     )
 
 
@@ -218,11 +257,23 @@ class _Messages:
     steps: int
     step_offset: int
     checks: Checks
+    state_type: str = "State"
 
     def __len__(self) -> int:
         return (self.steps + 1) * max(int(np.prod(self.batch_shape, dtype=np.int64)), 1) * len(_KINDS)
 
+    def body_of(self, index: int) -> int | None:
+        """The failing body's flat batch index encoded in ``index``; ``None`` where it is not recorded."""
+        n = int(np.prod(self.batch_shape, dtype=np.int64))
+        if not _encodes_body(self.steps, n):
+            return None
+        return (int(index) // len(_KINDS)) % max(n, 1)
+
     def __getitem__(self, index: int) -> str:
+        return self.message(index)
+
+    def message(self, index: int, turn: float | None = None) -> str:
+        """The message of ``index``; ``turn``: the body's ``dt·|ω|`` before the failure, if known (:func:`_advice`)."""
         n = int(np.prod(self.batch_shape, dtype=np.int64))
         where, kind = divmod(int(index), len(_KINDS))
         if _encodes_body(self.steps, n):
@@ -233,7 +284,7 @@ class _Messages:
             step, body = where, "a body (index not recorded: steps x bodies overflows int32; enable x64)"
         step += self.step_offset
         # built per kind: a field that is None (energy_factor=None) is never formatted
-        advice = f"{_advice(self.method)}; see rbjax.Checks."
+        advice = f"{_advice(self.method, self.state_type, turn)}; see rbjax.Checks."
         if kind == 0:
             what = "the state became non-finite (NaN or inf)"
         elif kind == 1:
@@ -271,11 +322,20 @@ def raise_on_failure(
     Traced (inside a caller's ``jit``): an equinox runtime error at run time,
     whose message ends with a one-line copy of rbjax's (see the module docstring).
     """
-    msgs = _Messages(method, tuple(batch_shape), int(steps), int(step_offset), checks)
+    state_type = type(traj).__name__
+    msgs = _Messages(method, tuple(batch_shape), int(steps), int(step_offset), checks, state_type)
     failed, code = rec["failed"], rec["code"]
     if not isinstance(failed, jax.core.Tracer):
         if bool(failed):
-            raise ValueError(msgs[int(code)])
+            turns = (np.asarray(rec["rate"]) * np.asarray(rec["dt"])).reshape(-1)
+            flat = msgs.body_of(int(code))
+            if turns.size == 0:
+                turn = None
+            elif flat is None:  # the body is not recorded: the fastest, where the rotation is to blame
+                turn = float(np.nanmax(turns)) if np.isfinite(turns).any() else None
+            else:
+                turn = float(turns[flat])
+            raise ValueError(msgs.message(int(code), turn))
         return traj
     # msgs is a lazy, hashable stand-in for Sequence[str]: equinox only indexes it
     return eqx.branched_error_if(traj, failed, code, _Traced(msgs))  # pyright: ignore[reportArgumentType]
