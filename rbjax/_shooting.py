@@ -241,7 +241,7 @@ def simulate_truncated(
             f"simulate_truncated: truncate_every={k!r} must be a positive int dividing steps={steps} "
             f"and a multiple of save_every={save_every}"
         )
-    warn_turn_per_step(state, dt, "simulate_truncated")
+    warn_turn_per_step(state, dt, "simulate_truncated", _methods.resolve(method, "simulate_truncated"))
     n_chunks = steps // k
     const_vals = split_constants(state)[1]
     series = isinstance(forces, Forces) and any(

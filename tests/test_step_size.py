@@ -137,3 +137,26 @@ def test_checked_mode_flags_the_turn_inside_jit():
 def test_max_turn_must_be_positive_and_finite(bad):
     with pytest.raises(ValueError, match="max_turn must be finite and > 0"):
         rb.Checks(max_turn=bad)
+
+
+@pytest.mark.parametrize("form", ["State", "MatrixState"])
+def test_rk4_at_three_radians_per_step_warns_for_its_own_reason(form):
+    # dt·|ω| = 3, under π: no warning before. rk4 (order 4) errs by ~3⁵/5! = 2 rad per step on a
+    # rotation (State), and the matrix form diverges beyond ~1 (stable_dt_omega): NaN within the run
+    s = rb.State.create(BOX, angular_velocity=jnp.asarray(W))
+    s = s if form == "State" else rb.to_matrix_state(s)
+    dt = 3.0 / float(np.linalg.norm(W))
+    accuracy, stability = r"errs by about \(dt·\|ω\|\)\^5/5! = 2 rad", r"beyond where 'rk4' diverges for MatrixState"
+    why = accuracy if form == "State" else stability
+    with pytest.warns(rb.StepSizeWarning, match=rf"^simulate: dt·\|ω\| = 3 rad at the start: .*{why}"):
+        traj = rb.simulate(s, None, dt, 50, "rk4")
+    exact = rb.torque_free(rb.State.create(BOX, angular_velocity=jnp.asarray(W)), 50 * dt)
+    if form == "MatrixState":  # what the warning foretells: the run diverges
+        assert not np.isfinite(np.asarray(traj.rotation[-1])).all()
+    else:  # finite, and nothing like the motion
+        assert float(rb.quat_angle(traj.orientation[-1], exact.orientation)) > 0.5
+    # a step a third of that is sound (if inaccurate) for rk4 in both forms, and splitting never warns below π
+    ctx = _quiet()
+    rb.simulate(s, None, dt / 3, 4, "rk4")
+    rb.simulate(s, None, dt, 4, "splitting")
+    ctx.__exit__(None, None, None)
