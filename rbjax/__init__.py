@@ -32,6 +32,7 @@ from ._inertia_param import inertia_from_params, params_from_inertia, second_mom
 from ._simulate import simulate, step
 from ._dynamics import derivative
 from ._validate import StepSizeWarning
+from ._methods import OrderWarning
 from ._torque_free import torque_free  # the exact torque-free solution, ground truth for the integrators
 
 # quantities of a state or a trajectory
@@ -133,6 +134,7 @@ __all__ = [
     "methods",
     "derivative",
     "StepSizeWarning",
+    "OrderWarning",
     "torque_free",
     # quantities of a state or a trajectory
     "angular_momentum",

@@ -217,6 +217,12 @@ class Spring(ForceModel):
             body_a, stiffness, point=point_a, anchor=point_b, other=body_b, rest_length=rest_length, damping=damping
         )
 
+    def depends_on_velocity(self) -> bool:
+        """Whether a damper reads the ends' velocities: ``damping`` given and not all zero (when concrete)."""
+        if self.damping is None:
+            return False
+        return not is_concrete(self.damping) or bool(np.any(np.asarray(self.damping) != 0))
+
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         self.check(state)
         _check_flat("Spring", state)
@@ -291,6 +297,9 @@ class Thruster(ForceModel):
 
     def check(self, state: AnyState) -> None:
         _indices_in(self, "body", _check_flat("Thruster", state))
+
+    def depends_on_velocity(self) -> bool:
+        return False
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         self.check(state)

@@ -24,7 +24,7 @@ from ._pytree import dataclass_transform, field, pytree_dataclass, replace, stat
 from ._state import AnyState, Forces, State
 from ._typing import ArrayLike
 
-__all__ = ["ForceModel", "PerBodyForce", "ForceSum", "own_law", "check_force_model"]
+__all__ = ["ForceModel", "PerBodyForce", "ForceSum", "own_law", "check_force_model", "reads_velocity"]
 
 
 class _ForceModelMeta(abc.ABCMeta):
@@ -126,6 +126,15 @@ class ForceModel(metaclass=_ForceModelMeta):
                 msg = f"{fn}(checked=...): {type(self).__name__}: {name} must be >= 0 (a traced value was negative)"
                 changes[name] = eqx.error_if(c, c < 0, msg)
         return replace(self, **changes) if changes else self
+
+    def depends_on_velocity(self) -> bool | None:
+        """Whether this law reads the bodies' velocities or angular velocities (drag, a damper).
+
+        ``True`` or ``False`` as the law declares, ``None`` when it does not (a law of your
+        own may override this). A method whose order drops under such forces
+        (``Method.order_with_velocity_forces``) warns when it is given one that does.
+        """
+        return None
 
     def as_per_body(self, state: AnyState) -> PerBodyForce | None:
         """This model as a :class:`PerBodyForce` on ``state``'s batch, or ``None`` when it is not one.
@@ -338,6 +347,21 @@ def own_law(model: Any, shortcut: str) -> bool:
     cls = type(model)
     owner = _owner(cls, shortcut)
     return owner is generic or issubclass(owner, _owner(cls, reference))
+
+
+def reads_velocity(model: ForceModel) -> bool | None:
+    """:meth:`ForceModel.depends_on_velocity` of ``model`` (a sum: of any term), taken only from
+    the class that wrote the law (a subclass that rewrote ``__call__`` or ``on_body`` and not the
+    declaration has not declared it: ``None``)."""
+    if isinstance(model, ForceSum):
+        said = [reads_velocity(term) for term in model.terms]
+        return True if True in said else None if None in said else False
+    cls = type(model)
+    owner = _owner(cls, "depends_on_velocity")
+    laws = ("__call__", "on_body") if isinstance(model, PerBodyForce) else ("__call__",)
+    if owner is not ForceModel and all(issubclass(owner, _owner(cls, law)) for law in laws):
+        return model.depends_on_velocity()
+    return None
 
 
 def _is_per_body(term: Any) -> TypeGuard[PerBodyForce]:

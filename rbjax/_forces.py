@@ -81,6 +81,9 @@ class Gravity(PerBodyForce):
     def check(self, state: AnyState) -> None:
         check_fits(self, "g", 1, state.batch_shape, "the batch shape")
 
+    def depends_on_velocity(self) -> bool:
+        return False
+
     def on_body(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         return Forces(force=scale3(state.mass, cast_to(self.g, state)))
 
@@ -112,6 +115,9 @@ class _Drag(PerBodyForce):
     def _law(self, state: AnyState, w: Array | None) -> Forces:
         """The force from ``v`` and, when ``angular`` is given, the torque from ``w`` (one body)."""
         raise NotImplementedError  # pragma: no cover - each drag writes its own
+
+    def depends_on_velocity(self) -> bool:
+        return True
 
     def on_body(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         """World-frame force from ``v`` (m/s) and, with ``angular``, torque from the world ``ω``
@@ -191,6 +197,9 @@ class ConstantForce(PerBodyForce):
         for name in ("force", "torque"):
             check_fits(self, name, 1, state.batch_shape, "the batch shape")
 
+    def depends_on_velocity(self) -> bool:
+        return False
+
     def on_body(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         f = None if self.force is None else cast_to(self.force, state)
         if self.torque is None:
@@ -258,6 +267,9 @@ class TimeSeriesForce(ForceModel):
                     f"TimeSeriesForce: {name} samples of shape {tuple(a.shape[1:])} do not fit the batch: each must "
                     f"broadcast to {want} (give {name} the shape (K, 3) or (K, *batch shape, 3))"
                 )
+
+    def depends_on_velocity(self) -> bool:
+        return False
 
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         self.check(state)

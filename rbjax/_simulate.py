@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import warnings
 from collections.abc import Callable
 from typing import Any
 
@@ -15,9 +16,17 @@ from jaxtyping import Float
 from . import _checked, _methods, _native
 from ._batching import batch_last, batch_shape, lift, map_leaves, to_batch_first, to_batch_last
 from ._body import prepare
-from ._force_model import ForceModel, PerBodyForces, check_force_model, split_per_body, with_per_body_terms
+from ._force_model import (
+    ForceModel,
+    ForceSum,
+    PerBodyForces,
+    check_force_model,
+    reads_velocity,
+    split_per_body,
+    with_per_body_terms,
+)
 from ._math import broadcasts_to
-from ._methods import DEFAULT_METHOD, Method
+from ._methods import DEFAULT_METHOD, Method, OrderWarning
 from ._pytree import replace
 from ._scan import check_checkpoint, checkpointed_scan, frames_as_outputs, frames_in_buffer
 from ._state import ForceLike, Forces, ParticleState, StateT, split_constants
@@ -33,6 +42,7 @@ from ._validate import (
     is_time_series,
     start_time,
     traced_step_size,
+    user_stacklevel,
     warn_turn_per_step,
 )
 
@@ -119,6 +129,23 @@ def step(
     new = fn(prepare_state(_canonical(state)), checked_force_fn(as_force_fn(forces)), t, dt)
     keep = {k: getattr(state, k) for k in state.constant_fields if k != "time"}
     return replace(new, **keep, time=jnp.broadcast_to(t + dt, jnp.shape(state.time)).astype(dtype))
+
+
+def _warn_below_order(method: Method, forces: ForceModel) -> None:
+    """:class:`rbjax.OrderWarning` when ``method`` loses order under ``forces``' velocity-dependent laws."""
+    low = method.order_with_velocity_forces
+    if low is None or low >= method.order or reads_velocity(forces) is not True:
+        return
+    terms = forces.terms if isinstance(forces, ForceSum) else (forces,)
+    names = sorted({type(term).__name__ for term in terms if reads_velocity(term)})
+    warnings.warn(
+        f"simulate: method {method.name!r} is order {method.order} for forces of position and time, but "
+        f"{' and '.join(names)} read{'s' if len(names) == 1 else ''} velocities: its kicks use the velocities at their "
+        f"start, so the run is order {low}. Use method='rk4' or 'rk8' for accuracy, or filter "
+        "rbjax.OrderWarning where that is enough",
+        OrderWarning,
+        stacklevel=user_stacklevel(),
+    )
 
 
 def simulate(
@@ -276,6 +303,7 @@ def run_simulation(
             batch_shape(state, forces)
     elif isinstance(forces, ForceModel):
         check_force_model(forces, state, "simulate")  # shapes and body indices, before they are traced
+        _warn_below_order(method, forces)
         series, force_fn = False, None  # a pytree: its arrays are traced data, not static
     elif forces is None or callable(forces):
         series, force_fn, forces = False, forces, None

@@ -28,6 +28,19 @@ StepFn = Callable[[Any, Callable[[Any, Any], Any], Any, Any], Any]
 KernelFn = Callable[..., Any]
 
 
+class OrderWarning(UserWarning):
+    """A method runs below its order: its forces depend on velocities and it kicks with stale ones.
+
+    Given by :func:`rbjax.simulate` (and the runs built on it) when ``method`` has an
+    ``order_with_velocity_forces`` below its ``order`` (``"splitting"`` and its
+    compositions: first order) and ``forces`` declares a law that reads velocities or
+    angular velocities (:class:`rbjax.LinearDrag`, :class:`rbjax.QuadraticDrag`, a damped
+    :class:`rbjax.Spring`; :meth:`rbjax.ForceModel.depends_on_velocity`). The run is
+    correct to ``O(dt)``, not ``O(dt²)``: use ``"rk4"`` or ``"rk8"`` for accuracy, or
+    filter the warning where first order is enough.
+    """
+
+
 @dataclasses.dataclass(frozen=True, eq=False, repr=False)
 class Method:
     """An integrator: its steps, the Scene kernels specialised from them, and what is known of it.
@@ -78,6 +91,11 @@ class Method:
             (:func:`rbjax._eigh3.principal_frame`): ``simulate`` computes the frame
             once per call, before its loop (:func:`rbjax._body.prepare`), and the
             steps read it from the body.
+        order_with_velocity_forces: the global order under forces that depend on
+            velocities (drag, a damper), where it is lower than ``order`` (the
+            splitting methods kick with the start velocities: first order, measured
+            in tests/test_force_protocol.py); ``None`` when it is ``order``.
+            :func:`rbjax.simulate` gives an :class:`rbjax.OrderWarning` for such a run.
     """
 
     name: str
@@ -92,6 +110,7 @@ class Method:
     batch_first_kernels: frozenset[tuple[str, type]] = frozenset()
     native_code: int | None = None
     principal_frame: bool = False
+    order_with_velocity_forces: int | None = None
 
     def __repr__(self) -> str:
         return f"Method({self.name!r}, order={self.order})"

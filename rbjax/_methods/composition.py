@@ -158,6 +158,7 @@ def _register(name: str, base: str, order: int, cost: float) -> Method:
             order=order,
             steps={T: compose(fn, gammas) for T, fn in base_method.steps.items()},
             conserves=base_method.conserves.replace("bounded", f"bounded (O(dt^{order}))"),
+            order_with_velocity_forces=base_method.order_with_velocity_forces,
             cost=cost,
             principal_frame=base_method.principal_frame,
         )

@@ -246,5 +246,6 @@ register(
         kernels={(kind, State): splitting_of_kind for kind in ("isotropic", "axisymmetric")},
         native_code=2,
         principal_frame=True,
+        order_with_velocity_forces=1,
     )
 )
