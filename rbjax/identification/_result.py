@@ -170,23 +170,32 @@ class FitResult:
             ``initial_orientation`` are the first fitted recording's,
             ``robust_weights`` and ``outliers`` run over the fitted recordings'
             samples one after the other, and ``failed`` is ``False``.
-        member_rms: joint fits: per recording given (``()`` otherwise), the RMS
-            of its whitened data residuals per degree of freedom relative to
-            the joint fit's, ``sqrt(χ²_i / (ν_i s²))`` with ``s = residual_ratio``
-            (dimensionless, ≈ 1 for a recording that agrees with the others);
-            NaN for a recording left out.
-        member_chi2: per recording, its whitened data sum of squares ``χ²_i = Σ r²``.
+        member_rms: joint fits: per recording given (``()`` otherwise), ``√F`` of
+            its test against the other recordings (``member_pvalue``): the RMS of
+            its whitened residuals as the others' fit predicts them (its own start
+            state refitted) relative to the others' own level (dimensionless, ≈ 1
+            for a recording that agrees with the others); NaN for a recording left out.
+        member_chi2: per recording, its whitened data sum of squares ``χ²_i = Σ r²``
+            in the joint fit.
         member_dof: per recording, ``ν_i = n_i - (6 - u_i) - p_s n_i / n``:
             its residual count ``n_i`` less its own free start state (6, or 3
             without orientations: ``u_i = 3``) and its share of the ``p_s``
-            shared parameters.
-        member_pvalue: per recording, ``P(χ²(ν_i) ≥ χ²_i / s²)``: the chance of
-            residuals this much larger than the joint fit's level if it were
-            like the others. One below ``CONSISTENCY_ALPHA`` disagrees with
-            the rest (a different body, a collision, a gyro glitch) and is the
-            one to inspect. (Against ``s²``, the joint fit's own level, so that
-            it asks which throw differs from the others; ``s²`` against the
-            noise levels is ``model_consistent``'s test.)
+            shared parameters (they add up to ``dof``).
+        member_pvalue: per recording, ``P(F(ν_T, ν_R) ≥ F)`` with
+            ``F = (T / ν_T) / (χ²_R / ν_R)``: ``χ²_R`` on ``ν_R`` degrees of freedom is
+            the least-squares fit of a reference set ``R`` of the other recordings,
+            ``T`` on ``ν_T`` what adding this recording costs it, both in the joint
+            fit's linearisation. ``R`` is all the others for the recording that
+            stands out most (the largest ``F``); for the rest it leaves that one
+            out, and when it disagrees (``p < CONSISTENCY_ALPHA``) they are tested
+            around a second joint fit without it. So a disagreeing recording neither
+            hides in a level ``s²`` it inflates nor, by pulling the shared
+            parameters, gets a sound one blamed, and the values do not depend on
+            the order of the recordings. One below ``CONSISTENCY_ALPHA`` disagrees
+            with the rest (a different body, a collision, a gyro glitch) and is
+            the one to inspect; one at a time: with two such, fit again without
+            the first. (The whole fit against the noise levels is
+            ``model_consistent``'s test.)
         member_initial_orientation: ``(M, 4)`` per recording given, its fitted
             orientation ``[w, x, y, z]`` (body to world) at its first sample,
             ``q_meas,0 ⊗ exp(δ)``: with ``joint=True`` one row per recording

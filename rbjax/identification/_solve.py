@@ -272,7 +272,12 @@ def solve(prob, options, per_sample: bool = True) -> FitResult:
 
 
 def solve_with_starts(prob, options, per_sample: bool = True) -> tuple[FitResult, dict]:
-    """:func:`solve`, and every segment's fitted start: ``q``, ``q_std``, ``w``, ``w_std`` ``(*N, S, ...)``."""
+    """:func:`solve`, and every segment's fitted start: ``q``, ``q_std``, ``w``, ``w_std`` ``(*N, S, ...)``.
+
+    For one problem (not batched) ``starts`` also holds ``"r"`` and ``"J"``, the
+    whitened residuals and their Jacobian at the solution (NumPy), which the
+    solve keeps: the joint fit's per-recording tests refit them linearly.
+    """
     loss = options["loss"]
     data = dict(prob.data, loss_scale=np.full(prob.y0.shape[0], float(options["loss_scale"]), prob.y0.dtype))
     small, backend = is_small(prob), jax.default_backend()
@@ -295,6 +300,8 @@ def solve_with_starts(prob, options, per_sample: bool = True) -> tuple[FitResult
         converged=jax.device_put(np.asarray(out["converged"]) & consistent),
     )
     starts = jax.tree.map(np.asarray, out.pop("segment_start"))  # (*N, S, ...) per segment
+    if not prob.batched and "J" in sols:
+        starts.update(r=np.asarray(sols["r"]), J=np.asarray(sols["J"]))
     # one recording (or a batch of them): its first segment's start; a joint fit puts in each member's
     out.update(
         member_initial_orientation=jax.device_put(starts["q"][..., :1, :]),
