@@ -230,11 +230,11 @@ def _advice(method: Method, state_type: str, turn: float | None) -> str:
         f"Method {method.name!r} diverges beyond dt·|ω| ≈ {limit:g} for {state_type} (measured, 1000 "
         'torque-free steps; see rbjax.methods()): keep dt·|ω| well below that, or use "splitting" (stable at any dt)'
     )
-    known = turn is not None and math.isfinite(turn)
+    turn = turn if turn is not None and math.isfinite(turn) else None
     if not math.isfinite(limit) or state_type == "ParticleState":
-        measured = f"dt·|ω| = {turn:.3g} before the failure; " if known and turn > 0 else ""
+        measured = f"dt·|ω| = {turn:.3g} before the failure; " if turn is not None and turn > 0 else ""
         return f"Method {method.name!r}{note}: {measured}{force}, or use a more stable method"
-    if not known:
+    if turn is None:
         return f"{rotation}; if dt·|ω| was well below that, {force}"
     if turn >= 0.5 * limit:
         return f"dt·|ω| = {turn:.3g} before the failure. {rotation}"
