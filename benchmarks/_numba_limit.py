@@ -160,12 +160,17 @@ def check_and_time(state: Any, steps: int, dt: float, best_time: Any, check_step
         f = jax.jit(lambda s, fs, nat=native: rb.simulate(s, fs, dt, steps, "euler", save_every=steps, native=nat))
         jax.block_until_ready(f(state, forces))
         out[key] = n * steps / best_time(f, state, forces)
+    # the call as most users write it: eager, every check of simulate on each call (the default path)
+    eager = lambda s, fs: rb.simulate(s, fs, dt, steps, "euler", save_every=steps)
+    jax.block_until_ready(eager(state, forces))
+    out["rbjax_eager"] = n * steps / best_time(eager, state, forces)
     return out
 
 
 def limit_rows(state: Any, steps: int, dt: float, best_time: Any) -> list[dict]:
     """throughput.py's rows: ``numba-limit``, and rbjax's euler on the loop's data through its JAX
-    steps (``rbjax-forces-jax``) and its native kernel (``rbjax-forces-native``, where built)."""
+    steps (``rbjax-forces-jax``) and its native kernel (``rbjax-forces-native``, where built), both
+    under ``jit``, and eager with the default path (``rbjax-forces-eager``)."""
     n, dname = state.batch_shape[0], np.dtype(state.dtype).name
     lim = check_and_time(state, steps, dt, best_time)
     common = dict(method="euler", dtype=dname, bodies=n, steps=steps)
@@ -174,6 +179,7 @@ def limit_rows(state: Any, steps: int, dt: float, best_time: Any) -> list[dict]:
         f"numba limit euler {dname} N={n:>8}: {lim['limit']:.3e} body-steps/s ({lim['threads']} threads); "
         f"rbjax on its data: JAX {lim['rbjax_jax']:.3e} ({lim['rbjax_jax'] / lim['limit']:.2f}x), "
         + (f"native {native:.3e} ({native / lim['limit']:.2f}x)" if native else "native not built")
+        + f"; eager {lim['rbjax_eager']:.3e} ({lim['rbjax_eager'] / lim['limit']:.2f}x)"
         + f"; agree to {lim['agreement_eps']:.1f} eps",
         flush=True,
     )
@@ -184,4 +190,5 @@ def limit_rows(state: Any, steps: int, dt: float, best_time: Any) -> list[dict]:
     ]
     if native:
         rows.append(dict(engine="rbjax-forces-native", body_steps_per_s=native, **common))
+    rows.append(dict(engine="rbjax-forces-eager", body_steps_per_s=lim["rbjax_eager"], **common))
     return rows

@@ -519,6 +519,17 @@ def evaluate_goals(rows, hw, methods) -> dict:
                 if ours:
                     ratio = ours / r["body_steps_per_s"]
                     vs_limit[f"{path} {r['dtype']} N={r['bodies']}"] = dict(ratio=ratio, target=0.9, met=ratio >= 0.9)
+    # an eager call (every check on each call) against the same call under jit, N >= 1e4
+    eager_vs_jit = {}
+    for r in rows:
+        if r["engine"] == "rbjax-forces-eager" and r["bodies"] >= 10_000:
+            compiled = _rate(rows, engine="rbjax-forces-native", dtype=r["dtype"], bodies=r["bodies"])
+            compiled = compiled or _rate(rows, engine="rbjax-forces-jax", dtype=r["dtype"], bodies=r["bodies"])
+            if compiled:
+                slowdown = compiled / r["body_steps_per_s"]
+                eager_vs_jit[f"{r['dtype']} N={r['bodies']}"] = dict(
+                    slowdown=slowdown, target=1.25, met=slowdown <= 1.25
+                )
     # native rk4 against native euler, and the forces' cost on each path (N = n, float32)
     native_goals = {}
     eu_nat = _rate(rows, engine="rbjax-native", method="euler", dtype="float32", bodies=n)
@@ -537,6 +548,7 @@ def evaluate_goals(rows, hw, methods) -> dict:
     return dict(
         bodies=n,
         euler_vs_limit=vs_limit,
+        eager_vs_jit=eager_vs_jit,
         euler_vs_numpy=dict(
             ratio=eu / npy if eu and npy else None, target=3.0, met=eu / npy >= 3.0 if eu and npy else None
         ),
@@ -614,6 +626,11 @@ def table(rows, hw, goals) -> str:
     for k, v in g["euler_vs_limit"].items():
         out.append(
             f"- euler vs the hand-written limit, {k}: {v['ratio']:.2f}x (target ≥ 0.9x): "
+            + ("met" if v["met"] else "NOT met")
+        )
+    for k, v in g["eager_vs_jit"].items():
+        out.append(
+            f"- euler eager against the same call under jit, {k}: {v['slowdown']:.2f}x the time (target ≤ 1.25x): "
             + ("met" if v["met"] else "NOT met")
         )
     for m, v in g["native"].items():

@@ -14,6 +14,7 @@ import math
 import os
 import sys
 import warnings
+import weakref
 from collections.abc import Callable
 from typing import Any
 
@@ -126,6 +127,11 @@ def turn_limits(method: Method | None, state_type: str) -> tuple[float, float]:
     return diverges, inaccurate
 
 
+def turn_threshold(method: Method | None, state_type: str) -> float:
+    """The ``dt·|ω|`` (rad) beyond which :class:`StepSizeWarning` is given: ``π`` or below (:func:`turn_limits`)."""
+    return min(math.pi, *turn_limits(method, state_type))
+
+
 def warn_turn_per_step(state: Any, dt: Any, fn: str, method: Method | None = None) -> None:
     """:class:`StepSizeWarning` when a concrete start state turns some body too far in one step for ``method``.
 
@@ -136,55 +142,166 @@ def warn_turn_per_step(state: Any, dt: Any, fn: str, method: Method | None = Non
     later, which this does not see. Traced states and steps (inside ``jit``,
     ``vmap``, ``grad``) pass silently.
     """
-    if not isinstance(state, (State, MatrixState)) or isinstance(dt, jax.core.Tracer):
-        return
+    start_checks(state, dt, None, fn, method, time=False)
+
+
+def start_checks(
+    state: Any, dt: Any, t0: Any, fn: str, method: Method | None, *, time: bool = True, turn: bool = True
+) -> Any:
+    """The run's start time and the checks of its start state, from one compiled reduction.
+
+    Returns ``t0`` when given, else (``time``) the batch's one clock read from
+    ``state.time`` (:func:`start_time`: ``ValueError`` when the bodies' times
+    differ). With ``turn``, :class:`StepSizeWarning` as :func:`warn_turn_per_step`
+    says. Both are reductions over the batch: they run compiled, in one small program
+    per shape, and a handful of scalars come back to the host, so an eager call pays
+    no pass of NumPy over its bodies (at 1e4 bodies such passes cost as much as 100
+    native Euler steps). Traced or multi-process states take :func:`start_time` alone.
+    """
+    time = time and t0 is None
+    turn = turn and isinstance(state, (State, MatrixState))
     leaves = jax.tree.leaves(state)
-    if any(isinstance(x, jax.core.Tracer) for x in leaves) or 0 in state.batch_shape:
-        return
-    if not all(getattr(x, "is_fully_addressable", True) for x in leaves):
-        return  # part of the batch lives in another process (multi-process sharding): not ours to read
+    concrete = (
+        isinstance(state, _STATE_TYPES)
+        and not isinstance(dt, jax.core.Tracer)
+        and 0 not in state.batch_shape
+        and all(not isinstance(x, jax.core.Tracer) and getattr(x, "is_fully_addressable", True) for x in leaves)
+    )
+    if not concrete:
+        return start_time(state) if time else t0
+    if not (time or turn):
+        return t0
+    first, last, most = _reduced(state, dt, time, turn)
+    if time:
+        if jnp.size(state.time) > 1 and not first == last:
+            raise ValueError(
+                f"the states of a batch must share one time to be stepped together; state.time has shape "
+                f"{jnp.shape(state.time)}. Set one with dataclasses.replace(state, time=t) or pass t0="
+            )
+        t0 = np.asarray(first, state.time.dtype)
+    if turn and most > turn_threshold(method, type(state).__name__):  # the bound passes: the exact rate
+        with jax.ensure_compile_time_eval():  # concrete inputs under a caller's trace: values, not tracers
+            most = float(jnp.max(_turn_per_step(state, dt)))
+            text = _turn_text(most, state, dt, fn, method)
+        if text is not None:
+            warnings.warn(text, StepSizeWarning, stacklevel=user_stacklevel())
+    return t0
+
+
+# The start state's reductions, once per distinct input: JAX arrays are immutable, so the same
+# objects hold the same values (a run repeated from one state, a sweep over forces or methods);
+# an entry goes when one of its arrays is collected, before its id can be reused.
+_REDUCED: dict[tuple[Any, ...], tuple[float, float, float]] = {}
+
+
+def _reduced(state: Any, dt: Any, time: bool, turn: bool) -> tuple[float, float, float]:
+    """:func:`_start_reductions` on the host, ``(first, last, most)``, computed once per distinct input."""
+    read = [state.time] if time else []
+    if turn:
+        rigid = isinstance(state, MatrixState)
+        read += [state.angular_velocity] if rigid else [state.angular_momentum, state.body.inertia]
+    key = (tuple(map(id, read)), float(dt) if turn else None, time, turn)
+    hit = _REDUCED.get(key)
+    if hit is not None:
+        return hit
+    # one array of three scalars: each array brought to the host is a transfer of its own
+    with jax.ensure_compile_time_eval():  # concrete inputs under a caller's trace: values, not tracers
+        first, last, most = np.asarray(_start_reductions(state, dt, time=time, turn=turn)).tolist()
+    if all(isinstance(a, jax.Array) for a in read):  # a NumPy array may change in place: not kept
+        _REDUCED[key] = (first, last, most)
+        for a in read:
+            weakref.finalize(a, _REDUCED.pop, key, None)
+    return first, last, most
+
+
+@functools.partial(jax.jit, static_argnames=("time", "turn"))
+def _start_reductions(state: Any, dt: Any, *, time: bool, turn: bool) -> Array:
+    """``[first, last, most]`` in the state's dtype: the smallest and largest ``state.time`` (``first``
+    is the clock when they are equal) and an upper bound on the largest ``dt·|ω|`` (rad; exact for a
+    :class:`MatrixState`), each ``0`` when not asked."""
+    zero = jnp.zeros((), state.dtype)
+    first = last = most = zero
+    if time:
+        t = jnp.reshape(state.time, -1)
+        first, last = jnp.min(t), jnp.max(t)
+    if turn:
+        most = jnp.max(_turn_bound(state, dt))
+    return jnp.stack([first, last, most]).astype(state.dtype)
+
+
+def _turn_bound(state: Any, dt: Any) -> Array:
+    """An upper bound on ``dt·|ω|`` per body, ``(*B,)``, elementwise (no 3x3 inverse).
+
+    ``|ω| = |I_L⁻¹ Rᵀ L| ≤ |L| / λ_min`` and ``λ_min = det I / (λ_mid λ_max) ≥ det I / ‖I‖_F²``;
+    for the bodies rbjax accepts it is 2-6 times ``|ω|``. The exact rate
+    (:func:`_turn_per_step`, whose 3x3 inverses cost five times as much) is computed only
+    where the bound passes a limit. Each component is a strided slice of the flat batch
+    (sliced from ``(N, 3, 3)``, XLA:CPU transposed the whole array for each), computed
+    apart from the reduction that follows (an optimisation barrier).
+    """
+    dt = jnp.asarray(dt, state.dtype)
+
+    def rows(a: Array, width: int) -> list[Array]:  # each component a strided slice of the flat batch
+        flat = jnp.reshape(a, -1)
+        return [jax.lax.slice(flat, (k,), (flat.size - width + k + 1,), (width,)) for k in range(width)]
+
+    if isinstance(state, MatrixState):
+        w0, w1, w2 = rows(state.angular_velocity, 3)
+        bound = dt * jnp.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+    else:
+        a, b, c, _, e, f, _, _, i = rows(state.body.inertia, 9)
+        det = a * (e * i - f * f) - b * (b * i - f * c) + c * (b * f - e * c)
+        frobenius2 = a * a + e * e + i * i + 2 * (b * b + c * c + f * f)
+        l0, l1, l2 = rows(state.angular_momentum, 3)
+        bound = dt * jnp.sqrt(l0 * l0 + l1 * l1 + l2 * l2) * frobenius2 / det
+    return jax.lax.optimization_barrier(jnp.reshape(bound, state.batch_shape))
+
+
+@jax.jit
+def _turn_per_step(state: Any, dt: Any) -> Array:
+    """``dt·|ω|`` (rad) per body, ``(*B,)``: the body-frame rate of a :class:`State` (the same norm,
+    one rotation fewer), the world rate of a :class:`MatrixState`."""
+    dt = jnp.asarray(dt, state.dtype)
+    if isinstance(state, MatrixState):
+        return dt * jnp.linalg.norm(state.angular_velocity, axis=-1)
+    return dt * jnp.linalg.norm(body_angular_velocity(state), axis=-1)
+
+
+def _turn_text(most: float, state: Any, dt: Any, fn: str, method: Method | None) -> str | None:
+    """The :class:`StepSizeWarning` for the largest turn per step ``most`` (rad), or ``None`` when
+    it is within ``method``'s limits (:func:`turn_limits`); the body is found only then."""
     state_type = type(state).__name__
     diverges, inaccurate = turn_limits(method, state_type)
-    threshold = min(math.pi, diverges, inaccurate)
-    if isinstance(state, MatrixState):
-        turn = float(dt) * np.linalg.norm(np.asarray(state.angular_velocity), axis=-1)
-    elif not np.max(_turn_bound(state, float(dt))) > threshold:  # the usual case: NumPy, no compile
-        return
-    else:
-        turn = np.asarray(_turn_per_step(state, jnp.asarray(dt, state.dtype)))
-    worst = int(np.argmax(turn))
-    most = float(turn.reshape(-1)[worst])
-    if not most > threshold:
-        return
-    which = f" (body {index_tuple(np.unravel_index(worst, turn.shape))})" if turn.ndim else ""
+    if not most > turn_threshold(method, state_type):
+        return None
+    shape = state.batch_shape
+    worst = int(np.argmax(np.asarray(_turn_per_step(state, dt)))) if shape else 0
+    which = f" (body {index_tuple(np.unravel_index(worst, shape))})" if shape else ""
     rate = most / float(dt)
     head = f"{fn}: dt·|ω| = {most:.3g} rad at the start{which}"
     if most > math.pi:
-        text = (
+        return (
             f"{head}: each step turns the body by more than half a "
             "turn, beyond what a step method follows (explicit ones return attitudes unrelated to the motion; "
             f"conservative ones keep energy and momentum, not the attitude). Use dt < π/|ω| = {math.pi / rate:.3g} s, "
             "and far less for accuracy (rbjax.methods(), docs/integrators.md); rbjax.torque_free gives the exact "
             "torque-free motion at any time"
         )
-    elif most > diverges:
-        assert method is not None
-        text = (
+    assert method is not None  # the other limits are a method's
+    if most > diverges:
+        return (
             f"{head}: beyond where {method.name!r} diverges for {state_type} (≈ {diverges:.3g}, measured over "
             "1000 torque-free steps: rbjax.methods()): the run will end in NaN or an orientation off the rotation "
             f'group. Use dt < {diverges / 1.33 / rate:.3g} s (dt·|ω| < {diverges / 1.33:g}), or "splitting" '
             "(stable at any dt)"
         )
-    else:
-        assert method is not None
-        p = method.order
-        text = (
-            f"{head}: {method.name!r} (order {p}) errs by about (dt·|ω|)^{p + 1}/{p + 1}! = "
-            f"{most ** (p + 1) / math.factorial(p + 1):.2g} rad per step, as much as it turns: no digit of the "
-            f"attitude is right. Use dt < {inaccurate / rate:.3g} s, and far less for accuracy "
-            "(rbjax.methods(), docs/integrators.md)"
-        )
-    warnings.warn(text, StepSizeWarning, stacklevel=user_stacklevel())
+    p = method.order
+    return (
+        f"{head}: {method.name!r} (order {p}) errs by about (dt·|ω|)^{p + 1}/{p + 1}! = "
+        f"{most ** (p + 1) / math.factorial(p + 1):.2g} rad per step, as much as it turns: no digit of the "
+        f"attitude is right. Use dt < {inaccurate / rate:.3g} s, and far less for accuracy "
+        "(rbjax.methods(), docs/integrators.md)"
+    )
 
 
 def user_stacklevel() -> int:
@@ -196,33 +313,12 @@ def user_stacklevel() -> int:
     return level
 
 
-def _turn_bound(state: State, dt: float) -> np.ndarray:
-    """An upper bound on ``dt·|ω|`` per body, ``(*B,)``, in NumPy (no program to compile).
-
-    ``|ω| = |I_L⁻¹ Rᵀ L| ≤ |L| / λ_min`` and ``λ_min = det I / (λ_mid λ_max) ≥
-    det I / ‖I‖_F²``; for the bodies rbjax accepts it is 2-6 times ``|ω|``. The
-    inertia's nine entries are made contiguous rows first: NumPy's arithmetic on
-    strided ``(..., 3, 3)`` slices took twice as long at a million bodies.
-    """
-    inertia = np.asarray(state.body.inertia)
-    a, b, c, _, e, f, _, _, i = np.moveaxis(inertia.reshape(inertia.shape[:-2] + (9,)), -1, 0).copy()
-    det = a * (e * i - f * f) - b * (b * i - f * c) + c * (b * f - e * c)
-    frobenius2 = a * a + e * e + i * i + 2 * (b * b + c * c + f * f)
-    return dt * np.linalg.norm(np.asarray(state.angular_momentum), axis=-1) * frobenius2 / det
-
-
-@jax.jit
-def _turn_per_step(state: Any, dt: Array) -> Array:
-    """``dt·|ω|`` per body, ``(*B,)``; ``|ω|`` from the body-frame rate (the same norm, one rotation fewer)."""
-    return dt * jnp.linalg.norm(body_angular_velocity(state), axis=-1)
-
-
 def check_state(state: Any, fn: str) -> None:
     """``TypeError`` unless ``state`` is an rbjax state with float32/float64 arrays."""
     if not isinstance(state, _STATE_TYPES):
         raise TypeError(f"{fn}: state must be a State, MatrixState or ParticleState, got {type(state).__name__}")
     for leaf in jax.tree.leaves(state):
-        dt = jnp.result_type(leaf)
+        dt = getattr(leaf, "dtype", None) or jnp.result_type(leaf)
         if dt not in (jnp.float32, jnp.float64):
             raise TypeError(
                 f"{fn}: state arrays must be float32 or float64, got {dt}; convert the inputs "

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 
@@ -160,3 +161,29 @@ def test_rk4_at_three_radians_per_step_warns_for_its_own_reason(form):
     rb.simulate(s, None, dt / 3, 4, "rk4")
     rb.simulate(s, None, dt, 4, "splitting")
     ctx.__exit__(None, None, None)
+
+
+def test_a_concrete_state_under_a_callers_jit_is_still_checked():
+    # the state's values are known while the caller's program is traced: the warning is given then
+    s = rb.State.create(BOX, angular_velocity=jnp.asarray(W))
+    with pytest.warns(rb.StepSizeWarning, match="more than half a turn"):
+        jax.jit(lambda: rb.simulate(s, None, 5.0, 2, "splitting").orientation)()
+
+
+def test_the_start_checks_follow_every_new_value():
+    # the start state's reductions are kept per state object (JAX arrays are immutable); a new dt, a
+    # new state and a NumPy array changed in place are each checked anew
+    s = rb.State.create(rb.box(jnp.ones(3), jnp.ones((3, 3))), angular_velocity=jnp.ones((3, 3)))
+    ctx = _quiet()
+    for _ in range(2):
+        rb.simulate(s, None, 1e-3, 2, "rk4")
+    ctx.__exit__(None, None, None)
+    with pytest.warns(rb.StepSizeWarning, match=r"\(body \(\d,\)\)"):
+        rb.simulate(s, None, 2.0, 2, "rk4")  # the same state, a step that turns each body 3.4 rad
+    with pytest.raises(ValueError, match="share one time"):
+        rb.simulate(dataclasses.replace(s, time=jnp.arange(3.0)), None, 1e-3, 2, "rk4")
+    host = jax.tree.map(np.array, s)  # NumPy leaves: mutable, so never kept
+    rb.simulate(host, None, 1e-3, 2, "rk4")
+    host.time[1] = 5.0
+    with pytest.raises(ValueError, match="share one time"):
+        rb.simulate(host, None, 1e-3, 2, "rk4")
