@@ -35,6 +35,7 @@ from jaxtyping import Float
 
 from . import _methods
 from ._body import Body
+from ._deprecated import renamed_keywords
 from ._force_model import ForceModel, ForceSum
 from ._math import is_concrete
 from ._methods import DEFAULT_METHOD, KINDS, Method
@@ -195,10 +196,12 @@ class Scene:
         if _has_value(state.body.inertia) and rank(found) > rank(self.kind):
             raise ValueError(f"this scene is specialised for {self.kind!r} bodies; the state's are {found!r}")
 
-    def step(self, state: StateT, dt: Float[ArrayLike, ""], t: Float[ArrayLike, ""] | None = None) -> StateT:
-        """One step of ``dt`` seconds from time ``t``; as :func:`rbjax.step` with the scene's forces."""
+    @renamed_keywords("Scene.step", t="t0")
+    def step(self, state: StateT, dt: Float[ArrayLike, ""], t0: Float[ArrayLike, ""] | None = None) -> StateT:
+        """One step of ``dt`` seconds from time ``t0`` (default ``None``: ``state.time``); as
+        :func:`rbjax.step` with the scene's forces."""
         self._check(state)
-        return _step_fn(state, self.forces, dt, self.kernel, t=t)
+        return _step_fn(state, self.forces, dt, self.kernel, t0=t0)
 
     def simulate(
         self,
@@ -211,6 +214,7 @@ class Scene:
     ) -> StateT:
         """Trajectory of ``steps`` steps, every ``save_every``-th state kept; as :func:`rbjax.simulate`.
 
+        ``t0``: start time (s); default ``None``: ``state.time``.
         Returns the state type with a leading time axis of length
         ``steps // save_every + 1`` (initial state first) on every leaf.
         A batch sharded over devices on its body axis stays sharded.

@@ -24,6 +24,7 @@ rugged. Two standard remedies, both built on :func:`rbjax.step` /
 from __future__ import annotations
 
 from collections.abc import Callable
+from types import SimpleNamespace
 from typing import Any, cast
 
 import jax
@@ -80,7 +81,7 @@ def shoot(
     method: str | Method = DEFAULT_METHOD,
     *,
     save_every: int | None = None,
-    t0: Float[ArrayLike, ""] | Float[ArrayLike, " S"] = 0.0,
+    t0: Float[ArrayLike, ""] | Float[ArrayLike, " S"] | None = None,
 ) -> tuple[AnyState, AnyState]:
     """Simulate ``S`` segments from ``S`` start states in parallel (multiple shooting).
 
@@ -105,6 +106,8 @@ def shoot(
             default ``steps``: start and end only.
         t0: scalar start time of segment 0, the segments tiling
             ``[t0, t0 + Σ dt]`` back to back; or ``(S,)`` start times (s).
+            Default ``None``: segment 0's ``starts.time`` (one clock for its
+            bodies), tiled as a scalar ``t0`` is.
 
     Returns:
         ``(trajectories, ends)``: trajectories with leading axes
@@ -134,7 +137,7 @@ def shoot(
         dts = dt
     else:
         raise ValueError(f"shoot: dt must be a scalar or (S, steps) = {(S, steps)}, got {dt.shape}")
-    t0 = jnp.asarray(t0, dtype)
+    t0 = jnp.asarray(_first_segment_time(starts) if t0 is None else t0, dtype)
     if t0.ndim == 0:
         t0 = t0 + jnp.concatenate([jnp.zeros(1, dtype), jnp.cumsum(dts.sum(-1))[:-1]])
     elif t0.shape != (S,):
@@ -155,6 +158,11 @@ def shoot(
     ends = replace(jax.tree.map(lambda a: a[-1], frames), **{n: getattr(starts, n) for n in consts if n != "time"})
     ends = replace(ends, time=times[-1].reshape(times.shape[1:] + (1,) * (nd - 1)))
     return stack_frames(frames, starts, times.reshape(times.shape + (1,) * (nd - 1))), ends
+
+
+def _first_segment_time(starts: AnyState) -> Array:
+    """Segment 0's one clock (s), read as :func:`start_time` reads a batch's."""
+    return start_time(SimpleNamespace(time=starts.time[0]))  # pyright: ignore[reportArgumentType]  (reads .time only)
 
 
 def defects(ends: State, starts: State) -> Float[Array, "S-1 *B 12"]:

@@ -17,6 +17,7 @@ from jaxtyping import Float
 from . import _checked, _methods, _native
 from ._batching import batch_last, batch_shape, lift, map_leaves, to_batch_first, to_batch_last
 from ._body import prepare
+from ._deprecated import renamed_keywords
 from ._force_model import (
     ForceModel,
     ForceSum,
@@ -78,13 +79,14 @@ def prepare_state(state: Any, principal: bool = False) -> Any:
     return replace(state, body=lift(lambda b: prepare(b, principal))(state.body))
 
 
+@renamed_keywords("step", t="t0")
 def step(
     state: StateT,
     forces: ForceLike,
     dt: Float[ArrayLike, ""],
     method: str | Method | Callable[..., Any] = DEFAULT_METHOD,
     *,
-    t: Float[ArrayLike, ""] | None = None,
+    t0: Float[ArrayLike, ""] | None = None,
 ) -> StateT:
     """Advance ``state`` by one step of ``dt`` seconds.
 
@@ -97,10 +99,10 @@ def step(
         dt: step (s), > 0.
         method: integrator name or ``Method`` (static); see :func:`rbjax.methods`
             and :func:`simulate`. Default ``"splitting"`` (second order, symplectic).
-        t: time (s) at the start of the step, passed to a callable ``forces``;
-            default ``state.time``.
+        t0: time (s) at the start of the step, passed to a callable ``forces``;
+            default ``None``: ``state.time`` (as ``t0`` of :func:`simulate`).
 
-    Returns the new state, of the same type and shape, with ``time = t + dt``.
+    Returns the new state, of the same type and shape, with ``time = t0 + dt``.
     Forces are cast to the state's dtype. Pure; ``jit`` it with
     ``static_argnames="method"``. Concrete bad arguments raise ``TypeError`` /
     ``ValueError`` (as in :func:`simulate`); a traced ``dt`` is not tested here
@@ -110,8 +112,8 @@ def step(
     resolved = _methods.resolve(method, "step")
     fn = resolved.step(type(state))
     check_dt(dt)
-    if t is not None:
-        check_dt(t, "t", positive=False)
+    if t0 is not None:
+        check_dt(t0, "t0", positive=False)
     warn_turn_per_step(state, dt, "step", resolved)
     dtype = state.dtype
     if isinstance(forces, Forces):
@@ -128,7 +130,7 @@ def step(
     elif isinstance(forces, ForceModel):
         check_force_model(forces, state, "step")
     dt = jnp.asarray(dt, dtype)
-    t = start_time(state) if t is None else jnp.asarray(t, dtype)
+    t = start_time(state) if t0 is None else jnp.asarray(t0, dtype)
     new = fn(prepare_state(_canonical(state)), checked_force_fn(as_force_fn(forces)), t, dt)
     keep = {k: getattr(state, k) for k in state.constant_fields if k != "time"}
     return replace(new, **keep, time=jnp.broadcast_to(t + dt, jnp.shape(state.time)).astype(dtype))

@@ -56,7 +56,7 @@ def _state(dtype=jnp.float64, n=3):  # n = len(CASES)
 @functools.partial(jax.jit, static_argnames=("method", "forces"))
 def _run(s, dt, n, *, method, forces=_batch_forces):
     """``n`` steps (traced: one compile per method for every step count)."""
-    return jax.lax.fori_loop(0, n, lambda k, x: rb.step(x, forces, dt, method, t=k * dt), s)
+    return jax.lax.fori_loop(0, n, lambda k, x: rb.step(x, forces, dt, method, t0=k * dt), s)
 
 
 @pytest.fixture(scope="module")

@@ -94,7 +94,7 @@ def test_rk4_is_the_driver_with_the_classical_tableau():
     def both(s):
         body = lambda k, ab: (
             _classical_rk4(ab[0], _tau_fn, 0.05 * k, 0.05),
-            rb.step(ab[1], _tau_fn, 0.05, "rk4", t=0.05 * k),
+            rb.step(ab[1], _tau_fn, 0.05, "rk4", t0=0.05 * k),
         )
         return jax.lax.fori_loop(0, 20, body, (s, s))
 
@@ -142,7 +142,7 @@ def _masked_tau(s, t):
 @functools.partial(jax.jit, static_argnames="force")
 def _run(state, dt, n, force):
     """``n`` (traced: one compile for every step count) steps of ``"rk8"`` from t = 0."""
-    return jax.lax.fori_loop(0, n, lambda k, s: rb.step(s, force, dt, "rk8", t=k * dt), state)
+    return jax.lax.fori_loop(0, n, lambda k, s: rb.step(s, force, dt, "rk8", t0=k * dt), state)
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,100 @@
+"""Old spellings of public arguments: each still works for one release, warns, and names the new one.
+
+Every alias gives the same bits as the new spelling, and its ``DeprecationWarning`` points at the
+caller's line (this file), so ``-W error::DeprecationWarning`` finds the call to change.
+"""
+
+import warnings
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import rbjax as rb
+
+RNG = np.random.default_rng(7)
+N = 3
+QUATS = RNG.normal(size=(N, 4))
+QUATS /= np.linalg.norm(QUATS, axis=-1, keepdims=True)
+OMEGA = RNG.normal(size=(N, 3))
+
+
+def _state(time=0.0):
+    body = rb.box(1.0, jnp.array([0.1, 0.2, 0.4]))
+    return rb.State.create(body, orientation=QUATS, angular_velocity=OMEGA, velocity=OMEGA / 2, time=time)
+
+
+def _torque(state, t):  # time-dependent: a wrong start time changes the bits
+    return rb.Forces(torque=jnp.stack([jnp.sin(3 * t), 0.1 + 0 * t, jnp.cos(t)]))
+
+
+def _bitwise_equal(a, b):
+    la, ta = jax.tree_util.tree_flatten(a)
+    lb, tb = jax.tree_util.tree_flatten(b)
+    return ta == tb and all(
+        x.dtype == y.dtype and x.shape == y.shape and np.asarray(x).tobytes() == np.asarray(y).tobytes()
+        for x, y in zip(la, lb, strict=True)
+    )
+
+
+def _old(call, new_name):
+    """``call()`` under the deprecated spelling: its result, after checking the one warning it gives."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = call()
+    deprecations = [w for w in caught if issubclass(w.category, DeprecationWarning)]
+    assert len(deprecations) == 1, [str(w.message) for w in caught]
+    (w,) = deprecations
+    assert f"{new_name}=" in str(w.message) or f".{new_name}" in str(w.message), str(w.message)
+    assert w.filename == __file__, (w.filename, str(w.message))  # blamed on the user's call
+    return out
+
+
+def _new(call):
+    """``call()`` under the new spelling: no DeprecationWarning."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DeprecationWarning)
+        return call()
+
+
+# ---- time: t0 everywhere, None = the state's own time
+
+
+def test_step_t_is_t0():
+    s = _state()
+    new = _new(lambda: rb.step(s, _torque, 0.01, "rk4", t0=0.3))
+    old = _old(lambda: rb.step(s, _torque, 0.01, "rk4", t=0.3), "t0")
+    assert _bitwise_equal(old, new)
+    assert not _bitwise_equal(new, rb.step(s, _torque, 0.01, "rk4"))  # t0 was used
+    with pytest.raises(TypeError, match="both t0= and its deprecated spelling t="):
+        rb.step(s, _torque, 0.01, "rk4", t=0.3, t0=0.3)
+
+
+def test_step_t_under_jit_is_t0():
+    s = _state()
+    new = jax.jit(lambda s, t: rb.step(s, _torque, 0.01, "rk4", t0=t))(s, 0.3)
+    old = _old(lambda: jax.jit(lambda s, t: rb.step(s, _torque, 0.01, "rk4", t=t))(s, 0.3), "t0")
+    assert _bitwise_equal(old, new)
+
+
+def test_scene_step_t_is_t0():
+    s = _state()
+    scene = rb.Scene.build(s, rb.Gravity() + rb.LinearDrag(0.1), "rk4")
+    new = _new(lambda: scene.step(s, 0.01, t0=0.3))
+    old = _old(lambda: scene.step(s, 0.01, t=0.3), "t0")
+    assert _bitwise_equal(old, new)
+    assert _bitwise_equal(scene.step(s, 0.01, 0.3), new)  # positional: the same place as before
+
+
+def test_shoot_t0_defaults_to_the_first_segments_time():
+    # time 0 (every start state made by State.create): the same bits as the old default t0=0.0
+    s = _state()
+    got = _new(lambda: rb.shoot(s, _torque, 0.01, 8, "rk4"))
+    assert _bitwise_equal(got, rb.shoot(s, _torque, 0.01, 8, "rk4", t0=0.0))
+    # a state of its own time: segment 0 starts there (the old default started it at 0)
+    late = _state(time=2.5)
+    got = rb.shoot(late, _torque, 0.01, 8, "rk4")
+    assert _bitwise_equal(got, rb.shoot(late, _torque, 0.01, 8, "rk4", t0=2.5))
+    assert not _bitwise_equal(got, rb.shoot(late, _torque, 0.01, 8, "rk4", t0=0.0))
+    np.testing.assert_allclose(got[1].time, 2.5 + 0.08 * np.arange(1, N + 1), rtol=1e-12)
