@@ -38,16 +38,16 @@ def _bitwise_equal(a, b):
     )
 
 
-def _old(call, new_name):
-    """``call()`` under the deprecated spelling: its result, after checking the one warning it gives."""
+def _old(call, *new_names):
+    """``call()`` under deprecated spellings: its result, after checking the one warning each gives."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         out = call()
     deprecations = [w for w in caught if issubclass(w.category, DeprecationWarning)]
-    assert len(deprecations) == 1, [str(w.message) for w in caught]
-    (w,) = deprecations
-    assert f"{new_name}=" in str(w.message) or f".{new_name}" in str(w.message), str(w.message)
-    assert w.filename == __file__, (w.filename, str(w.message))  # blamed on the user's call
+    assert len(deprecations) == len(new_names), [str(w.message) for w in caught]
+    for w, new_name in zip(deprecations, new_names):
+        assert f"{new_name}=" in str(w.message) or f".{new_name}" in str(w.message), str(w.message)
+        assert w.filename == __file__, (w.filename, str(w.message))  # blamed on the user's call
     return out
 
 
@@ -98,3 +98,31 @@ def test_shoot_t0_defaults_to_the_first_segments_time():
     assert _bitwise_equal(got, rb.shoot(late, _torque, 0.01, 8, "rk4", t0=2.5))
     assert not _bitwise_equal(got, rb.shoot(late, _torque, 0.01, 8, "rk4", t0=0.0))
     np.testing.assert_allclose(got[1].time, 2.5 + 0.08 * np.arange(1, N + 1), rtol=1e-12)
+
+
+# ---- fit_inertia_linear(times, orientations=None, *, body_rates, torques), as fit_inertia
+
+
+def _tumble(torque):
+    body = rb.Body(1.0, jnp.diag(jnp.array([1.0, 2.0, 2.6])))
+    s = rb.State.create(body, angular_velocity=jnp.array([0.3, 2.0, 0.2]))
+    traj = rb.simulate(s, rb.Forces(torque=torque), 1e-3, 2000, "rk4", save_every=10)
+    times = np.asarray(traj.time)
+    return (
+        times,
+        np.asarray(rb.orientation(traj)),
+        np.asarray(rb.body_angular_velocity(traj)),
+        np.tile(torque, (times.size, 1)),
+    )
+
+
+def test_fit_inertia_linear_old_positional_order():
+    times, _, w, _ = _tumble(jnp.zeros(3))
+    new = _new(lambda: rb.fit_inertia_linear(times, body_rates=w))
+    old = _old(lambda: rb.fit_inertia_linear(times, w), "body_rates")
+    assert _bitwise_equal(old, new)
+    times, q, w, tau = _tumble(jnp.array([0.2, 0.1, -0.1]))
+    new = _new(lambda: rb.fit_inertia_linear(times, q, body_rates=w, torques=tau))
+    assert _bitwise_equal(_old(lambda: rb.fit_inertia_linear(times, w, q, tau), "body_rates"), new)
+    assert _bitwise_equal(_old(lambda: rb.fit_inertia_linear(times, w, orientations=q, torques=tau), "body_rates"), new)
+    np.testing.assert_allclose(new, np.diag([1.0, 2.0, 2.6]), atol=1e-2)  # absolute: the torques were used

@@ -156,7 +156,7 @@ def test_noisy_with_gyro_beats_linear_baseline_and_uncertainty_covers_truth():
     qn, wn = imu_noise(q, wb, np.random.default_rng(0))
     res = rb.fit_inertia(T_FAST, qn, body_rates=wn)
     err = _rel(res.inertia, I_BAR)
-    lls = _rel(rb.fit_inertia_linear(T_FAST, wn), I_BAR)
+    lls = _rel(rb.fit_inertia_linear(T_FAST, body_rates=wn), I_BAR)
     assert err < 0.01  # the accuracy target
     assert err < lls / 5  # "clearly better" than differentiating the gyro
     true_moments = np.linalg.eigvalsh(I_BAR)
@@ -520,7 +520,7 @@ def test_full_rate_recordings_4s_1khz():
     qn, wn = imu_noise(q, wb, np.random.default_rng(0))
     res = rb.fit_inertia(times, qn, body_rates=wn)
     err = _rel(res.inertia, I_BAR)
-    assert err < 0.01 and err < _rel(rb.fit_inertia_linear(times, wn), I_BAR) / 10
+    assert err < 0.01 and err < _rel(rb.fit_inertia_linear(times, body_rates=wn), I_BAR) / 10
     z = np.abs(res.principal_moments - np.linalg.eigvalsh(I_BAR)) / res.moment_std
     assert np.all(z < 3), z
 
@@ -1036,25 +1036,25 @@ def test_sigma_is_calibrated_over_noise_draws(duration, rate_hz, sensors, dtype)
 def test_linear_baseline_recovers_clean_data_and_refuses_what_no_body_has():
     q, wb = _record(T_FAST)
     # clean 200 Hz rates: central differences are O(dt²) ≈ 1e-4 off the derivative
-    assert _rel(rb.fit_inertia_linear(T_FAST, wb), I_BAR) < 1e-3
+    assert _rel(rb.fit_inertia_linear(T_FAST, body_rates=wb), I_BAR) < 1e-3
     # with known world torques (orientations turn them into the body frame): the absolute inertia
     tau = lambda t, *_: np.array([0.2 * np.sin(3 * t), 0.1, -0.1 * np.cos(2 * t)])
     qt, wt = _record(T_FAST, torque=tau)
     taus = np.stack([tau(t) for t in T_FAST])
-    assert _rel(rb.fit_inertia_linear(T_FAST, wt, qt, taus), I_TRUE) < 1e-3
+    assert _rel(rb.fit_inertia_linear(T_FAST, qt, body_rates=wt, torques=taus), I_TRUE) < 1e-3
     # a spin about a principal axis (ω̇ = 0, ω × I ω = 0) determines nothing but that axis
     steady = np.tile([0.0, 0.0, 2.0], (T_FAST.size, 1))
     with pytest.raises(ValueError, match=r"fit_inertia_linear: too little excitation"):
-        rb.fit_inertia_linear(T_FAST, steady)
+        rb.fit_inertia_linear(T_FAST, body_rates=steady)
     # world-frame rates (reference_rotation's own ω) fit no body: the least-squares estimate breaks
     # the triangle inequality (0.198 + 0.289 < 0.513) and is refused, not returned
     _, w_world = reference_rotation(I_TRUE, np.array([1.0, 0, 0, 0]), W0, T_FAST)
     with pytest.raises(ValueError, match=r"principal moments .* which no body has .*rb\.fit_inertia"):
-        rb.fit_inertia_linear(T_FAST, w_world)
+        rb.fit_inertia_linear(T_FAST, body_rates=w_world)
     with pytest.raises(ValueError, match=r"body_rates must have shape \(T, 3\) = \(401, 3\), got \(400, 3\)"):
-        rb.fit_inertia_linear(T_FAST, wb[:-1])
+        rb.fit_inertia_linear(T_FAST, body_rates=wb[:-1])
     with pytest.raises(ValueError, match=r"world-frame torques need orientations"):
-        rb.fit_inertia_linear(T_FAST, wt, torques=taus)
+        rb.fit_inertia_linear(T_FAST, body_rates=wt, torques=taus)
 
 
 def test_a_new_signature_makes_each_of_its_two_programs_once():

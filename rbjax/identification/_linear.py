@@ -8,15 +8,22 @@ normal matrix also tells which inertia directions the data cannot determine.
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
+from typing import Any, TypeVar
+
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
 from jaxtyping import Float
 
 from .._body import TRIANGLE_RTOL
+from .._deprecated import warn_deprecated
 from .._math import quat_tolerance
 from .._rotations_np import np_qmat
 from .._typing import ArrayLike
+
+F = TypeVar("F", bound=Callable[..., Any])
 
 _ENTRIES = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
 
@@ -192,20 +199,53 @@ def _linear_inputs(times, body_rates, orientations, torques):
     return t, w, q, tau
 
 
+_OLD_ORDER = ("body_rates", "orientations", "torques")
+
+
+def _old_argument_order(fn: F) -> F:
+    """Accept, for one release, the old order ``(times, body_rates, orientations, torques)``:
+    a second positional argument of body rates (last axis 3; orientations have 4) while
+    ``body_rates=`` is not given is moved to ``body_rates``, with a ``DeprecationWarning``."""
+
+    @functools.wraps(fn)
+    def wrapper(times: Any, *args: Any, **kwargs: Any) -> Any:
+        if args and "body_rates" not in kwargs and np.shape(args[0])[-1:] == (3,):
+            warn_deprecated(
+                "fit_inertia_linear: body rates as the second positional argument (the old order times, "
+                "body_rates, orientations, torques) are deprecated and will be removed in the next release; "
+                "call fit_inertia_linear(times, orientations, body_rates=..., torques=...), as fit_inertia",
+                stacklevel=2,
+            )
+            if len(args) > len(_OLD_ORDER):
+                raise TypeError(f"fit_inertia_linear: too many positional arguments ({1 + len(args)})")
+            for name, value in zip(_OLD_ORDER, args):
+                if name in kwargs:
+                    raise TypeError(f"fit_inertia_linear: got multiple values for argument {name!r}")
+                kwargs[name] = value
+            args = ()
+        return fn(times, *args, **kwargs)
+
+    return wrapper  # type: ignore[return-value]
+
+
+@_old_argument_order
 def fit_inertia_linear(
     times: Float[ArrayLike, " T"],
-    body_rates: Float[ArrayLike, "T 3"],
     orientations: Float[ArrayLike, "T 4"] | None = None,
+    *,
+    body_rates: Float[ArrayLike, "T 3"],
     torques: Float[ArrayLike, "T 3"] | None = None,
 ) -> Float[Array, "3 3"]:
     """Baseline: linear least squares on Euler's equations with differentiated gyro rates.
 
     ``I ω̇ + ω × I ω = τ_b`` (body frame) is linear in the six entries of ``I``;
     ``ω̇`` comes from central differences of ``body_rates`` ``(T, 3)`` (rad/s).
-    Without ``torques`` the system is homogeneous and the smallest right
-    singular vector, normalised to ``tr I = 1``, is returned; with world-frame
-    ``torques`` ``(T, 3)`` (N m, needs ``orientations`` to rotate them into the
-    body frame) the absolute inertia (kg m²). Fast and simple, but
+    Arguments as in :func:`fit_inertia`: ``orientations`` ``(T, 4)`` unit
+    quaternions ``[w, x, y, z]``, optional here. Without ``torques`` the system
+    is homogeneous and the smallest right singular vector, normalised to
+    ``tr I = 1``, is returned; with world-frame ``torques`` ``(T, 3)`` (N m,
+    needs ``orientations`` to rotate them into the body frame) the absolute
+    inertia (kg m²). Fast and simple, but
     differentiating noisy rates amplifies the noise by ``1/dt``: use it as a
     start or a check, :func:`fit_inertia` for accuracy (and an uncertainty).
     Returns ``(3, 3)``, body frame.
