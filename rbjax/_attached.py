@@ -10,7 +10,8 @@ and :class:`rbjax.Scene`, and at run time in checked mode). Conventions as in
 
 from __future__ import annotations
 
-from typing import Any
+import functools
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -20,6 +21,7 @@ from jax.sharding import NamedSharding, PartitionSpec
 from jaxtyping import Float, Int
 
 from ._body import floats
+from ._deprecated import move_renamed_keywords, renamed_keywords, warn_deprecated
 from ._force_checks import cast_to, check_core, check_fits, check_non_negative, rigid_only
 from ._force_model import ForceModel, PerBodyForce
 from ._math import cross, is_concrete, matvec3, quat_rotate_unchecked, safe_norm, scale3
@@ -120,7 +122,7 @@ def _indices_in(model: Any, name: str, n: int) -> None:
 
 def _per_item(model: Any, s: int, vectors: tuple[str, ...], scalars: tuple[str, ...]) -> None:
     """Shapes of a model of ``s`` items: ``vectors`` ``(S, 3)`` or ``(3,)``, ``scalars`` ``(S,)`` or ``()``."""
-    items = f"the number of {type(model).__name__.lower()}s S (the length of body)"
+    items = f"the number of {type(model).__name__.lower()}s S (the length of body_index)"
     for name in vectors:
         check_core(model, name, (3,), " (a 3-vector each)")
         check_fits(model, name, 1, (s,), items)
@@ -128,13 +130,49 @@ def _per_item(model: Any, s: int, vectors: tuple[str, ...], scalars: tuple[str, 
         check_fits(model, name, 0, (s,), items)
 
 
-class Spring(ForceModel):
+class _RenamedKeywords:
+    """Base of a force model whose constructor also takes, for one release, the old keywords
+    ``_RENAMED`` (old name -> field) with a ``DeprecationWarning``; its subclasses too.
+
+    A force model writes no ``__init__`` (:class:`ForceModel` makes it a dataclass), so the
+    dataclass's own one is wrapped once the class is made.
+    """
+
+    _RENAMED: ClassVar[dict[str, str]] = {}
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)  # ForceModel's: cls is a dataclass from here on
+        init, renames, where = cls.__init__, cls._RENAMED, cls.__name__
+
+        @functools.wraps(init)
+        def __init__(self: Any, *args: Any, **kw: Any) -> None:
+            # the user's call is 3 frames up: this, the force-model metaclass's __call__, the call
+            move_renamed_keywords(kw, renames, where, stacklevel=3)
+            init(self, *args, **kw)
+
+        cls.__init__ = __init__
+
+
+def _deprecated_field(cls: str, old: str, new: str) -> property:
+    """Read-only ``old``, the field's name before it was ``new``, with a ``DeprecationWarning``."""
+
+    def get(self: Any) -> Any:
+        warn_deprecated(
+            f"{cls}.{old} is deprecated and will be removed in the next release; use {cls}.{new} (the same array)",
+            stacklevel=2,
+        )
+        return getattr(self, new)
+
+    return property(get, doc=f"Deprecated spelling of :attr:`{new}`.")
+
+
+class Spring(_RenamedKeywords, ForceModel):
     """Springs (with optional linear dampers) from body points to world anchors or other bodies.
 
-    Spring ``s`` joins point ``a`` (``point`` in body ``body[s]``'s frame, or its
-    centre of mass if ``point`` is ``None``) to point ``b``: the world ``anchor``
-    if ``other`` is ``None``, else ``anchor`` in body ``other[s]``'s frame (its
-    centre of mass if ``anchor`` is ``None``). With ``d = x_b - x_a`` (world):
+    Spring ``s`` joins point ``a`` (``point`` in body ``body_index[s]``'s frame, or
+    its centre of mass if ``point`` is ``None``) to point ``b``: the world
+    ``anchor`` if ``other_index`` is ``None``, else ``anchor`` in body
+    ``other_index[s]``'s frame (its centre of mass if ``anchor`` is ``None``). With ``d = x_b - x_a`` (world):
 
         F_a = k (1 - l₀/‖d‖) d + c (v_b - v_a),      F_b = -F_a,
         τ_a = r_a × F_a,  τ_b = r_b × F_b,           r = R p (world offset),
@@ -147,7 +185,7 @@ class Spring(ForceModel):
     ``damping`` the springs exert a net torque ``(p_a - p_b) × F_a`` on the
     pair and total angular momentum changes.
 
-    Shapes (``S`` springs): ``body``, ``other``: ``(S,)`` int, each ``>= 0`` and
+    Shapes (``S`` springs): ``body_index``, ``other_index``: ``(S,)`` int, each ``>= 0`` and
     ``< N`` (checked when simulated); ``point``, ``anchor``: ``(S, 3)`` or
     ``(3,)`` m; ``stiffness`` ``k`` N/m, ``rest_length`` ``l₀`` m, ``damping``
     ``c`` N s/m: ``(S,)`` or scalars, each ``>= 0``. Build with :meth:`to_anchor`
@@ -155,41 +193,45 @@ class Spring(ForceModel):
     and no rotation work; with both ends there the model returns ``torque=None``.
     """
 
-    body: Int[Array, " S"] = field(converter=array_like)
+    body_index: Int[Array, " S"] = field(converter=array_like)
     stiffness: Float[Array, "*S"] = field(converter=array_like)
     point: Float[Array, "S 3"] | None = field(default=None, converter=optional_array_like)
     anchor: Float[Array, "S 3"] | None = field(default=None, converter=optional_array_like)
-    other: Int[Array, " S"] | None = field(default=None, converter=optional_array_like)
+    other_index: Int[Array, " S"] | None = field(default=None, converter=optional_array_like)
     rest_length: Float[Array, "*S"] = field(default=0.0, converter=array_like)
     damping: Float[Array, "*S"] | None = field(default=None, converter=optional_array_like)
-    _INDEX_FIELDS = ("body", "other")
+    _INDEX_FIELDS = ("body_index", "other_index")
     _NON_NEGATIVE = ("stiffness", "rest_length", "damping")
-    _FIELD_LABELS = {"other": "other (body_b of Spring.between)"}
+    _FIELD_LABELS = {"other_index": "other_index (body_b of Spring.between)"}
+    _RENAMED = {"body": "body_index", "other": "other_index"}
+    body = _deprecated_field("Spring", "body", "body_index")
+    other = _deprecated_field("Spring", "other", "other_index")
 
     def __check_init__(self) -> None:
-        object.__setattr__(self, "body", _as_index("Spring", "body", self.body))
-        if self.other is not None:
-            object.__setattr__(self, "other", _as_index("Spring", "other", self.other))
-            if self.other.shape != self.body.shape:
+        object.__setattr__(self, "body_index", _as_index("Spring", "body_index", self.body_index))
+        if self.other_index is not None:
+            object.__setattr__(self, "other_index", _as_index("Spring", "other_index", self.other_index))
+            if self.other_index.shape != self.body_index.shape:
                 raise ValueError(
-                    f"Spring: body {tuple(self.body.shape)} and other {tuple(self.other.shape)} must name the same "
-                    "number of springs"
+                    f"Spring: body_index {tuple(self.body_index.shape)} and other_index "
+                    f"{tuple(self.other_index.shape)} must name the same number of springs"
                 )
         elif self.anchor is None:
-            raise ValueError("Spring: a world anchor is required when other is None")
+            raise ValueError("Spring: a world anchor is required when other_index is None")
         floats(self, "stiffness", "point", "anchor", "rest_length", "damping")
-        _per_item(self, self.body.shape[0], ("point", "anchor"), ("stiffness", "rest_length", "damping"))
+        _per_item(self, self.body_index.shape[0], ("point", "anchor"), ("stiffness", "rest_length", "damping"))
         check_non_negative(self, "stiffness", "rest_length", "damping")
 
     def check(self, state: AnyState) -> None:
         n = _check_flat("Spring", state)
-        _indices_in(self, "body", n)
-        _indices_in(self, "other", n)
+        _indices_in(self, "body_index", n)
+        _indices_in(self, "other_index", n)
 
     @classmethod
+    @renamed_keywords("Spring.to_anchor", body="body_index")
     def to_anchor(
         cls,
-        body: Int[ArrayLike, " S"],
+        body_index: Int[ArrayLike, " S"],
         anchor: Float[ArrayLike, "S 3"],
         stiffness: Float[ArrayLike, "*S"],
         *,
@@ -197,8 +239,8 @@ class Spring(ForceModel):
         rest_length: Float[ArrayLike, "*S"] = 0.0,
         damping: Float[ArrayLike, "*S"] | None = None,
     ) -> Spring:
-        """Springs from body points (body frame; ``None`` = COM) to world ``anchor`` points."""
-        return cls(body, stiffness, point=point, anchor=anchor, rest_length=rest_length, damping=damping)
+        """Springs from points on bodies ``body_index`` (body frame; ``None`` = COM) to world ``anchor`` points."""
+        return cls(body_index, stiffness, point=point, anchor=anchor, rest_length=rest_length, damping=damping)
 
     @classmethod
     def between(
@@ -214,7 +256,13 @@ class Spring(ForceModel):
     ) -> Spring:
         """Springs between points on two bodies (each in its own body frame; ``None`` = COM)."""
         return cls(
-            body_a, stiffness, point=point_a, anchor=point_b, other=body_b, rest_length=rest_length, damping=damping
+            body_a,
+            stiffness,
+            point=point_a,
+            anchor=point_b,
+            other_index=body_b,
+            rest_length=rest_length,
+            damping=damping,
         )
 
     def depends_on_velocity(self) -> bool:
@@ -226,16 +274,16 @@ class Spring(ForceModel):
     def __call__(self, state: AnyState, t: Float[ArrayLike, ""]) -> Forces:
         self.check(state)
         _check_flat("Spring", state)
-        rotating = self.point is not None or (self.other is not None and self.anchor is not None)
+        rotating = self.point is not None or (self.other_index is not None and self.anchor is not None)
         omega = angular_velocity(rigid_only("Spring(point=...)", state)) if rotating else None
-        r_a = _offset(state, self.body, self.point)
-        x_a, v_a = _point_motion(state, self.body, r_a, omega)
+        r_a = _offset(state, self.body_index, self.point)
+        x_a, v_a = _point_motion(state, self.body_index, r_a, omega)
         r_b = None
-        if self.other is None:
+        if self.other_index is None:
             x_b, v_b = cast_to(self.anchor, state), None
         else:
-            r_b = _offset(state, self.other, self.anchor)
-            x_b, v_b = _point_motion(state, self.other, r_b, omega)
+            r_b = _offset(state, self.other_index, self.anchor)
+            x_b, v_b = _point_motion(state, self.other_index, r_b, omega)
         d = x_b - x_a
         k = cast_to(self.stiffness, state)[..., None]
         l0 = cast_to(self.rest_length, state)[..., None]
@@ -247,44 +295,47 @@ class Spring(ForceModel):
             rel = -v_a if v_b is None else v_b - v_a
             f_a = f_a + cast_to(self.damping, state)[..., None] * rel
         f_a = jnp.broadcast_to(f_a, d.shape)
-        force = _scatter(state, self.body, f_a)
-        torque = None if r_a is None else _scatter(state, self.body, cross(r_a, f_a))
-        if self.other is not None:
-            force = _add_at(force, self.other, -f_a)
+        force = _scatter(state, self.body_index, f_a)
+        torque = None if r_a is None else _scatter(state, self.body_index, cross(r_a, f_a))
+        if self.other_index is not None:
+            force = _add_at(force, self.other_index, -f_a)
             if r_b is not None:
                 tb = cross(r_b, -f_a)
-                torque = _scatter(state, self.other, tb) if torque is None else _add_at(torque, self.other, tb)
+                other = self.other_index
+                torque = _scatter(state, other, tb) if torque is None else _add_at(torque, other, tb)
         return Forces(force=force, torque=torque)
 
 
-class Thruster(ForceModel):
+class Thruster(_RenamedKeywords, ForceModel):
     """Body-fixed thrusters: force ``F = T R d`` at body point ``p``, turning with the body.
 
-    Thruster ``s`` on body ``body[s]`` pushes with magnitude ``thrust`` ``T`` (N)
+    Thruster ``s`` on body ``body_index[s]`` pushes with magnitude ``thrust`` ``T`` (N)
     along the body-frame ``direction`` ``d`` (unit, not renormalised) at the
     body-frame ``point`` ``p`` (m; ``None`` = centre of mass, no torque). World
     force ``F = T R d``, torque about the centre of mass ``τ = (R p) × F``.
-    Shapes (``S`` thrusters): ``body`` ``(S,)`` int, each ``>= 0`` and ``< N``
+    Shapes (``S`` thrusters): ``body_index`` ``(S,)`` int, each ``>= 0`` and ``< N``
     (checked when simulated); ``direction`` (unit: checked when concrete),
     ``point``: ``(S, 3)`` or ``(3,)``; ``thrust`` ``(S,)`` or scalar, of either
     sign (a negative thrust pushes along ``-d``). Rigid states only.
 
-    :func:`rbjax.simulate` (JAX path) steps thrusters whose ``body`` is concrete
+    :func:`rbjax.simulate` (JAX path) steps thrusters whose ``body_index`` is concrete
     (not traced by a caller's ``jit``) and names each body at most once as a
     per-body law inside its step, without the gather and scatter (see
     :meth:`as_per_body`): the same formulas, so the same values.
     """
 
-    body: Int[Array, " S"] = field(converter=array_like)
+    body_index: Int[Array, " S"] = field(converter=array_like)
     direction: Float[Array, "S 3"] = field(converter=array_like)
     thrust: Float[Array, "*S"] = field(converter=array_like)
     point: Float[Array, "S 3"] | None = field(default=None, converter=optional_array_like)
-    _INDEX_FIELDS = ("body",)
+    _INDEX_FIELDS = ("body_index",)
+    _RENAMED = {"body": "body_index"}
+    body = _deprecated_field("Thruster", "body", "body_index")
 
     def __check_init__(self) -> None:
-        object.__setattr__(self, "body", _as_index("Thruster", "body", self.body))
+        object.__setattr__(self, "body_index", _as_index("Thruster", "body_index", self.body_index))
         floats(self, "direction", "thrust", "point")
-        _per_item(self, self.body.shape[0], ("direction", "point"), ("thrust",))
+        _per_item(self, self.body_index.shape[0], ("direction", "point"), ("thrust",))
         d = self.direction
         if is_concrete(d) and d.size:
             err = np.max(np.abs(np.linalg.norm(np.asarray(d, np.float64), axis=-1) - 1))
@@ -296,7 +347,7 @@ class Thruster(ForceModel):
                 )
 
     def check(self, state: AnyState) -> None:
-        _indices_in(self, "body", _check_flat("Thruster", state))
+        _indices_in(self, "body_index", _check_flat("Thruster", state))
 
     def depends_on_velocity(self) -> bool:
         return False
@@ -306,18 +357,18 @@ class Thruster(ForceModel):
         _check_flat("Thruster", state)
         if isinstance(state, ParticleState):
             raise ValueError("Thruster: a body-fixed direction needs rigid bodies, not ParticleState")
-        d = _to_world(state, self.body, self.direction)
+        d = _to_world(state, self.body_index, self.direction)
         f = cast_to(self.thrust, state)[..., None] * d
-        r = _offset(state, self.body, self.point)
-        force = _scatter(state, self.body, f)
-        return Forces(force=force, torque=None if r is None else _scatter(state, self.body, cross(r, f)))
+        r = _offset(state, self.body_index, self.point)
+        force = _scatter(state, self.body_index, f)
+        return Forces(force=force, torque=None if r is None else _scatter(state, self.body_index, cross(r, f)))
 
     def as_per_body(self, state: AnyState) -> PerBodyForce | None:
-        """These thrusters as :class:`_OneThrusterPerBody` when ``body`` is concrete and names each body
-        at most once (the bodies without one get zero thrust along a zero direction), else ``None``."""
-        if not is_concrete(self.body) or len(state.batch_shape) != 1 or isinstance(state, ParticleState):
+        """These thrusters as :class:`_OneThrusterPerBody` when ``body_index`` is concrete and names each
+        body at most once (the bodies without one get zero thrust along a zero direction), else ``None``."""
+        if not is_concrete(self.body_index) or len(state.batch_shape) != 1 or isinstance(state, ParticleState):
             return None
-        idx = np.asarray(self.body)
+        idx = np.asarray(self.body_index)
         if np.unique(idx).size != idx.size:
             return None
         n, s = state.batch_shape[0], idx.size

@@ -652,22 +652,22 @@ FORCE_MODEL_CASES: dict[str, dict[str, tuple[str, Callable[[], Any]]]] = {
         "negative stiffness": ("stiffness", lambda: rb.Spring.between([0], [1], -1.0)),
         "negative damping": ("damping", lambda: rb.Spring.to_anchor([0], [0.0, 0, 0], 1.0, damping=-0.5)),
         "negative rest length": ("rest_length", lambda: rb.Spring.between([0], [1], 1.0, rest_length=-1.0)),
-        "negative body index": ("body", lambda: rb.Spring.between([-1], [1], 1.0)),
-        "float body index": ("body", lambda: rb.Spring.to_anchor([0.0], [0.0, 0, 0], 1.0)),
-        "2-D body indices": ("body", lambda: rb.Spring.to_anchor([[0]], [0.0, 0, 0], 1.0)),
-        "body past the batch": ("body", lambda: _sim3(rb.Spring.to_anchor([3], [0.0, 0, 0], 1.0))),
+        "negative body index": ("body_index", lambda: rb.Spring.between([-1], [1], 1.0)),
+        "float body index": ("body_index", lambda: rb.Spring.to_anchor([0.0], [0.0, 0, 0], 1.0)),
+        "2-D body indices": ("body_index", lambda: rb.Spring.to_anchor([[0]], [0.0, 0, 0], 1.0)),
+        "body past the batch": ("body_index", lambda: _sim3(rb.Spring.to_anchor([3], [0.0, 0, 0], 1.0))),
         "body_b past the batch": ("body_b", lambda: _sim3(rb.Spring.between([0], [7], 1.0))),
         "body_b past the batch, step": ("body_b", lambda: rb.step(_three(), rb.Spring.between([0], [7], 1.0), 0.01)),
         "body_b past the batch, Scene": ("body_b", lambda: rb.Scene.build(_three(), rb.Spring.between([0], [7], 1.0))),
         "stiffness per spring, wrong count": ("stiffness", lambda: rb.Spring.between([0, 1], [1, 2], [1.0, 2, 3])),
         "2-vector anchor": ("anchor", lambda: rb.Spring.to_anchor([0], [[0.0, 0]], 1.0)),
-        "body and other of different lengths": ("other", lambda: rb.Spring.between([0, 1], [2], 1.0)),
+        "body and other of different lengths": ("other_index", lambda: rb.Spring.between([0, 1], [2], 1.0)),
     },
     "Thruster": {
-        "body past the batch": ("body", lambda: _sim3(rb.Thruster(jnp.array([5]), _Z, 1.0))),
-        "body past the batch, step": ("body", lambda: rb.step(_three(), rb.Thruster([3], _Z, 1.0), 0.01)),
-        "negative body index": ("body", lambda: rb.Thruster([-1], _Z, 1.0)),
-        "float body index": ("body", lambda: rb.Thruster([1.0], _Z, 1.0)),
+        "body past the batch": ("body_index", lambda: _sim3(rb.Thruster(jnp.array([5]), _Z, 1.0))),
+        "body past the batch, step": ("body_index", lambda: rb.step(_three(), rb.Thruster([3], _Z, 1.0), 0.01)),
+        "negative body index": ("body_index", lambda: rb.Thruster([-1], _Z, 1.0)),
+        "float body index": ("body_index", lambda: rb.Thruster([1.0], _Z, 1.0)),
         "non-unit direction": ("direction", lambda: rb.Thruster([0], [[0.0, 0, 2]], 1.0)),
         "4-vector direction": ("direction", lambda: rb.Thruster([0], [[0.0, 0, 1, 0]], 1.0)),
         "thrust per thruster, wrong count": ("thrust", lambda: rb.Thruster([0, 1], _Z, [1.0, 2, 3])),
@@ -701,7 +701,7 @@ FORCE_MODEL_CASES: dict[str, dict[str, tuple[str, Callable[[], Any]]]] = {
     },
     "ForceSum": {
         "a term that is not a model": ("terms", lambda: rb.ForceSum((rb.Gravity(), 3.0))),
-        "a bad term inside a sum": ("Thruster: body", lambda: _sim3(rb.Gravity() + rb.Thruster([4], _Z, 1.0))),
+        "a bad term inside a sum": ("Thruster: body_index", lambda: _sim3(rb.Gravity() + rb.Thruster([4], _Z, 1.0))),
     },
 }
 
@@ -1002,14 +1002,14 @@ def test_checked_mode_tests_traced_force_model_indices_and_signs():
         )
     )
     assert run(jnp.array([2]), jnp.asarray(1.0), True).shape == (3, 3, 3)
-    with pytest.raises(Exception, match=r"simulate\(checked=...\): Spring: other \(body_b of Spring.between\)"):
+    with pytest.raises(Exception, match=r"simulate\(checked=...\): Spring: other_index \(body_b of Spring.between\)"):
         run(jnp.array([7]), jnp.asarray(1.0), True)
     with pytest.raises(Exception, match=r"simulate\(checked=...\): Spring: stiffness must be >= 0"):
         run(jnp.array([2]), jnp.asarray(-1.0), True)
     thrust = eqx.filter_jit(
         lambda idx: rb.simulate(s3, rb.Thruster(idx, _Z, 1.0), 0.01, 2, "euler", checked=True).position
     )
-    with pytest.raises(Exception, match=r"simulate\(checked=...\): Thruster: body holds an index outside"):
+    with pytest.raises(Exception, match=r"simulate\(checked=...\): Thruster: body_index holds an index outside"):
         thrust(jnp.array([-1]))
 
 

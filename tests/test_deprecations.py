@@ -126,3 +126,61 @@ def test_fit_inertia_linear_old_positional_order():
     assert _bitwise_equal(_old(lambda: rb.fit_inertia_linear(times, w, q, tau), "body_rates"), new)
     assert _bitwise_equal(_old(lambda: rb.fit_inertia_linear(times, w, orientations=q, torques=tau), "body_rates"), new)
     np.testing.assert_allclose(new, np.diag([1.0, 2.0, 2.6]), atol=1e-2)  # absolute: the torques were used
+
+
+# ---- body indices of Spring and Thruster: body_index, other_index
+
+
+def _three():
+    body = rb.box(jnp.ones(3), jnp.array([0.1, 0.2, 0.4]))
+    return rb.State.create(body, position=np.eye(3), orientation=QUATS, angular_velocity=OMEGA, velocity=OMEGA / 2)
+
+
+_P = [[0.1, 0.0, 0.05]]
+_D = [[0.0, 0.6, 0.8]]
+
+
+def _same_model(old, new):
+    s = _three()
+    assert type(old) is type(new) and _bitwise_equal(old, new)
+    assert _bitwise_equal(old(s, 0.0), new(s, 0.0))
+    assert _bitwise_equal(rb.simulate(s, old, 0.01, 4, "rk4"), rb.simulate(s, new, 0.01, 4, "rk4"))
+
+
+def test_spring_body_and_other_keywords():
+    new = _new(lambda: rb.Spring.to_anchor(body_index=[1], anchor=[0.0, 0, 1], stiffness=3.0, point=_P))
+    old = _old(lambda: rb.Spring.to_anchor(body=[1], anchor=[0.0, 0, 1], stiffness=3.0, point=_P), "body_index")
+    _same_model(old, new)
+    new = _new(lambda: rb.Spring(body_index=[0], other_index=[2], stiffness=3.0, point=_P, anchor=_P, damping=0.1))
+    old = _old(
+        lambda: rb.Spring(body=[0], other=[2], stiffness=3.0, point=_P, anchor=_P, damping=0.1),
+        "body_index",
+        "other_index",
+    )
+    _same_model(old, new)
+    assert _bitwise_equal(new, rb.Spring.between([0], [2], 3.0, point_a=_P, point_b=_P, damping=0.1))
+    assert _bitwise_equal(_old(lambda: new.body, "body_index"), new.body_index)
+    assert _bitwise_equal(_old(lambda: new.other, "other_index"), new.other_index)
+    with pytest.raises(AttributeError):
+        new.body = np.array([1])  # type: ignore[misc]
+    with pytest.raises(TypeError, match="both body_index= and its deprecated spelling body="):
+        rb.Spring.to_anchor(body_index=[1], anchor=[0.0, 0, 1], stiffness=3.0, body=[1])
+
+
+def test_thruster_body_keyword():
+    new = _new(lambda: rb.Thruster(body_index=[1], direction=_D, thrust=2.0, point=_P))
+    old = _old(lambda: rb.Thruster(body=[1], direction=_D, thrust=2.0, point=_P), "body_index")
+    _same_model(old, new)
+    assert _bitwise_equal(_old(lambda: new.body, "body_index"), new.body_index)
+    with pytest.raises(TypeError, match="both body_index= and its deprecated spelling body="):
+        rb.Thruster(body_index=[1], body=[1], direction=_D, thrust=2.0)
+
+    class Half(rb.Thruster):  # a user's subclass keeps the old keyword too
+        def __call__(self, state, t):
+            f = super().__call__(state, t)
+            return rb.Forces(force=0.5 * f.force, torque=0.5 * f.torque)
+
+    _same_model(
+        _old(lambda: Half(body=[1], direction=_D, thrust=2.0, point=_P), "body_index"),
+        _new(lambda: Half(body_index=[1], direction=_D, thrust=2.0, point=_P)),
+    )

@@ -105,7 +105,9 @@ CASES = {
         lambda s, t: rb.Forces(force=-0.3 * s.velocity, torque=-0.1 * _omega(s)),
     ),
     "Thruster subclass, __call__": (
-        ThrusterByCall(body=[0, 2], direction=[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], thrust=[2.0, 4.0], point=[0.1, 0, 0]),
+        ThrusterByCall(
+            body_index=[0, 2], direction=[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], thrust=[2.0, 4.0], point=[0.1, 0, 0]
+        ),
         None,  # the reference is the parent at half thrust, below
     ),
     "ForceModel subclass": (
@@ -118,7 +120,9 @@ CASES = {
 def _reference(name):
     model, ref = CASES[name]
     if ref is None:
-        parent = rb.Thruster(body=model.body, direction=model.direction, thrust=0.5 * model.thrust, point=model.point)
+        parent = rb.Thruster(
+            body_index=model.body_index, direction=model.direction, thrust=0.5 * model.thrust, point=model.point
+        )
         return rb.CustomForce(lambda s, t: parent(s, t))
     return rb.CustomForce(ref)
 

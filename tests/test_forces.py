@@ -233,7 +233,7 @@ def test_bad_inputs_raise_value_error():
     with pytest.raises(ValueError, match="ParticleState has no rotation"):
         rb.Scene.build(p, rb.LinearDrag(0.1, angular=0.1))
     with pytest.raises(ValueError, match="anchor"):
-        rb.Spring(body=[0], stiffness=1.0)
+        rb.Spring(body_index=[0], stiffness=1.0)
     with pytest.raises(ValueError, match="integers"):
         rb.Spring.to_anchor([0.0], [[0, 0, 0]], 1.0)
     with pytest.raises(ValueError, match="1-D batch"):
