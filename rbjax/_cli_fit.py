@@ -65,17 +65,26 @@ def _pm_list(values, sigmas) -> str:
 
 
 def _check_outputs(args: argparse.Namespace) -> None:
-    """``CLIError`` for an output path (``--out``, ``--plot``) that cannot be written: before the fit, not after it."""
+    """``CLIError`` for an output path (``--out``, ``--plot``, ``--mjcf``, ``--urdf``) that cannot be written, or an
+    inertia export without ``--mass``: before the fit, not after it."""
     import os
 
-    for flag in ("out", "plot"):
+    exports = [f"--{flag}" for flag in ("mjcf", "urdf") if getattr(args, flag, None) is not None]
+    if exports and getattr(args, "mass", None) is None:
+        raise CLIError(f"{'/'.join(exports)} needs --mass KG (the body's mass: a rotation fit does not determine it)")
+    for flag in ("mass", "scale"):
+        value = getattr(args, flag, None)
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise CLIError(f"--{flag} must be finite and > 0, got {value}")
+    for flag in ("out", "plot", "mjcf", "urdf"):
         value = getattr(args, flag, None)
         if value is None:
             continue
         path = Path(value)
         parent = path.parent if str(path.parent) else Path(".")
         if path.is_dir():
-            raise CLIError(f"--{flag} {value} is a directory; give a file name, e.g. {path / 'fit.json'}")
+            example = {"mjcf": "inertial.xml", "urdf": "inertial.urdf", "plot": "fit.png"}.get(flag, "fit.json")
+            raise CLIError(f"--{flag} {value} is a directory; give a file name, e.g. {path / example}")
         if not parent.is_dir():
             raise CLIError(f"--{flag} {value}: no directory {parent}; create it first (mkdir -p {parent})")
         if not os.access(parent, os.W_OK | os.X_OK) or (path.exists() and not os.access(path, os.W_OK)):
@@ -111,6 +120,7 @@ def run_fit(args: argparse.Namespace) -> int:
         if not hint.startswith("note:"):
             raise CLIError(f"{args.recording}: {hint}")
         print(f"{args.recording}: {hint}", file=sys.stderr)
+    _check_scale(args, "torques" in rec or "body_torques" in rec, args.recording)
     if args.gyro_only:
         rec.pop("quaternions", None)
     for flag, key, what in (
@@ -171,7 +181,36 @@ def run_fit(args: argparse.Namespace) -> int:
     if args.out:
         Path(args.out).write_text(json.dumps(out, indent=1))
         print(f"saved: {args.out}")
+    _write_inertial(args, res)
     return exit_status([out["converged"]])
+
+
+def _check_scale(args: argparse.Namespace, scale_fixed: bool, what: str) -> None:
+    """``CLIError`` before the fit for an export whose scale will be missing (or given twice)."""
+    if getattr(args, "mjcf", None) is None and getattr(args, "urdf", None) is None:
+        return
+    if not scale_fixed and args.scale is None:
+        raise CLIError(
+            f"{what}: without torques the fit is normalised to tr I = 1 (only its ratios are known); "
+            "--mjcf/--urdf need --scale KG_M2, the body's tr I"
+        )
+    if scale_fixed and args.scale is not None:
+        raise CLIError(f"{what}: the torques fix the inertia in kg m²; leave --scale out")
+
+
+def _write_inertial(args: argparse.Namespace, res) -> None:
+    """``--mjcf`` / ``--urdf``: the fitted inertia as an ``<inertial>`` element, with ``--mass`` (and ``--scale``)."""
+    for flag, method in (("mjcf", res.mjcf_inertial), ("urdf", res.urdf_inertial)):
+        path = getattr(args, flag, None)
+        if path is None:
+            continue
+        try:
+            text = method(args.mass, args.scale)
+        except ValueError as e:
+            remedy = str(e).replace("pass scale=", "pass --scale KG_M2, ")
+            raise CLIError(f"--{flag}: {remedy}") from e
+        Path(path).write_text(text + "\n")
+        print(f"saved: {path}")
 
 
 def exit_status(converged, joint: bool | None = None) -> int:
@@ -234,6 +273,7 @@ def _fit_throws(args: argparse.Namespace) -> int:
         raise CLIError(str(e)) from e
     if rec.gyro is None:
         raise CLIError(f"{args.recording}: no gyroscope columns; record 'Gyroscope rotation rate' with phyphox")
+    _check_scale(args, False, args.recording)
     found = {k: getattr(args, k) for k in ("threshold", "margin", "min_duration") if getattr(args, k) is not None}
     try:
         windows = find_throws(rec, **found)
@@ -245,6 +285,11 @@ def _fit_throws(args: argparse.Namespace) -> int:
             "check with rbjax.plot_throws, or lower --min-duration / raise --threshold"
         )
     throws = [dataclasses.replace(rec.window(t0, t1), accelerations=None) for t0, t1 in windows]
+    if (args.mjcf is not None or args.urdf is not None) and args.separate and len(throws) > 1:
+        raise CLIError(
+            f"{args.recording}: --mjcf/--urdf export one inertia, and --separate fits {len(throws)} throws "
+            "one by one; drop --separate for their joint fit"
+        )
     kwargs = {kw: getattr(args, dest) for dest, kw in FIT_OPTIONS.items() if getattr(args, dest) is not None}
     if args.gyro_bias:
         kwargs["gyro_bias"] = True
@@ -299,6 +344,13 @@ def _fit_throws(args: argparse.Namespace) -> int:
     if args.out:
         Path(args.out).write_text(json.dumps(report, indent=1, default=lambda v: np.asarray(v).tolist()))
         print(f"saved: {args.out}")
+    if args.mjcf is not None or args.urdf is not None:
+        if joint is not None:
+            _write_inertial(args, joint)
+        else:  # one throw (more with --separate are refused before the fit)
+            import jax
+
+            _write_inertial(args, jax.tree.map(lambda a: a[0], res))
     converged = np.asarray(res.converged) & ~np.asarray(res.failed)
     return exit_status(converged.tolist(), None if joint is None else bool(joint.converged))
 
@@ -457,6 +509,17 @@ def add_fit_parser(sub, common: argparse.ArgumentParser) -> None:
         "(exit status: see the end)",
     )
     fit.add_argument("--out", default=None, help="write the result as JSON to this path")
+    export = fit.add_argument_group("the fitted inertia for a simulator (MuJoCo, URDF)")
+    export.add_argument("--mjcf", default=None, metavar="XML", help="write a MuJoCo <inertial> element")
+    export.add_argument("--urdf", default=None, metavar="URDF", help="write a URDF <inertial> element")
+    export.add_argument("--mass", type=float, default=None, metavar="KG", help="the body's mass (needed by both)")
+    export.add_argument(
+        "--scale",
+        type=float,
+        default=None,
+        metavar="KG_M2",
+        help="tr I of the body, for a fit normalised to tr I = 1 (without torques: every gyro-only fit)",
+    )
     fit.add_argument("--time-unit", choices=["s", "ms", "us"], default=None, help="unit of the t column (default s)")
     fit.add_argument(
         "--method",

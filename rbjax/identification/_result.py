@@ -261,6 +261,113 @@ class FitResult:
     member_dof: tuple = static_field(default=())
     member_pvalue: tuple = static_field(default=())
 
+    def mjcf_inertial(
+        self, mass: float, scale: float | None = None, *, diagonal: bool = False, pos=(0.0, 0.0, 0.0)
+    ) -> str:
+        """The fitted inertia as a MuJoCo ``<inertial>`` element (one line of MJCF).
+
+        ``mass`` (kg) is the body's, given by the user: a rotation fit does not
+        determine it. ``pos`` (m) is the centre of mass in the body's frame,
+        ``(0, 0, 0)`` unless given (the fit is about the centre of mass and does
+        not locate it). The tensor is ``I`` (kg m², body frame) when torques fixed
+        the scale (``scale_fixed``); otherwise the fit holds ``I / tr I`` and
+        ``scale`` must give ``tr I`` in kg m², so that ``I = scale · inertia``.
+
+        Without ``diagonal``: ``fullinertia="Ixx Iyy Izz Ixy Ixz Iyz"`` (the tensor's
+        entries, body frame). With ``diagonal=True``: ``diaginertia="I1 I2 I3"``
+        (ascending principal moments) and ``quat="w x y z"``, the rotation from the
+        principal frame (columns of ``principal_axes``) to the body frame, as MuJoCo
+        writes quaternions (scalar first). Numbers are written to full float64
+        precision. MuJoCo refuses a tensor that breaks the triangle inequality
+        ``I1 + I2 ≥ I3``, which a fit ``on_boundary`` may do by rounding.
+
+        Raises ``ValueError`` for a batch of results, a failed fit, a mass that is
+        not finite and positive, or a normalised fit without ``scale``.
+        """
+        I = self._absolute_inertia("mjcf_inertial", mass, scale)
+        where = f'pos="{_numbers(pos)}" mass="{_number(mass)}"'
+        if not diagonal:
+            full = (I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2])
+            return f'<inertial {where} fullinertia="{_numbers(full)}"/>'
+        moments, axes = np.linalg.eigh(I)
+        axes = axes * np.sign(np.linalg.det(axes))  # a rotation, not a reflection
+        return f'<inertial {where} diaginertia="{_numbers(moments)}" quat="{_numbers(_matrix_quat(axes))}"/>'
+
+    def urdf_inertial(self, mass: float, scale: float | None = None, *, xyz=(0.0, 0.0, 0.0)) -> str:
+        """The fitted inertia as a URDF ``<inertial>`` element (``<origin>``, ``<mass>``, ``<inertia>``).
+
+        ``<inertia ixx ixy ixz iyy iyz izz>`` are the tensor's entries (kg m², not
+        the negated products of inertia) in the link frame, taken as the fit's body
+        frame: ``<origin rpy="0 0 0">``, with ``xyz`` (m) the centre of mass in the
+        link frame, ``(0, 0, 0)`` unless given. ``mass`` and ``scale`` as for
+        :meth:`mjcf_inertial`: the user's mass in kg, and ``tr I`` in kg m² when the
+        fit is normalised (not ``scale_fixed``). Raises ``ValueError`` as it does.
+        """
+        I = self._absolute_inertia("urdf_inertial", mass, scale)
+        entries = dict(ixx=I[0, 0], ixy=I[0, 1], ixz=I[0, 2], iyy=I[1, 1], iyz=I[1, 2], izz=I[2, 2])
+        inertia = " ".join(f'{k}="{_number(v)}"' for k, v in entries.items())
+        return (
+            "<inertial>\n"
+            f'  <origin xyz="{_numbers(xyz)}" rpy="0 0 0"/>\n'
+            f'  <mass value="{_number(mass)}"/>\n'
+            f"  <inertia {inertia}/>\n"
+            "</inertial>"
+        )
+
+    def _absolute_inertia(self, who: str, mass: float, scale: float | None) -> np.ndarray:
+        """``(3, 3)`` float64 inertia in kg m², or ``ValueError`` saying what the export lacks."""
+        I = np.asarray(self.inertia, np.float64)
+        if I.ndim != 2:
+            raise ValueError(
+                f"FitResult.{who}: this result holds {I.shape[0]} fits (a batch or list of recordings); "
+                "export one: fit that recording alone, or all of them with joint=True"
+            )
+        if bool(np.asarray(self.failed)):
+            raise ValueError(f"FitResult.{who}: the fit failed; there is no inertia to export")
+        if not (np.isfinite(mass) and mass > 0):
+            raise ValueError(f"FitResult.{who}: mass must be finite and > 0 (kg), got {mass!r}")
+        if self.scale_fixed:
+            if scale is not None:
+                raise ValueError(
+                    f"FitResult.{who}: the inertia is already in kg m² (torques fixed its scale); leave scale out"
+                )
+            return I
+        if scale is None:
+            raise ValueError(
+                f"FitResult.{who}: the fitted inertia is normalised to tr I = 1 (no torques, so only its "
+                "ratios are known); pass scale=tr I in kg m² (e.g. one known moment I_k divided by "
+                "principal_moments[k]), or fit with torques"
+            )
+        if not (np.isfinite(scale) and scale > 0):
+            raise ValueError(f"FitResult.{who}: scale (tr I, kg m²) must be finite and > 0, got {scale!r}")
+        return I * float(scale)
+
+
+def _number(x) -> str:
+    """``x`` as the shortest decimal that reads back as the same float64."""
+    return repr(float(x))
+
+
+def _numbers(xs) -> str:
+    return " ".join(_number(x) for x in np.ravel(xs))
+
+
+def _matrix_quat(R: np.ndarray) -> np.ndarray:
+    """Unit quaternion ``[w, x, y, z]`` (``w ≥ 0``) of the rotation matrix ``R`` (Shepperd: the largest
+    of ``w², x², y², z²`` is taken from the diagonal, the rest divided by it, never by a small number)."""
+    t = np.trace(R)
+    k = int(np.argmax([t, R[0, 0], R[1, 1], R[2, 2]]))
+    if k == 0:
+        q = np.array([1 + t, R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    elif k == 1:
+        q = np.array([R[2, 1] - R[1, 2], 1 + 2 * R[0, 0] - t, R[0, 1] + R[1, 0], R[0, 2] + R[2, 0]])
+    elif k == 2:
+        q = np.array([R[0, 2] - R[2, 0], R[0, 1] + R[1, 0], 1 + 2 * R[1, 1] - t, R[1, 2] + R[2, 1]])
+    else:
+        q = np.array([R[1, 0] - R[0, 1], R[0, 2] + R[2, 0], R[1, 2] + R[2, 1], 1 + 2 * R[2, 2] - t])
+    q = q / np.linalg.norm(q)
+    return q if q[0] >= 0 else -q
+
 
 _EQUAL_MOMENTS_Z = 3.0  # two moments closer than this many σ of their difference: equal within noise
 _BOUNDARY_RTOL = 1e-3  # (I1 + I2 - I3) / tr I below this: on the edge of the consistent set
