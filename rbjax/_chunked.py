@@ -10,6 +10,7 @@ and can hand each chunk to a :class:`rbjax.ChunkWriter`.
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -50,7 +51,7 @@ def simulate_chunked(
     forces: ForceLike,
     dt: Float[ArrayLike, ""],
     steps: int,
-    method: str | Method = DEFAULT_METHOD,
+    method: str | Method | Callable[..., Any] = DEFAULT_METHOD,
     *,
     save_every: int = 1,
     chunk_steps: int | None = None,

@@ -116,7 +116,8 @@ class Scene:
             to :meth:`step` / :meth:`simulate` must carry bodies of this kind.
         forces: a :class:`ForceModel` (e.g. ``Gravity() + LinearDrag(0.1)``); its
             arrays are leaves, its composition is static.
-        method: integrator name or a ``Method`` from :func:`rbjax.methods` (static);
+        method: integrator name, a ``Method`` from :func:`rbjax.methods`, or a hashable
+            batch step ``(state, force_fn, t, dt) -> state``, as in :func:`rbjax.simulate` (static);
             default ``"splitting"``, the house default (see :func:`rbjax.simulate`).
             Specialised kernels exist for ``"euler"`` and ``"rk4"`` (every rigid kind) and
             ``"splitting"`` (isotropic, axisymmetric); other methods step through their
@@ -129,7 +130,7 @@ class Scene:
 
     body: Body | None
     forces: ForceModel
-    method: str | Method = static_field(default=DEFAULT_METHOD)
+    method: str | Method | Callable[..., Any] = static_field(default=DEFAULT_METHOD)
     kind: str = static_field(default="general")
     torque_free: bool = static_field(default=False)
 
@@ -138,7 +139,7 @@ class Scene:
         cls,
         state: AnyState,
         forces: ForceModel | None = None,
-        method: str | Method = DEFAULT_METHOD,
+        method: str | Method | Callable[..., Any] = DEFAULT_METHOD,
         *,
         kind: str | None = None,
     ) -> Scene:
@@ -148,8 +149,9 @@ class Scene:
         general path, e.g. to compare; a more special kind than the bodies have
         raises ``ValueError``). Traces ``forces`` once on ``state`` to check
         its output shapes and learn whether it returns a torque. ``method`` is a
-        name or a ``Method`` from :func:`rbjax.methods` (``TypeError`` for anything
-        else, ``ValueError`` for an unknown name or a state form it does not support).
+        name, a ``Method`` from :func:`rbjax.methods` or a batch step, as in :func:`rbjax.simulate`
+        (``TypeError`` for anything else, ``ValueError`` for an unknown name or a state form it
+        does not support).
         """
         _methods.resolve(method, "Scene.build").step(type(state))
         forces = ForceSum(()) if forces is None else forces

@@ -78,7 +78,7 @@ def shoot(
     forces: ForceLike,
     dt: Float[ArrayLike, ""] | Float[ArrayLike, "S steps"],
     steps: int,
-    method: str | Method = DEFAULT_METHOD,
+    method: str | Method | Callable[..., Any] = DEFAULT_METHOD,
     *,
     save_every: int | None = None,
     t0: Float[ArrayLike, ""] | Float[ArrayLike, " S"] | None = None,
@@ -100,8 +100,9 @@ def shoot(
         dt: step (s): a scalar, or ``(S, steps)`` per-segment per-step sizes
             (irregular sampling; ``dt = 0`` steps are no-ops, for padding).
         steps: steps per segment (static).
-        method: integrator name or ``Method`` (see :func:`rbjax.methods`); default ``"splitting"``,
-            the house default (see :func:`rbjax.simulate`).
+        method: integrator name, ``Method`` (see :func:`rbjax.methods`) or hashable batch step
+            ``(state, force_fn, t, dt) -> state``, as in :func:`rbjax.simulate`; default ``"splitting"``,
+            the house default.
         save_every: keep every ``save_every``-th state (must divide ``steps``);
             default ``steps``: start and end only.
         t0: scalar start time of segment 0, the segments tiling
@@ -204,7 +205,7 @@ def simulate_truncated(
     forces: ForceLike,
     dt: Float[ArrayLike, ""],
     steps: int,
-    method: str | Method = DEFAULT_METHOD,
+    method: str | Method | Callable[..., Any] = DEFAULT_METHOD,
     *,
     truncate_every: int,
     save_every: int = 1,
@@ -229,8 +230,9 @@ def simulate_truncated(
             :class:`rbjax.Forces` with a leading ``(steps, ...)`` axis.
         dt: step (s), > 0.
         steps: total steps (static), a multiple of ``truncate_every``.
-        method: integrator name or ``Method`` (see :func:`rbjax.methods`); default
-            ``"splitting"``, the house default (see :func:`rbjax.simulate`).
+        method: integrator name, ``Method`` (see :func:`rbjax.methods`) or hashable batch
+            step ``(state, force_fn, t, dt) -> state``, as in :func:`rbjax.simulate`; default
+            ``"splitting"``, the house default.
         truncate_every: chunk length in steps (static); must be a multiple of ``save_every``.
         save_every: keep every ``save_every``-th state.
         t0: start time (s); default ``state.time``.

@@ -97,8 +97,8 @@ def step(
             of mass), a callable ``(state, t) -> Forces`` evaluated by the method
             where it needs it, or ``None``.
         dt: step (s), > 0.
-        method: integrator name or ``Method`` (static); see :func:`rbjax.methods`
-            and :func:`simulate`. Default ``"splitting"`` (second order, symplectic).
+        method: integrator name, ``Method`` or batch step callable (static), as in
+            :func:`simulate`; see :func:`rbjax.methods`. Default ``"splitting"`` (second order, symplectic).
         t0: time (s) at the start of the step, passed to a callable ``forces``;
             default ``None``: ``state.time`` (as ``t0`` of :func:`simulate`).
 

@@ -106,6 +106,29 @@ def test_a_users_own_step_still_runs_batch_first():
     np.testing.assert_array_equal(rb.step(s, FORCES, 1e-2, my_step).position, rb.step(s, FORCES, 1e-2, "rk4").position)
 
 
+def test_every_entry_point_takes_a_step_callable_as_simulate_does():
+    s = _state()
+    rk4_step = rb.methods()["rk4"].steps[rb.State]
+
+    def my_step(state, force_fn, t, dt):
+        return rk4_step(state, force_fn, t, dt)
+
+    want = rb.simulate(s, FORCES, 1e-2, 8, my_step)
+    assert _bitwise_equal(rb.simulate_chunked(s, FORCES, 1e-2, 8, my_step, chunk_steps=4, progress=False), want)
+    # another program (chunks in a scan): the same values to round-off under the suite's compiler flags
+    trunc = rb.simulate_truncated(s, FORCES, 1e-2, 8, my_step, truncate_every=4)
+    np.testing.assert_allclose(trunc.orientation, want.orientation, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(trunc.angular_momentum, want.angular_momentum, rtol=0, atol=1e-13)
+    scene = rb.Scene.build(s, FORCES, my_step)
+    assert _bitwise_equal(scene.simulate(s, 1e-2, 8), want)
+    assert _bitwise_equal(scene.step(s, 1e-2), rb.step(s, FORCES, 1e-2, my_step))
+    # shoot: each body its own segment, stepped one at a time (vmapped), not as one batch: round-off
+    _, ends = rb.shoot(s, FORCES, 1e-2, 8, my_step)
+    np.testing.assert_allclose(ends.orientation, want.orientation[-1], rtol=0, atol=1e-13)
+    np.testing.assert_allclose(ends.velocity, want.velocity[-1], rtol=0, atol=1e-13)
+    np.testing.assert_allclose(ends.angular_momentum, want.angular_momentum[-1], rtol=0, atol=1e-13)
+
+
 def test_a_registered_users_kernel_is_used_and_sees_batch_first_states(monkeypatch):
     # register_kernel replaces the registry's method; the monkeypatch puts the original back
     monkeypatch.setitem(_registry._REGISTRY, "rk8", rb.methods()["rk8"])
