@@ -379,6 +379,25 @@ def test_bad_input_is_refused_in_rbjax_words_or_gives_a_finite_result(slot, data
     assert fault is None, f"{slot} with {value!r} ({family}): {fault}"
 
 
+_FORCE_SLOTS = [
+    s for s in SLOTS if isinstance(getattr(rb, s.api, None), type) and issubclass(getattr(rb, s.api), rb.ForceModel)
+]
+
+
+@pytest.mark.parametrize("slot", _FORCE_SLOTS, ids=str)
+@settings(max_examples=6, deadline=None)
+@given(data=st.data())
+def test_bad_input_to_a_users_subclass_of_a_force_law_is_refused_as_by_the_law(slot, data):
+    """The slots of the public force laws with the law replaced by a user's subclass of it
+    (``rb.<Law>`` patched while the slot is called; see :func:`_subclass_of`)."""
+    family = data.draw(st.sampled_from(slot.families), label="family")
+    value = data.draw(FAMILIES[family](slot.shape), label="value")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(rb, slot.api, _subclass_of(getattr(rb, slot.api)))
+        fault = _fault(slot, value, family)
+    assert fault is None, f"a subclass of {slot} with {value!r} ({family}): {fault}"
+
+
 def test_every_public_name_is_covered_or_excused():
     covered = {s.api for s in SLOTS}
     public = set(rb.__all__)
