@@ -398,11 +398,19 @@ def _throws_report(res, windows, samples, joint=None) -> dict:
                 ratios=ratios[k].tolist(),
                 ratio_std=ratio_std[k].tolist(),
                 converged=bool(np.asarray(res.converged)[k]),
+                solver_converged=bool(np.asarray(res.solver_converged)[k]),
+                model_consistent=bool(np.asarray(res.model_consistent)[k]),
+                well_determined=bool(np.asarray(res.well_determined)[k]),
                 pvalue=float(np.asarray(res.consistency_pvalue)[k]),
+                principal_axes=np.asarray(res.principal_axes)[k].tolist(),
+                principal_axes_std=np.asarray(res.principal_axes_std)[k].tolist(),
+                inertia_covariance=np.asarray(res.inertia_covariance)[k].tolist(),
                 rate_rms=float(np.asarray(res.rate_rms)[k]),
                 iterations=int(np.asarray(res.iterations)[k]),
             )
         )
+        if np.any(np.isfinite(np.asarray(res.drag)[k])):  # NaN unless drag= was given
+            rows[-1].update(drag=np.asarray(res.drag)[k].tolist(), drag_std=np.asarray(res.drag_std)[k].tolist())
         if joint is not None:
             rows[-1].update(joint_rms=joint.member_rms[k], joint_pvalue=joint.member_pvalue[k])
     ok = np.asarray(res.converged) & ~np.asarray(res.failed)
@@ -430,9 +438,17 @@ def _throws_report(res, windows, samples, joint=None) -> dict:
             ratio_std=jrs.tolist(),
             moments_spread=spread(m[ok]).tolist() if ok.any() else [np.nan] * 3,
             converged=bool(joint.converged),
+            solver_converged=bool(joint.solver_converged),
+            model_consistent=bool(joint.model_consistent),
+            well_determined=bool(joint.well_determined),
             pvalue=float(joint.consistency_pvalue),
             rate_rms=float(joint.rate_rms),
+            principal_axes=np.asarray(joint.principal_axes).tolist(),
+            principal_axes_std=np.asarray(joint.principal_axes_std).tolist(),
+            inertia_covariance=np.asarray(joint.inertia_covariance).tolist(),
         )
+        if np.any(np.isfinite(np.asarray(joint.drag))):
+            combined.update(drag=np.asarray(joint.drag).tolist(), drag_std=np.asarray(joint.drag_std).tolist())
     return {"throws": rows, "combined": combined}
 
 
@@ -441,11 +457,23 @@ def _fit_report(res) -> dict:
     import numpy as np
 
     out: dict = {"scale_fixed": bool(res.scale_fixed), "segments": int(res.segments)}
-    for k in ("inertia", "principal_moments", "moment_std", "principal_axes", "initial_angular_velocity"):
+    # principal_axes: columns are the axes (body frame); inertia_covariance: (xx, yy, zz, xy, xz, yz)
+    for k in (
+        "inertia",
+        "principal_moments",
+        "moment_std",
+        "principal_axes",
+        "principal_axes_std",
+        "inertia_covariance",
+        "initial_angular_velocity",
+    ):
         out[k] = np.asarray(getattr(res, k)).tolist()
-    for k in ("converged", "solver_converged", "on_boundary"):
+    for k in ("converged", "solver_converged", "model_consistent", "well_determined", "on_boundary"):
         out[k] = bool(getattr(res, k))
     out["iterations"] = int(res.iterations)
+    out["consistency_pvalue"], out["chi2"], out["dof"] = (
+        float(getattr(res, k)) for k in ("consistency_pvalue", "chi2", "dof")
+    )
     for k, name in (
         ("orientation_rms", "orientation_rms_rad"),
         ("rate_rms", "rate_rms_rad_s"),

@@ -90,6 +90,25 @@ def _csv(tmp_path, I=I_TRUE, seconds=1.0, seed=0):
     return path
 
 
+def _check_report(res):
+    """The JSON's principal moments, axes and covariance against what they must be for its own inertia."""
+    I = np.asarray(res["inertia"])
+    moments, axes, cov = (np.asarray(res[k]) for k in ("principal_moments", "principal_axes", "inertia_covariance"))
+    np.testing.assert_allclose(moments, np.linalg.eigvalsh(I), rtol=0, atol=1e-12 * np.trace(I))
+    np.testing.assert_allclose(axes.T @ axes, np.eye(3), atol=1e-12)  # columns: orthonormal axes ...
+    np.testing.assert_allclose(I @ axes, axes * moments, atol=1e-12 * np.trace(I))  # ... of the inertia, in order
+    assert cov.shape == (6, 6) and np.allclose(cov, cov.T, rtol=0, atol=1e-12 * np.abs(cov).max())
+    # moment k's variance is aᵀ C a, a = (v_x², v_y², v_z², 2 v_x v_y, 2 v_x v_z, 2 v_y v_z) of its axis v
+    for k in range(3):
+        v = axes[:, k]
+        a = np.array([v[0] ** 2, v[1] ** 2, v[2] ** 2, 2 * v[0] * v[1], 2 * v[0] * v[2], 2 * v[1] * v[2]])
+        np.testing.assert_allclose(np.sqrt(a @ cov @ a), res["moment_std"][k], rtol=1e-6)
+    assert len(res["principal_axes_std"]) == 3 and all(s > 0 for s in res["principal_axes_std"])
+    for k in ("converged", "solver_converged", "model_consistent", "well_determined", "on_boundary"):
+        assert isinstance(res[k], bool), k
+    assert 0 <= res["consistency_pvalue"] <= 1 and res["dof"] > 0 and res["chi2"] > 0
+
+
 def test_cli_writes_mjcf_and_urdf_of_the_fit_in_its_json(tmp_path, capsys):
     import json
 
@@ -99,6 +118,7 @@ def test_cli_writes_mjcf_and_urdf_of_the_fit_in_its_json(tmp_path, capsys):
     args = ["fit", str(rec), "--out", str(out), "--mjcf", str(mjcf), "--urdf", str(urdf), "--mass", "0.2"]
     assert main([*args, "--scale", str(TRACE)]) == 0
     res = json.loads(out.read_text())
+    _check_report(res)
     expected = TRACE * np.asarray(res["inertia"])
     el = ET.fromstring(urdf.read_text())
     got = el.find("inertia").attrib
