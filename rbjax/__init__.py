@@ -32,7 +32,7 @@ from ._inertia_param import inertia_from_params, params_from_inertia, second_mom
 from ._simulate import simulate, step
 from ._dynamics import derivative
 from ._validate import StepSizeWarning
-from ._methods import OrderWarning
+from ._methods import Method, OrderWarning
 from ._torque_free import torque_free  # the exact torque-free solution, ground truth for the integrators
 
 # quantities of a state or a trajectory
@@ -135,6 +135,7 @@ __all__ = [
     "derivative",
     "StepSizeWarning",
     "OrderWarning",
+    "Method",
     "torque_free",
     # quantities of a state or a trajectory
     "angular_momentum",

@@ -193,3 +193,32 @@ def test_an_unknown_name_and_an_unsupported_state_form_are_value_errors():
     p = rb.ParticleState.create(jnp.ones(N), velocity=OMEGA)
     with pytest.raises(ValueError, match="'rk4_body' does not support ParticleState"):
         rb.simulate(p, None, 1e-2, 4, rb.methods()["rk4_body"])
+
+
+def test_a_users_method_is_a_public_method_object_run_by_every_entry_point():
+    # a user's step written as rb.Method: its order is known, and simulate runs it as it runs "euler"
+    euler = rb.methods()["euler"]
+    mine = rb.Method(name="my_euler", order=1, steps=dict(euler.steps), layout_agnostic=euler.layout_agnostic)
+    s = rb.State.create(rb.box(1.0, [0.1, 0.2, 0.4]), angular_velocity=[0.1, 2.0, 0.1], velocity=[1.0, 0, 0])
+    want = rb.simulate(s, rb.Gravity(), 1e-3, 50, "euler", native=False)
+    got = rb.simulate(s, rb.Gravity(), 1e-3, 50, mine)
+    for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(want)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))  # the same steps: the same bits
+    assert repr(mine) == "Method('my_euler', order=1)"
+
+
+@pytest.mark.parametrize(
+    "fields,named",
+    [
+        (dict(name="", order=1, steps={rb.State: lambda *a: a[0]}), "name"),
+        (dict(name="m", order=-1, steps={rb.State: lambda *a: a[0]}), "order"),
+        (dict(name="m", order=True, steps={rb.State: lambda *a: a[0]}), "order"),
+        (dict(name="m", order=1, steps={}), "steps"),
+        (dict(name="m", order=1, steps={"State": lambda *a: a[0]}), "steps"),
+        (dict(name="m", order=1, steps={rb.State: 3.0}), "steps"),
+        (dict(name="m", order=2, steps={rb.State: lambda *a: a[0]}, order_with_velocity_forces=1.5), "order_with"),
+    ],
+)
+def test_a_method_with_fields_it_cannot_mean_is_refused_naming_the_field(fields, named):
+    with pytest.raises(TypeError, match=named):
+        rb.Method(**fields)

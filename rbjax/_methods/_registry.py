@@ -91,6 +91,9 @@ class Method:
             (:func:`rbjax._eigh3.principal_frame`): ``simulate`` computes the frame
             once per call, before its loop (:func:`rbjax._body.prepare`), and the
             steps read it from the body.
+        forces_at_step_start: the steps evaluate the forces once per step, at its
+            start state and time (``"euler"``, ``"semi_implicit_euler"``): a native
+            kernel can then take forces XLA evaluates, one call per step.
         order_with_velocity_forces: the global order under forces that depend on
             velocities (drag, a damper), where it is lower than ``order`` (the
             splitting methods kick with the start velocities: first order, measured
@@ -111,6 +114,29 @@ class Method:
     native_code: int | None = None
     principal_frame: bool = False
     order_with_velocity_forces: int | None = None
+    forces_at_step_start: bool = False
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise TypeError(f"Method: name must be a non-empty str (the method= string), got {self.name!r}")
+        if isinstance(self.order, bool) or not isinstance(self.order, int) or self.order < 0:
+            raise TypeError(f"Method {self.name!r}: order must be an int >= 0 (0: not known), got {self.order!r}")
+        if not isinstance(self.steps, dict) or not self.steps:
+            raise TypeError(
+                f"Method {self.name!r}: steps must be a dict {{state type: batch step (state, force_fn, t, dt) -> "
+                f"state}}, e.g. {{rb.State: my_step}}; got {self.steps!r}"
+            )
+        for kind, fn in self.steps.items():
+            if not isinstance(kind, type) or not callable(fn):
+                raise TypeError(
+                    f"Method {self.name!r}: steps maps state types (rb.State, rb.MatrixState, rb.ParticleState) "
+                    f"to step callables; got {kind!r}: {fn!r}"
+                )
+        low = self.order_with_velocity_forces
+        if low is not None and (isinstance(low, bool) or not isinstance(low, int) or low < 0):
+            raise TypeError(
+                f"Method {self.name!r}: order_with_velocity_forces must be None or an int >= 0; got {low!r}"
+            )
 
     def __repr__(self) -> str:
         return f"Method({self.name!r}, order={self.order})"

@@ -88,5 +88,7 @@ register(
         stable_dt_omega={"State": math.inf, "MatrixState": 0.13, "ParticleState": math.inf},
         kernels=specialised.kernels(specialised.euler),
         native_code=0,
+        # its steps read the forces once, at the step's start state and time
+        forces_at_step_start=True,
     )
 )

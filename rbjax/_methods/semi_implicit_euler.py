@@ -82,5 +82,7 @@ register(
         # benchmarks/results/stability_limits.json: finite up to dt·|ω| = 1000 in both forms
         stable_dt_omega={"State": math.inf, "MatrixState": math.inf, "ParticleState": math.inf},
         native_code=3,
+        # its steps read the forces once, at the step's start state and time
+        forces_at_step_start=True,
     )
 )

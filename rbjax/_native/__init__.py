@@ -194,7 +194,7 @@ NATIVE_LAWS = tuple(t.__name__ for t in _LAWS if t is not Forces)
 # as a fused JAX step does: roughly measured (shared 2-core machine, 1e5 bodies, float32),
 # euler and semi_implicit_euler with a callable were no faster natively than on JAX, so
 # native=None keeps such runs on JAX and native=True takes this path.
-AT_STEP_START = ("euler", "semi_implicit_euler")
+AT_STEP_START = tuple(m.name for m in available().values() if m.forces_at_step_start and m.native_code is not None)
 
 
 def _terms(forces: Any) -> tuple[Any, ...] | None:
@@ -225,7 +225,7 @@ def native_plan(
         return f"{type(state).__name__} has no native kernel (State has)"
     if state.dtype not in (jnp.float32, jnp.float64):
         return f"dtype {state.dtype} has no native kernel (float32 and float64 have)"
-    if not series and _terms(forces) is None and method.name not in AT_STEP_START:
+    if not series and _terms(forces) is None and not method.forces_at_step_start:
         return (
             f"method {method.name!r} needs the forces at intermediate states, and these are evaluated by XLA "
             f"(the kernel evaluates none, constant or time-series Forces, {', '.join(NATIVE_LAWS)} and their "
