@@ -168,13 +168,11 @@ def _segments(X, seg, *, layout: Layout, scale_fixed, method, substeps, use_rate
         args = dict(q=r0[0], L=r0[1], inv=inv, dq=dr0[0], dL=dr0[1], dinv=dinv, dt=seg.dt, obs=obs, const=const)
         if frame is not None:
             args["tau"] = seg.tau if frame == "world" else seg.tau_b
-        drag, at = layout.drag, layout.span("drag")
-        if drag:  # the coefficients (c₁, c₂); "linear" fits c₁ alone
-            k = jnp.zeros((X.shape[0], 2), X.dtype).at[:, :drag].set(X[:, at])
-            tangents = jnp.broadcast_to(basis[:, at], (X.shape[0], X.shape[1], drag))
-            dk = jnp.zeros((X.shape[0], X.shape[1], 2), X.dtype).at[:, :, :drag].set(tangents)
+        if layout.drag:  # the coefficients (c₁, c₂) (S, 2) and their tangents (S, n, 2)
+            coefficients = lambda x: _drag_model(x, scale_fixed, layout)
+            k, dk = jax.vmap(lambda x: _pushforward(coefficients, x, basis))(X)
             args.update(drag=k, ddrag=dk)
-        (q_end, dq_end), y, dy = flow(substeps, frame, _observe, bool(drag), looped)(args)
+        (q_end, dq_end), y, dy = flow(substeps, frame, _observe, bool(layout.drag), looped)(args)
     else:
         K = seg.dt.shape[1]
         dts = jnp.broadcast_to((seg.dt / substeps).T[:, None], (K, substeps, X.shape[0]))
@@ -334,6 +332,28 @@ def model_shapes(y, data, *, joins=None, **_):
     return jax.ShapeDtypeStruct((m,), y.dtype), jax.ShapeDtypeStruct((m, y.shape[0]), y.dtype)
 
 
+# the drag parameters' softplus bend (1/s for c₁ / tr I, 1/rad for c₂ / tr I): well below the drag
+# of a tossed phone (c₂ / tr I ~ 0.02), so above it c / tr I is the parameter itself to 1e-3 and the
+# start, the parameter 0, is c / tr I = 7e-4, next to no drag
+_DRAG_BEND = 1e-3
+
+
+def _drag_model(x, scale_fixed, layout: Layout):
+    """The damping coefficients ``(c₁, c₂)`` the model integrates, from the parameters ``x`` (``y`` or
+    one segment's ``x_s``: the shared block first).
+
+    ``c = tr I · b softplus(p / b)`` of the free parameter ``p`` (``b`` = ``_DRAG_BEND``): never
+    negative, so a fitted drag is one :class:`rbjax.QuadraticDrag` and :class:`rbjax.LinearDrag`
+    accept (a free ``c`` fitted ``c₂ < 0`` on real throws, an energy source). The factor ``tr I``
+    keeps ``p ≈ c / tr I`` in the same units with or without torques (kg m² absolute, the gauge
+    ``Σ_xx = 1`` without), so one bend suits a phone and a robot alike. Near ``c = 0`` the map
+    flattens; the covariance is taken in ``c`` (:func:`drag_coefficients`' Jacobian), where it does not.
+    """
+    p = x[layout.span("drag")]
+    c = jnp.zeros(2, x.dtype).at[: layout.drag].set(_DRAG_BEND * jax.nn.softplus(p / _DRAG_BEND))
+    return jnp.trace(_inertia(x[: 6 if scale_fixed else 5], scale_fixed)) * c
+
+
 def drag_coefficients(y, scale_fixed, layout: Layout):
     """The fitted drag coefficients (``layout``'s ``drag`` block of ``y``) padded to ``(c₁, c₂)``, in reported units.
 
@@ -343,7 +363,7 @@ def drag_coefficients(y, scale_fixed, layout: Layout):
     (``c₁ / tr I`` in 1/s, ``c₂ / tr I`` in 1/rad); with torques absolute
     (N m s, N m s²).
     """
-    c = jnp.zeros(2, y.dtype).at[: layout.drag].set(y[layout.span("drag")])
+    c = _drag_model(y, scale_fixed, layout)
     if scale_fixed:
         return c
     return c / jnp.trace(_inertia(y[:5], scale_fixed))
