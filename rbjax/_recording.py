@@ -146,7 +146,9 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
                 f"give all of {list(cols)} or none"
             )
     if len(lines) == 1:
-        raise RecordingError(f"{path}: only a header, no samples")
+        raise RecordingError(
+            f"{path}: only a header, no samples; write the samples below it, one row per time (at least 2 rows)"
+        )
     used = [c for cols in GROUPS.values() if cols[0] in header for c in cols]
     index = [header.index(c) for c in used]
     rows = np.empty((len(lines) - 1, len(used)))
@@ -174,6 +176,8 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
 
 
 def _check_length(path: Path, n: int) -> None:
+    if n == 0:
+        raise RecordingError(f"{path}: no samples (empty arrays); save the recording's data, at least 2 samples")
     if n < 2:
         raise RecordingError(f"{path}: {n} sample(s); a fit needs a recording of many samples")
 

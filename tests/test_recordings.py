@@ -396,3 +396,48 @@ def test_lists_a_find_throws_user_may_pass_by_mistake_are_named(tmp_path):
         rb.fit_inertia([rec.window(*windows[0]), windows[1]])
     with pytest.raises(ValueError, match=r"times must be 1-D.*pass gyro readings as body_rates="):
         rb.fit_inertia(rec.window(*windows[0]).gyro)
+
+
+# --- empty recordings --------------------------------------------------------------------------
+
+
+def test_empty_recordings_are_refused_in_rbjax_words(tmp_path, capsys):
+    # a header and no rows reaches every entry as a ValueError naming the file or argument and the
+    # remedy, never NumPy's "zero-size array" (which a reduction over no samples raises)
+    export = tmp_path / "export"
+    export.mkdir()
+    phyphox = export / "Gyroscope rotation rate.csv"
+    phyphox.write_text(GYRO_HEADER)
+    with zipfile.ZipFile(tmp_path / "export.zip", "w") as z:
+        z.write(phyphox, "Gyroscope rotation rate.csv")
+    for path in (phyphox, export, tmp_path / "export.zip"):
+        with pytest.raises(rb.RecordingError, match="the gyro columns have a header and no samples") as e:
+            rb.Recording.from_phyphox(path)
+        assert str(path) in str(e.value) and "export again from phyphox" in str(e.value)
+    csv = tmp_path / "rec.csv"
+    csv.write_text("t,qw,qx,qy,qz,gx,gy,gz\n")
+    with pytest.raises(rb.RecordingError, match="rec.csv: only a header, no samples; write the samples below it"):
+        rb.Recording.from_file(csv)
+    npz = tmp_path / "rec.npz"
+    np.savez(npz, times=np.zeros(0), gyro=np.zeros((0, 3)))
+    with pytest.raises(rb.RecordingError, match=r"rec.npz: no samples \(empty arrays\); save the recording's data"):
+        rb.Recording.from_file(npz)
+    with pytest.raises(ValueError, match=r"Recording: times is empty \(shape \(0,\)\): no samples; .*at least 2"):
+        rb.Recording(np.zeros(0), gyro=np.zeros((0, 3)))
+    for path, message in (
+        (phyphox, "the gyro columns have a header and no samples"),
+        (export, "the gyro columns have a header and no samples"),
+        (csv, "only a header, no samples"),
+        (npz, "no samples (empty arrays)"),
+    ):
+        assert main(["fit", str(path)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("rbjax: error: ") and err.count("\n") == 1 and message in err, err
+
+
+@pytest.mark.xfail(
+    strict=True, reason="fit_inertia's input checks (_fit.py, _problem.py) do not yet look for 0 samples"
+)
+def test_fit_inertia_refuses_empty_arrays_in_its_words():
+    with pytest.raises(ValueError, match="fit_inertia: .*no samples"):
+        rb.fit_inertia(np.zeros(0), body_rates=np.zeros((0, 3)))

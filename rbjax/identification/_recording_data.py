@@ -78,6 +78,12 @@ class Recording:
 
     def __post_init__(self) -> None:
         t = _real_array("times", self.times)
+        if t.size == 0:
+            where = f" in {self.source}" if self.source else ""
+            raise ValueError(
+                f"Recording: times is empty (shape {t.shape}): no samples{where}; "
+                "a recording needs at least 2 sample times (s): check that the data were read"
+            )
         if t.ndim != 1 or t.shape[0] < 2:
             raise ValueError(
                 f"Recording: times must be a 1-D array of at least 2 sample times (s), got shape {t.shape}"
@@ -319,6 +325,11 @@ def _read_phyphox_csv(name: str, data: bytes) -> dict[str, tuple[np.ndarray, np.
                 ) from None
     out = {}
     for group, r in rows.items():
+        if not r:
+            raise RecordingError(
+                f"{name}: the {group} columns have a header and no samples (an empty export); "
+                "export again from phyphox after recording, or record for longer"
+            )
         if len(r) < 2:
             raise RecordingError(f"{name}: the {group} columns hold {len(r)} sample(s); record for longer")
         a = np.asarray(r)
