@@ -339,7 +339,7 @@ def _fit_throws(args: argparse.Namespace) -> int:
             f"combined over {comb['throws']} converged throw(s), median ± spread: I/trI = {med}; I1/I3, I2/I3 = {rat}"
         )
     if args.plot:
-        plot_throw_fits(args.plot, throws, res)
+        plot_throw_fits(args.plot, throws, res, joint)
         print(f"plot: {args.plot}")
     if args.out:
         Path(args.out).write_text(json.dumps(report, indent=1, default=lambda v: np.asarray(v).tolist()))

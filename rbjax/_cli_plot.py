@@ -1,14 +1,46 @@
-"""``python -m rbjax fit --plot``: measured gyro rates against the fitted model's, one panel per throw."""
+"""``python -m rbjax fit --plot``: measured gyro rates against the fitted model's, and the residuals, per throw."""
 
 from __future__ import annotations
 
 from ._cli_common import CLIError
 
-__all__ = ["fitted_rates", "plot_throw_fits"]
+__all__ = ["fitted_rates", "plot_throw_fits", "verdict"]
 
 
-def plot_throw_fits(path: str, throws, res) -> None:
-    """A PNG with one panel per throw: measured gyro (dots) against the fitted model's rates (lines)."""
+def verdict(res, k: int | None = None) -> str:
+    """One line: whether fit ``k`` of ``res`` (``None``: an unbatched result) converged, and if not, why.
+
+    The reasons are ``FitResult.converged``'s parts: the solver's tolerances not met, residuals
+    larger than the noise model allows (``model_consistent``, with its p-value), a moment's σ
+    beyond 0.1 tr I (``well_determined``).
+    """
+    import numpy as np
+
+    def get(name):
+        v = np.asarray(getattr(res, name))
+        return v if k is None else v[k]
+
+    if bool(get("failed")):
+        return "not fitted"
+    if bool(get("converged")):
+        return f"converged (χ² p-value {float(get('consistency_pvalue')):.2g})"
+    why = []
+    if not bool(get("solver_converged")):
+        why.append(f"solver stopped short of its tolerances ({int(get('iterations'))} steps)")
+    if not bool(get("model_consistent")):
+        why.append(f"residuals beyond the noise (χ² p-value {float(get('consistency_pvalue')):.2g})")
+    if not bool(get("well_determined")):
+        why.append("moments not determined (σ > 0.1 tr I)")
+    return "NOT converged: " + ("; ".join(why) or "see the diagnostics")
+
+
+def plot_throw_fits(path: str, throws, res, joint=None):
+    """A PNG with two panels per throw: measured gyro (dots) against the fitted model's rates (lines), and
+    their difference, measured - fitted (rad/s, body frame), against time. Each throw's title says whether
+    its fit converged and, if not, why (:func:`verdict`); the figure's title says it for ``joint``, the
+    joint fit, when given. Returns the (closed) figure."""
+    import textwrap
+
     import numpy as np
 
     try:
@@ -19,8 +51,11 @@ def plot_throw_fits(path: str, throws, res) -> None:
     except ImportError as e:
         raise CLIError("--plot needs matplotlib: pip install 'rbjax[demo]'") from e
     n = len(throws)
-    fig, axes = plt.subplots(n, 1, figsize=(8, 2.6 * n), squeeze=False)
-    for k, (rec, ax) in enumerate(zip(throws, axes[:, 0])):
+    fig, axes = plt.subplots(
+        2 * n, 1, figsize=(8, 3.8 * n), squeeze=False, gridspec_kw=dict(height_ratios=[2.6, 1.2] * n)
+    )
+    for k, rec in enumerate(throws):
+        ax, ax_r = axes[2 * k, 0], axes[2 * k + 1, 0]
         t = rec.times
         for j, c in enumerate("xyz"):
             ax.plot(t, rec.gyro[:, j], ".", ms=3, color=f"C{j}", label=f"ω{c} measured")
@@ -30,14 +65,25 @@ def plot_throw_fits(path: str, throws, res) -> None:
             w = fitted_rates(I, w0, t, np.asarray(res.drag)[k]) + np.asarray(res.gyro_bias)[k]
             for j, c in enumerate("xyz"):
                 ax.plot(t, w[:, j], "-", lw=1, color=f"C{j}", label=f"ω{c} fitted")
+                ax_r.plot(t, rec.gyro[:, j] - w[:, j], ".-", ms=2, lw=0.5, color=f"C{j}")
+        ax_r.axhline(0.0, color="k", lw=0.5)
         ax.set_ylabel("ω (rad/s, body)")
-        ax.set_title(f"throw {k + 1}", fontsize=9)
+        ax_r.set_ylabel("residual (rad/s)")
+        ax.set_title(textwrap.fill(f"throw {k + 1}: {verdict(res, k)}", 110), fontsize=9)
     axes[-1, 0].set_xlabel("t (s)")
     handles, labels = axes[0, 0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="upper center", ncol=6, fontsize=7)  # above the panels, hiding no data
-    fig.tight_layout(rect=(0, 0, 1, 1 - 0.35 / (2.6 * n)))
+    line = 0.3 / (3.8 * n)  # one line of text, as a fraction of the figure's height
+    title = 0.0
+    if joint is not None:
+        text = textwrap.fill(f"joint fit of {n} throws: {verdict(joint)}", 95)
+        fig.suptitle(text, fontsize=10, y=1.0, va="top")
+        title = line * (1 + text.count("\n"))
+    # above the panels, hiding no data
+    fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 1 - title), ncol=6, fontsize=7)
+    fig.tight_layout(rect=(0, 0, 1, 1 - title - 1.2 * line))
     fig.savefig(path, dpi=100)
     plt.close(fig)
+    return fig
 
 
 def fitted_rates(I, w0, t, drag, per_sample: int = 20):

@@ -370,3 +370,58 @@ def test_an_output_path_that_cannot_be_written_is_refused_before_the_fit(tmp_pat
     assert f"{flag} {missing}: no directory {missing.parent}; create it first" in err
     assert main(["fit", str(csv), flag, str(tmp_path)]) == 2
     assert f"{flag} {tmp_path} is a directory" in capsys.readouterr().err
+
+
+def test_plot_has_residual_panels_and_says_why_a_fit_was_rejected(tmp_path):
+    # two throws with the same measured rates (scipy's DOP853, torque-free) plus 0.01 rad/s on ωy:
+    # their residual panels hold measured - fitted = that offset (the fitted model is the exact
+    # solution, 1e-9); the first fit's verdict is "converged", the second's names its failed checks
+    import types
+
+    import numpy as np
+    from scipy.integrate import solve_ivp
+
+    import rbjax as rb
+    from rbjax._cli_plot import plot_throw_fits
+
+    pytest.importorskip("matplotlib")
+    In = np.diag([1.0, 3.2, 4.1]) / 8.3
+    w0 = np.array([0.4, 9.0, 1.5])
+    t = np.linspace(0.0, 0.5, 51)
+
+    def rhs(_, w):
+        return np.linalg.solve(In, np.cross(In @ w, w))
+
+    gyro = solve_ivp(rhs, (0, t[-1]), w0, "DOP853", t_eval=t, rtol=1e-12, atol=1e-12).y.T + [0.0, 0.01, 0.0]
+    throws = [rb.Recording(t, gyro=gyro)] * 2
+
+    def both(*values):
+        return np.array(values)
+
+    res = types.SimpleNamespace(
+        failed=both(False, False),
+        inertia=np.stack([In, In]),
+        initial_angular_velocity=np.stack([w0, w0]),
+        drag=np.full((2, 2), np.nan),
+        gyro_bias=np.zeros((2, 3)),
+        converged=both(True, False),
+        solver_converged=both(True, False),
+        model_consistent=both(True, False),
+        well_determined=both(True, True),
+        consistency_pvalue=both(0.4, 1e-30),
+        iterations=both(12, 200),
+    )
+    joint = types.SimpleNamespace(**{k: v[1] for k, v in vars(res).items()})
+    png = tmp_path / "fits.png"
+    fig = plot_throw_fits(str(png), throws, res, joint)
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    axes = fig.axes
+    assert [ax.get_ylabel() for ax in axes] == ["ω (rad/s, body)", "residual (rad/s)"] * 2
+    for ax in axes[1::2]:
+        residuals = np.stack([line.get_ydata() for line in ax.get_lines()[:3]], -1)
+        np.testing.assert_allclose(residuals, np.broadcast_to([0.0, 0.01, 0.0], gyro.shape), atol=1e-8)
+    assert axes[0].get_title().startswith("throw 1: converged (χ² p-value 0.4)")
+    rejected = axes[2].get_title().replace("\n", " ")
+    assert rejected.startswith("throw 2: NOT converged: solver stopped short of its tolerances (200 steps)")
+    assert "residuals beyond the noise (χ² p-value 1e-30)" in rejected
+    assert fig.get_suptitle().startswith("joint fit of 2 throws: NOT converged")
