@@ -1095,7 +1095,7 @@ def test_fitted_quadratic_drag_is_never_negative_and_plots(c2, tmp_path):
     # a tumbling 14 x 7 x 1 cm, 0.2 kg box simulated by rb.simulate (RK4, 1 ms) under
     # rb.QuadraticDrag(0, angular=c2), gyro noise 0.005 rad/s: without drag a free coefficient
     # lands below zero about half the time (the real tosses gave c₂ < 0), which the force model
-    # then refuses. The fitted c is a softplus of a free parameter: >= 0, within 3σ of the truth,
+    # then refuses. The fitted c is a map of a free parameter onto c >= 0: >= 0, within 3σ of the truth,
     # and the plot's model (rb.QuadraticDrag inside) takes it.
     from rbjax._cli_plot import plot_throw_fits
 

@@ -204,8 +204,8 @@ def fit_inertia(
             (``ω`` body frame, rad/s; ``c₁`` N m s, ``c₂`` N m s²), with the
             coefficients fitted (1 or 2 shared parameters, starting next to 0) and
             reported as ``FitResult.drag``, ``drag_std``. Never negative: each
-            coefficient is ``tr I · b softplus(p / b)`` of a free parameter ``p``
-            (``b = 1e-3`` in ``c / tr I``), so a fit of data without drag ends at
+            coefficient is ``tr I · (p + sqrt(p² + b²)) / 2`` of a free parameter
+            ``p`` (``b = 1e-3`` in ``c / tr I``), so a fit of data without drag ends at
             ``c ≈ 0`` instead of a negative, energy-adding one that
             :class:`rbjax.QuadraticDrag` would refuse. One scalar each, the
             same about every axis: per-axis coefficients would add 3 or 6

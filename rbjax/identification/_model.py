@@ -332,17 +332,30 @@ def model_shapes(y, data, *, joins=None, **_):
     return jax.ShapeDtypeStruct((m,), y.dtype), jax.ShapeDtypeStruct((m, y.shape[0]), y.dtype)
 
 
-# the drag parameters' softplus bend (1/s for c₁ / tr I, 1/rad for c₂ / tr I): well below the drag
-# of a tossed phone (c₂ / tr I ~ 0.02), so above it c / tr I is the parameter itself to 1e-3 and the
-# start, the parameter 0, is c / tr I = 7e-4, next to no drag
+# where the drag parameters' map bends (1/s for c₁ / tr I, 1/rad for c₂ / tr I): well below the drag
+# of a tossed phone (c₂ / tr I ~ 0.02), so above it c / tr I is the parameter itself to 1e-3, and the
+# start, the parameter 0, is c / tr I = 5e-4, next to no drag
 _DRAG_BEND = 1e-3
+
+
+def _nonnegative(p):
+    """``(p + sqrt(p² + b²)) / 2`` (``b`` = ``_DRAG_BEND``): ``≈ p`` above ``b``, ``b² / 4|p|`` below ``-b``.
+
+    It approaches 0 as a power of ``p``; a softplus would approach it exponentially, and fitted to
+    data without drag its parameter runs to ``p / b ≈ -700``, where it and its derivative underflow
+    to 0 and the coefficient reads ``0 ± 0``. Here the derivative stays representable, so the covariance (taken
+    through it) keeps the linearised σ of ``c`` itself. Written without the cancellation of
+    ``p + sqrt(p² + b²)`` for negative ``p``.
+    """
+    h = jnp.hypot(p, _DRAG_BEND)
+    return jnp.where(p > 0, 0.5 * (p + h), 0.5 * _DRAG_BEND**2 / (h - p))
 
 
 def _drag_model(x, scale_fixed, layout: Layout):
     """The damping coefficients ``(c₁, c₂)`` the model integrates, from the parameters ``x`` (``y`` or
     one segment's ``x_s``: the shared block first).
 
-    ``c = tr I · b softplus(p / b)`` of the free parameter ``p`` (``b`` = ``_DRAG_BEND``): never
+    ``c = tr I · (p + sqrt(p² + b²)) / 2`` of the free parameter ``p`` (:func:`_nonnegative`): never
     negative, so a fitted drag is one :class:`rbjax.QuadraticDrag` and :class:`rbjax.LinearDrag`
     accept (a free ``c`` fitted ``c₂ < 0`` on real throws, an energy source). The factor ``tr I``
     keeps ``p ≈ c / tr I`` in the same units with or without torques (kg m² absolute, the gauge
@@ -350,7 +363,7 @@ def _drag_model(x, scale_fixed, layout: Layout):
     flattens; the covariance is taken in ``c`` (:func:`drag_coefficients`' Jacobian), where it does not.
     """
     p = x[layout.span("drag")]
-    c = jnp.zeros(2, x.dtype).at[: layout.drag].set(_DRAG_BEND * jax.nn.softplus(p / _DRAG_BEND))
+    c = jnp.zeros(2, x.dtype).at[: layout.drag].set(_nonnegative(p))
     return jnp.trace(_inertia(x[: 6 if scale_fixed else 5], scale_fixed)) * c
 
 

@@ -148,7 +148,7 @@ class FitResult:
         drag: ``(2,)`` fitted drag coefficients ``(c₁, c₂)`` of the body-frame
             damping torque ``τ_b = -(c₁ + c₂ |ω|) ω`` with ``fit_inertia(...,
             drag=...)`` (``c₂ = 0`` for ``"linear"``), never negative (fitted through a
-            softplus: see ``fit_inertia``'s ``drag``); NaN without drag.
+            map onto ``c ≥ 0``: see ``fit_inertia``'s ``drag``); NaN without drag.
             Relative to ``tr I`` when the scale is free (``c₁ / tr I`` in 1/s,
             ``c₂ / tr I`` in 1/rad: only ``I / tr I`` is identifiable, and the
             damping scales with it); absolute (N m s, N m s²) with torques.
