@@ -209,8 +209,9 @@ def test_native_true_says_why_it_cannot():
 
 def test_without_the_library_simulate_runs_on_jax_and_says_so_once(monkeypatch):
     missing = rb.NativeStatus(False, None, None, "the library was not built at install (no C++ compiler?)")
-    monkeypatch.setattr(_native, "native_status", lambda: missing)
-    monkeypatch.setattr(_native, "_warned", False)
+    # patched where the plan reads them
+    monkeypatch.setattr(_native._plan, "native_status", lambda: missing)
+    monkeypatch.setattr(_native._plan, "_warned", False)
     state = _state((3,), jnp.float64)
     with pytest.warns(UserWarning, match="not available.*JAX path"):
         out = rb.simulate(state, None, 1e-2, 6, "euler")
@@ -538,7 +539,7 @@ def test_native_kernel_splits_a_sharded_batch_over_its_devices():
 def test_native_plan_refuses_a_sharded_series_and_a_sharded_batch_of_two_axes(monkeypatch):
     # the reasons native_plan gives where a sharded batch cannot be split (one device here: the
     # sharding is pretended)
-    monkeypatch.setattr(_native, "sharded", lambda state: True)
+    monkeypatch.setattr(_native._plan, "sharded", lambda state: True)
     method = rb.methods()["rk4"]
     plan = lambda state, series: _native.native_plan(state, None, method, series=series, checked=False, checkpoint=None)
     if not rb.native_status().available:
@@ -584,11 +585,11 @@ def test_the_narrower_instruction_sets_match_jax(cap, tmp_path):
     # has; a wheel ships all three. RBJAX_NATIVE_ISA caps the choice, so the narrower ones are held
     # to the JAX steps here too, with this module's tolerance: the kernel runs in a fresh process
     # with the cap, the JAX reference here
-    want = _native._ISA[_native._ISA_CAPS.index(cap)]
+    want = _native.ISA[_native.ISA_CAPS.index(cap)]
     have = rb.native_status().instruction_set
-    if _native._ISA.index(have) < _native._ISA.index(want):
+    if _native.ISA.index(have) < _native.ISA.index(want):
         pytest.skip(f"this processor runs {have}, narrower than {want}")
-    if have == want != _native._ISA[0]:  # the cap changes nothing: this module's other tests hold them to JAX
+    if have == want != _native.ISA[0]:  # the cap changes nothing: this module's other tests hold them to JAX
         pytest.skip(f"this processor's widest instruction set is {have}: this module's other tests run it")
     path = tmp_path / "native.npz"
     code = (
