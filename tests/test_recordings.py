@@ -435,9 +435,9 @@ def test_empty_recordings_are_refused_in_rbjax_words(tmp_path, capsys):
         assert err.startswith("rbjax: error: ") and err.count("\n") == 1 and message in err, err
 
 
-@pytest.mark.xfail(
-    strict=True, reason="fit_inertia's input checks (_fit.py, _problem.py) do not yet look for 0 samples"
-)
 def test_fit_inertia_refuses_empty_arrays_in_its_words():
-    with pytest.raises(ValueError, match="fit_inertia: .*no samples"):
+    with pytest.raises(ValueError, match="fit_inertia: the recording has no samples"):
         rb.fit_inertia(np.zeros(0), body_rates=np.zeros((0, 3)))
+    t = np.linspace(0.0, 1.0, 50)
+    with pytest.raises(ValueError, match="fit_inertia: recording 1 has no samples"):
+        rb.fit_inertia([t, np.zeros(0)], body_rates=[np.ones((50, 3)), np.zeros((0, 3))])

@@ -23,6 +23,8 @@ differentiated data), which also gives the identifiability check
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from jaxtyping import Float
 
@@ -264,6 +266,7 @@ def fit_inertia(
             )
         times, data = to_fit_arguments(times)
         arrays = {k: data[k] for k in arrays}
+    _refuse_empty(times)
     options = dict(
         initial_inertia=initial_inertia,
         method=method,
@@ -303,6 +306,19 @@ def fit_inertia(
         if members is None:  # one recording, or a batch-wide problem: the message stands
             raise
         return fit_members(members, options)
+
+
+def _refuse_empty(times: Any) -> None:
+    """``ValueError`` for a recording (or a member of a list of them) with no samples."""
+    members = list(times) if isinstance(times, (list, tuple)) else [times]
+    for k, t in enumerate(members):
+        shape = np.shape(t)
+        if shape and shape[-1] == 0:
+            which = f"recording {k} has" if isinstance(times, (list, tuple)) else "the recording has"
+            raise ValueError(
+                f"fit_inertia: {which} no samples (times of shape {shape}); a fit needs the samples of a free "
+                "flight: check the file or the window it was cut to (rb.find_throws)"
+            )
 
 
 def _check_list_of_recordings(times: object) -> None:
