@@ -152,7 +152,8 @@ def _warn_below_order(method: Method, forces: ForceModel) -> None:
     names = sorted({type(term).__name__ for term in terms if reads_velocity(term)})
     warnings.warn(
         f"simulate: method {method.name!r} is order {method.order} for forces of position and time, but "
-        f"{' and '.join(names)} read{'s' if len(names) == 1 else ''} velocities: its kicks use the velocities at their "
+        f"{' and '.join([', '.join(names[:-1]), names[-1]] if len(names) > 1 else names)} "
+        f"read{'s' if len(names) == 1 else ''} velocities: its kicks use the velocities at their "
         f"start, so the run is order {low}. Use method='rk4' or 'rk8' for accuracy, or filter "
         "rbjax.OrderWarning where that is enough",
         OrderWarning,

@@ -38,6 +38,10 @@ from hypothesis import strategies as st
 
 import rbjax as rb
 
+# these tests run "splitting" under drag on purpose (paths held to each other, inputs refused):
+# its first order there is tests/test_force_protocol.py's to check
+pytestmark = pytest.mark.filterwarnings("ignore::rbjax.OrderWarning")
+
 RBJAX_DIR = str(Path(rb.__file__).parent)
 
 

@@ -8,6 +8,10 @@ import pytest
 import rbjax as rb
 from tests.reference import qrot
 
+# these tests run "splitting" under drag on purpose (paths held to each other, inputs refused):
+# its first order there is tests/test_force_protocol.py's to check
+pytestmark = pytest.mark.filterwarnings("ignore::rbjax.OrderWarning")
+
 G = 9.81
 
 

@@ -14,6 +14,10 @@ import pytest
 import rbjax as rb
 from rbjax._methods import _registry
 
+# these tests run "splitting" under drag on purpose (paths held to each other, inputs refused):
+# its first order there is tests/test_force_protocol.py's to check
+pytestmark = pytest.mark.filterwarnings("ignore::rbjax.OrderWarning")
+
 RNG = np.random.default_rng(3)
 N = 5
 QUATS = RNG.normal(size=(N, 4))

@@ -29,6 +29,10 @@ import pytest
 import rbjax as rb
 from rbjax import _native
 
+# these tests run "splitting" under drag on purpose (paths held to each other, inputs refused):
+# its first order there is tests/test_force_protocol.py's to check
+pytestmark = pytest.mark.filterwarnings("ignore::rbjax.OrderWarning")
+
 STEPS, SAVE = 24, 6
 
 needs_kernels = pytest.mark.skipif(not rb.native_status().available, reason="native kernels not built")

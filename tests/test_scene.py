@@ -13,6 +13,10 @@ import pytest
 
 import rbjax as rb
 
+# these tests run "splitting" under drag on purpose (paths held to each other, inputs refused):
+# its first order there is tests/test_force_protocol.py's to check
+pytestmark = pytest.mark.filterwarnings("ignore::rbjax.OrderWarning")
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RNG = np.random.default_rng(7)
 N = 6
