@@ -165,6 +165,11 @@ def test_a_subclass_runs_its_own_law_in_a_scene_and_in_chunks(name):
     want = rb.simulate(state, _reference(name), DT, STEPS, "rk4", native=False)
     chunked = rb.simulate_chunked(state, model, DT, STEPS, "rk4", chunk_steps=15, progress=False)
     _close(chunked, want)
+    # and the law moved the bodies: a scene or chunk that dropped the model would differ from free motion
+    free = rb.simulate(state, None, DT, STEPS, "rk4", native=False)
+    moved = np.abs(np.asarray(chunked.velocity - free.velocity)).max()
+    moved += np.abs(np.asarray(chunked.angular_momentum - free.angular_momentum)).max()
+    assert moved > 1e-3, moved
 
 
 def test_native_true_refuses_a_subclass_where_forces_are_needed_between_step_starts():
