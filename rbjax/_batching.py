@@ -70,8 +70,14 @@ def to_batch_first(obj: Any) -> Any:
 
 def _batch_dims(obj: Any) -> list[tuple[int, ...]]:
     """Batch shapes of every array leaf of an rbjax pytree (in the current layout)."""
+    return [shape for _, shape in _labelled_batch_dims(obj)]
+
+
+def _labelled_batch_dims(obj: Any, owner: str = "") -> list[tuple[str, tuple[int, ...]]]:
+    """``(name, batch shape)`` of every array leaf, named as ``Class.field`` (nested: ``Outer.field.inner``)."""
     last = _BATCH_LAST.get()
-    out: list[tuple[int, ...]] = []
+    owner = owner or type(obj).__name__
+    out: list[tuple[str, tuple[int, ...]]] = []
     for name, core in type(obj)._rbjax_core_ndim.items():
         if name not in type(obj)._rbjax_data_fields:
             continue
@@ -79,15 +85,16 @@ def _batch_dims(obj: Any) -> list[tuple[int, ...]]:
         if v is None:
             continue
         if is_rbjax_dataclass(v):
-            out.extend(_batch_dims(v))
+            out.extend(_labelled_batch_dims(v, f"{owner}.{name}"))
         else:
-            out.append(tuple(v.shape[core:] if last else v.shape[: v.ndim - core]))
+            out.append((f"{owner}.{name}", tuple(v.shape[core:] if last else v.shape[: v.ndim - core])))
     return out
 
 
 def batch_shape(*trees: Any) -> tuple[int, ...]:
-    """Broadcast batch shape of rbjax pytrees; ``ValueError`` if incompatible."""
-    shapes = [s for t in trees if is_rbjax_dataclass(t) for s in _batch_dims(t)]
+    """Broadcast batch shape of rbjax pytrees; ``ValueError`` naming the fields if incompatible."""
+    labelled = [e for t in trees if is_rbjax_dataclass(t) for e in _labelled_batch_dims(t)]
+    shapes = [s for _, s in labelled]
     nd = max((len(s) for s in shapes), default=0)
     result: list[int] = []
     for i in range(nd):
@@ -95,9 +102,15 @@ def batch_shape(*trees: Any) -> tuple[int, ...]:
         if len(sizes) > 1:
             sizes.discard(1)  # NumPy rules: a size-1 axis is shared (a trajectory's shared body)
         if len(sizes) > 1:
+            # name one field per distinct batch shape, so a user sees which of their arrays is off
+            named: dict[tuple[int, ...], str] = {}
+            for label, s in labelled:
+                named.setdefault(s, label)
+            listed = ", ".join(f"{label} {s}" for s, label in sorted(named.items()))
             raise ValueError(
-                f"batch shapes {sorted(set(shapes))} do not broadcast: each leaf must have "
-                "the full batch shape or a trailing part of it (shared over the rest)"
+                f"batch shapes do not broadcast ({listed}): each array field must have the full batch shape "
+                "or a trailing part of it (shared over the rest); give it one entry per body, or one "
+                "shared by all"
             )
         result.append(sizes.pop())
     return tuple(result)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import inspect
 from typing import Any, ClassVar, TypeGuard
 
 import jax
@@ -47,6 +48,14 @@ class _ForceModelMeta(abc.ABCMeta):
             if check is not None:
                 check(obj)
         return obj
+
+    @property
+    def __signature__(cls) -> inspect.Signature:
+        # inspect.signature(cls) and help() would show this metaclass's (*args, **kwargs); a
+        # property of the metaclass answers for the class only, never for its instances, whose
+        # own signature is that of __call__
+        init = inspect.signature(cls.__init__)
+        return init.replace(parameters=list(init.parameters.values())[1:])
 
 
 # subclasses are frozen dataclasses (see __init_subclass__): tells type checkers so

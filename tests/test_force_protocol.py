@@ -10,6 +10,7 @@ the tolerance is 1e-11 relative on states of order one after 40 steps.
 
 from __future__ import annotations
 
+import inspect
 import warnings
 
 import jax
@@ -256,3 +257,24 @@ def test_splitting_under_drag_is_first_order_and_says_so():
         rb.simulate(state, drag, 0.01, 2, "rk4")  # rk4 keeps its order
         rb.simulate(_bodies(), rb.Spring.between([0], [1], 10.0), 0.01, 2, "splitting")  # no damper
         rb.simulate(state, MoonGravity(), 0.01, 2, "splitting")  # a subclass that says nothing: no claim
+
+
+def test_a_law_shows_its_fields_as_its_signature_and_an_instance_shows_its_call():
+    # the metaclass's __call__ would otherwise show every model as (*args, **kwargs) in help()
+    spring = inspect.signature(rb.Spring)
+    assert list(spring.parameters)[:2] == ["body_index", "stiffness"]
+    assert spring.parameters["rest_length"].default == 0.0
+    assert list(inspect.signature(MoonGravity).parameters) == ["g"]
+    assert list(inspect.signature(MoonGravity()).parameters) == ["state", "t"]
+
+
+def test_a_field_off_the_batch_is_named_before_tracing():
+    class Wind(rb.PerBodyForce):
+        k: jax.Array
+
+        def on_body(self, state, t):
+            return rb.Forces(force=-self.k * state.velocity)
+
+    state = rb.State.create(rb.box(jnp.ones(4), jnp.ones((4, 3))))
+    with pytest.raises(ValueError, match=r"Wind\.k \(3,\)"):
+        rb.simulate(state, Wind(jnp.ones(3)), 0.01, 5)
