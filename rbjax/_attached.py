@@ -202,7 +202,7 @@ class Spring(_RenamedKeywords, ForceModel):
     damping: Float[Array, "*S"] | None = field(default=None, converter=optional_array_like)
     _INDEX_FIELDS = ("body_index", "other_index")
     _NON_NEGATIVE = ("stiffness", "rest_length", "damping")
-    _FIELD_LABELS = {"other_index": "other_index (body_b of Spring.between)"}
+    _FIELD_LABELS = {"other_index": "other_index (index_b of Spring.between)"}
     _RENAMED = {"body": "body_index", "other": "other_index"}
     body = _deprecated_field("Spring", "body", "body_index")
     other = _deprecated_field("Spring", "other", "other_index")
@@ -243,10 +243,11 @@ class Spring(_RenamedKeywords, ForceModel):
         return cls(body_index, stiffness, point=point, anchor=anchor, rest_length=rest_length, damping=damping)
 
     @classmethod
+    @renamed_keywords("Spring.between", body_a="index_a", body_b="index_b")
     def between(
         cls,
-        body_a: Int[ArrayLike, " S"],
-        body_b: Int[ArrayLike, " S"],
+        index_a: Int[ArrayLike, " S"],
+        index_b: Int[ArrayLike, " S"],
         stiffness: Float[ArrayLike, "*S"],
         *,
         point_a: Float[ArrayLike, "S 3"] | None = None,
@@ -254,13 +255,13 @@ class Spring(_RenamedKeywords, ForceModel):
         rest_length: Float[ArrayLike, "*S"] = 0.0,
         damping: Float[ArrayLike, "*S"] | None = None,
     ) -> Spring:
-        """Springs between points on two bodies (each in its own body frame; ``None`` = COM)."""
+        """Springs between points on bodies ``index_a`` and ``index_b`` (each in its own body frame; ``None`` = COM)."""
         return cls(
-            body_a,
+            index_a,
             stiffness,
             point=point_a,
             anchor=point_b,
-            other_index=body_b,
+            other_index=index_b,
             rest_length=rest_length,
             damping=damping,
         )

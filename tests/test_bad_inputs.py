@@ -680,9 +680,12 @@ FORCE_MODEL_CASES: dict[str, dict[str, tuple[str, Callable[[], Any]]]] = {
         "float body index": ("body_index", lambda: rb.Spring.to_anchor([0.0], [0.0, 0, 0], 1.0)),
         "2-D body indices": ("body_index", lambda: rb.Spring.to_anchor([[0]], [0.0, 0, 0], 1.0)),
         "body past the batch": ("body_index", lambda: _sim3(rb.Spring.to_anchor([3], [0.0, 0, 0], 1.0))),
-        "body_b past the batch": ("body_b", lambda: _sim3(rb.Spring.between([0], [7], 1.0))),
-        "body_b past the batch, step": ("body_b", lambda: rb.step(_three(), rb.Spring.between([0], [7], 1.0), 0.01)),
-        "body_b past the batch, Scene": ("body_b", lambda: rb.Scene.build(_three(), rb.Spring.between([0], [7], 1.0))),
+        "index_b past the batch": ("index_b", lambda: _sim3(rb.Spring.between([0], [7], 1.0))),
+        "index_b past the batch, step": ("index_b", lambda: rb.step(_three(), rb.Spring.between([0], [7], 1.0), 0.01)),
+        "index_b past the batch, Scene": (
+            "index_b",
+            lambda: rb.Scene.build(_three(), rb.Spring.between([0], [7], 1.0)),
+        ),
         "stiffness per spring, wrong count": ("stiffness", lambda: rb.Spring.between([0, 1], [1, 2], [1.0, 2, 3])),
         "2-vector anchor": ("anchor", lambda: rb.Spring.to_anchor([0], [[0.0, 0]], 1.0)),
         "body and other of different lengths": ("other_index", lambda: rb.Spring.between([0, 1], [2], 1.0)),
@@ -1026,7 +1029,7 @@ def test_checked_mode_tests_traced_force_model_indices_and_signs():
         )
     )
     assert run(jnp.array([2]), jnp.asarray(1.0), True).shape == (3, 3, 3)
-    with pytest.raises(Exception, match=r"simulate\(checked=...\): Spring: other_index \(body_b of Spring.between\)"):
+    with pytest.raises(Exception, match=r"simulate\(checked=...\): Spring: other_index \(index_b of Spring.between\)"):
         run(jnp.array([7]), jnp.asarray(1.0), True)
     with pytest.raises(Exception, match=r"simulate\(checked=...\): Spring: stiffness must be >= 0"):
         run(jnp.array([2]), jnp.asarray(-1.0), True)

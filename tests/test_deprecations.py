@@ -184,3 +184,11 @@ def test_thruster_body_keyword():
         _old(lambda: Half(body=[1], direction=_D, thrust=2.0, point=_P), "body_index"),
         _new(lambda: Half(body_index=[1], direction=_D, thrust=2.0, point=_P)),
     )
+
+
+def test_spring_between_index_keywords():
+    new = _new(lambda: rb.Spring.between(index_a=[0], index_b=[2], stiffness=3.0, point_a=_P, damping=0.1))
+    old = _old(
+        lambda: rb.Spring.between(body_a=[0], body_b=[2], stiffness=3.0, point_a=_P, damping=0.1), "index_a", "index_b"
+    )
+    _same_model(old, new)
