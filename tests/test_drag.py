@@ -68,8 +68,8 @@ def test_linear_drag_is_fitted_and_its_absence_is_flagged(linear):
 def test_quadratic_drag_is_told_from_linear_by_the_nutation():
     # the same |L| loss (~12%) from c₂|ω| alone (c₂|ω₀| ≈ c₁ above): c₁ and c₂ are told apart only
     # as far as |ω| varies within the throw (here the flat body's nutation swings it); on this 1 s
-    # throw enough that a linear fit is flagged (measured p = 3e-7) and the quadratic fit recovers
-    # c₂ with σ 3% of it (measured c₁/trI = -0.0005 ± 0.0015, c₂/trI = 0.00616 ± 0.00016)
+    # throw enough that a linear fit is flagged and the quadratic fit recovers c₂ with σ a few
+    # percent of it
     c2 = C1 / 9.0
     t, w, _ = drag_throw(0.0, c2)
     lin = rb.fit_inertia(t, body_rates=w, drag="linear")
