@@ -174,10 +174,11 @@ def run_fit(args: argparse.Namespace) -> int:
         more = " ..." if len(out["outliers"]) > 10 else ""
         print(f"down-weighted samples (robust loss): {len(out['outliers'])}, at t = {times}{more} s")
     print(
-        f"converged: {out['converged']} after {out['iterations']} iterations"
+        f"converged (trust this fit): {out['converged']} after {out['iterations']} iterations"
         f" (solver converged {out['solver_converged']}, on boundary {out['on_boundary']},"
-        f" residual ratio {out['residual_ratio']:.3g})"
+        f" residual ratio {out['residual_ratio']:.3g}, white-noise chi2 p-value {out['consistency_pvalue']:.3g})"
     )
+    print(f"diagnosis: {out['diagnosis']}")
     if args.out:
         Path(args.out).write_text(json.dumps(out, indent=1))
         print(f"saved: {args.out}")
@@ -313,7 +314,7 @@ def _fit_throws(args: argparse.Namespace) -> int:
         moments, ratios = _pm_list(row["moments"], row["moment_std"]), _pm_list(row["ratios"], row["ratio_std"])
         print(head + f"I/trI = {moments}; I1/I3, I2/I3 = {ratios}")
         print(
-            f"    converged {row['converged']} (chi2 p-value {row['pvalue']:.3g}, "
+            f"    converged (trust) {row['converged']} (white-noise chi2 p-value {row['pvalue']:.3g}, "
             f"gyro rms {row['rate_rms']:.3g} rad/s, {row['iterations']} iterations)"
             + (
                 ""
@@ -321,15 +322,18 @@ def _fit_throws(args: argparse.Namespace) -> int:
                 else f"; in the joint fit: rms {row['joint_rms']:.3g} x its level, p-value {row['joint_pvalue']:.3g}"
             )
         )
+        print(f"    diagnosis: {row['diagnosis']}")
     comb = report["combined"]
     if comb is not None and comb.get("joint"):
         m, rat = _pm_list(comb["moments"], comb["moment_std"]), _pm_list(comb["ratios"], comb["ratio_std"])
         print(f"combined: one inertia fitted to {comb['throws']} throw(s) jointly: I/trI = {m}; I1/I3, I2/I3 = {rat}")
         print(
-            f"    joint fit converged: {comb['converged']} (chi2 p-value {comb['pvalue']:.3g}, gyro rms "
+            f"    joint fit converged (trust): {comb['converged']} (white-noise chi2 p-value "
+            f"{comb['pvalue']:.3g}, gyro rms "
             f"{comb['rate_rms']:.3g} rad/s); spread of the separate fits: "
             + ", ".join(f"{x:.2g}" for x in comb["moments_spread"])
         )
+        print(f"    diagnosis: {comb['diagnosis']}")
     elif comb is None:
         print("combined: no throw converged; nothing to combine (see the diagnostics above)")
     else:
@@ -407,6 +411,7 @@ def _throws_report(res, windows, samples, joint=None) -> dict:
                 inertia_covariance=np.asarray(res.inertia_covariance)[k].tolist(),
                 rate_rms=float(np.asarray(res.rate_rms)[k]),
                 iterations=int(np.asarray(res.iterations)[k]),
+                **_verdict_fields(res, k),
             )
         )
         if np.any(np.isfinite(np.asarray(res.drag)[k])):  # NaN unless drag= was given
@@ -446,10 +451,32 @@ def _throws_report(res, windows, samples, joint=None) -> dict:
             principal_axes=np.asarray(joint.principal_axes).tolist(),
             principal_axes_std=np.asarray(joint.principal_axes_std).tolist(),
             inertia_covariance=np.asarray(joint.inertia_covariance).tolist(),
+            **_verdict_fields(joint),
         )
         if np.any(np.isfinite(np.asarray(joint.drag))):
             combined.update(drag=np.asarray(joint.drag).tolist(), drag_std=np.asarray(joint.drag_std).tolist())
     return {"throws": rows, "combined": combined}
+
+
+def _verdict_fields(res, k: int | None = None) -> dict:
+    """The verdict's JSON fields of one fit (``k``: its index in a batch): diagnosis, white σ, misfit structure."""
+    import numpy as np
+
+    def one(name):
+        v = np.asarray(getattr(res, name))
+        return v if k is None else v[k]
+
+    diagnosis = res.diagnosis if k is None else res.diagnosis[k]
+    names = ("drag", "bias", "rotor", "scale")
+    return dict(
+        diagnosis=diagnosis,
+        moment_std_white=one("moment_std_white").tolist(),
+        misfit_ratio=one("noise_scale").tolist(),
+        correlation_length=one("correlation_length").tolist(),
+        misfit_structured=bool(one("misfit_structured")),
+        cause_share=dict(zip(names, one("cause_share").tolist(), strict=True)),
+        causes_allowed_for=[n for n, on in zip(names, one("cause_significant").tolist(), strict=True) if on],
+    )
 
 
 def _fit_report(res) -> dict:
@@ -471,6 +498,7 @@ def _fit_report(res) -> dict:
     for k in ("converged", "solver_converged", "model_consistent", "well_determined", "on_boundary"):
         out[k] = bool(getattr(res, k))
     out["iterations"] = int(res.iterations)
+    out.update(_verdict_fields(res))
     out["consistency_pvalue"], out["chi2"], out["dof"] = (
         float(getattr(res, k)) for k in ("consistency_pvalue", "chi2", "dof")
     )

@@ -8,11 +8,12 @@ __all__ = ["fitted_rates", "plot_throw_fits", "verdict"]
 
 
 def verdict(res, k: int | None = None) -> str:
-    """One line: whether fit ``k`` of ``res`` (``None``: an unbatched result) converged, and if not, why.
+    """One line: whether fit ``k`` of ``res`` (``None``: unbatched) can be trusted, why not, and its diagnosis.
 
-    The reasons are ``FitResult.converged``'s parts: the solver's tolerances not met, residuals
-    larger than the noise model allows (``model_consistent``, with its p-value), a moment's σ
-    beyond 0.1 tr I (``well_determined``).
+    The reasons are ``FitResult.converged``'s parts: the solver's tolerances not met, a moment's σ
+    beyond 0.1 tr I (``well_determined``), the fit on the edge of physical inertias
+    (``on_boundary``), a misfit too slow for σ (``misfit_structured``); then
+    ``FitResult.diagnosis`` (the misfit against the noise, its correlation length, its likely cause).
     """
     import numpy as np
 
@@ -22,16 +23,20 @@ def verdict(res, k: int | None = None) -> str:
 
     if bool(get("failed")):
         return "not fitted"
+    diagnosis = res.diagnosis if k is None else res.diagnosis[k]
+    p = f"white-noise χ² p-value {float(get('consistency_pvalue')):.2g}"
     if bool(get("converged")):
-        return f"converged (χ² p-value {float(get('consistency_pvalue')):.2g})"
+        return f"converged, trusted ({p}); {diagnosis}"
     why = []
     if not bool(get("solver_converged")):
         why.append(f"solver stopped short of its tolerances ({int(get('iterations'))} steps)")
-    if not bool(get("model_consistent")):
-        why.append(f"residuals beyond the noise (χ² p-value {float(get('consistency_pvalue')):.2g})")
     if not bool(get("well_determined")):
         why.append("moments not determined (σ > 0.1 tr I)")
-    return "NOT converged: " + ("; ".join(why) or "see the diagnostics")
+    if bool(get("on_boundary")):
+        why.append("on the edge of physical inertias (I1 + I2 = I3)")
+    if bool(get("misfit_structured")):
+        why.append("misfit too slow for σ")
+    return "NOT trusted: " + ("; ".join(why) or "see the diagnostics") + f" ({p}); {diagnosis}"
 
 
 def plot_throw_fits(path: str, throws, res, joint=None):

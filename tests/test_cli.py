@@ -351,7 +351,8 @@ def test_a_phyphox_export_of_throws_none_converged_exits_1(tmp_path, capsys):
     export = write_phyphox(tmp_path / "export", tg, gyro, ta, accel)
     assert main(["fit", str(export), "--gyro-bias", "--max-steps", "1"]) == 1
     text = capsys.readouterr().out
-    assert "2 throw(s)" in text and "converged False" in text and "joint fit converged: False" in text
+    assert "2 throw(s)" in text and "converged (trust) False" in text and "joint fit converged (trust): False" in text
+    assert text.count("    diagnosis: ") == 3  # each throw's and the joint fit's
     assert main(["fit", str(export), "--gyro-bias", "--max-steps", "1", "--separate"]) == 1
     assert "no throw converged" in capsys.readouterr().out
 
@@ -410,6 +411,9 @@ def test_plot_has_residual_panels_and_says_why_a_fit_was_rejected(tmp_path):
         well_determined=both(True, True),
         consistency_pvalue=both(0.4, 1e-30),
         iterations=both(12, 200),
+        on_boundary=both(False, True),
+        misfit_structured=both(False, False),
+        diagnosis=("residuals like the noise", "misfit 3x the gyro noise"),
     )
     joint = types.SimpleNamespace(**{k: v[1] for k, v in vars(res).items()})
     png = tmp_path / "fits.png"
@@ -420,8 +424,12 @@ def test_plot_has_residual_panels_and_says_why_a_fit_was_rejected(tmp_path):
     for ax in axes[1::2]:
         residuals = np.stack([line.get_ydata() for line in ax.get_lines()[:3]], -1)
         np.testing.assert_allclose(residuals, np.broadcast_to([0.0, 0.01, 0.0], gyro.shape), atol=1e-8)
-    assert axes[0].get_title().startswith("throw 1: converged (χ² p-value 0.4)")
+    # the verdict is FitResult.converged's "trust this fit", with its reasons, the white-noise χ² p-value
+    # as a diagnostic and the one-line diagnosis
+    title = axes[0].get_title().replace("\n", " ")
+    assert title == "throw 1: converged, trusted (white-noise χ² p-value 0.4); residuals like the noise"
     rejected = axes[2].get_title().replace("\n", " ")
-    assert rejected.startswith("throw 2: NOT converged: solver stopped short of its tolerances (200 steps)")
-    assert "residuals beyond the noise (χ² p-value 1e-30)" in rejected
-    assert fig.get_suptitle().startswith("joint fit of 2 throws: NOT converged")
+    assert rejected.startswith("throw 2: NOT trusted: solver stopped short of its tolerances (200 steps)")
+    assert "on the edge of physical inertias" in rejected and "(white-noise χ² p-value 1e-30)" in rejected
+    assert rejected.endswith("misfit 3x the gyro noise")
+    assert fig.get_suptitle().replace("\n", " ").startswith("joint fit of 2 throws: NOT trusted")

@@ -297,7 +297,6 @@ def solve_with_starts(prob, options, per_sample: bool = True) -> tuple[FitResult
     out.update(
         consistency_pvalue=jax.device_put(p_value.astype(out["chi2"].dtype)),
         model_consistent=jax.device_put(consistent),
-        converged=jax.device_put(np.asarray(out["converged"]) & consistent),
     )
     starts = jax.tree.map(np.asarray, out.pop("segment_start"))  # (*N, S, ...) per segment
     if not prob.batched and "J" in sols:

@@ -1,0 +1,168 @@
+"""The trust verdict (``FitResult.converged``), the misfit-honest σ and the diagnosis, on synthetic tumbles.
+
+Recordings come from benchmarks/fit_verdict.py's generator: random bodies, scipy
+DOP853 (never rbjax), gyro only, 2 s @ 200 Hz, 0.01 rad/s noise, with one
+unmodelled effect per case. The full study (200 fits per case) is that script's;
+here 24 fits per case, one batched call each, and the bounds below are set from
+the binomial spread at that size.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import jax
+import numpy as np
+import pytest
+
+import rbjax as rb
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks"))
+from fit_verdict import CASES, make  # noqa: E402
+
+from rbjax.identification._verdict import andrews_window, bartlett_meat, correlation_length  # noqa: E402
+
+FITS = 24
+
+
+@pytest.fixture(scope="module")
+def fits():
+    """``case -> (FitResult, true moments (N, 3))``, fitted on first use."""
+    jax.config.update("jax_enable_x64", True)
+    cache = {}
+
+    def get(case):
+        if case not in cache:
+            rng = np.random.default_rng([7, CASES.index(case)])
+            recs = [make(case, rng) for _ in range(FITS)]
+            gyro = np.stack([r[1] for r in recs])
+            truth = np.stack([np.linalg.eigvalsh(r[3]) for r in recs])
+            cache[case] = rb.fit_inertia(recs[0][0], None, body_rates=gyro, rate_std=recs[0][4]), truth
+        return cache[case]
+
+    return get
+
+
+def _z(res, truth):
+    return np.abs(np.asarray(res.principal_moments) - truth) / np.asarray(res.moment_std)
+
+
+def test_clean_tumbles_are_trusted_with_calibrated_sigma(fits):
+    res, truth = fits("clean")
+    # a random spin can excite too little to fit (refused, in member_errors: not a verdict); the
+    # goal is about well-excited data: ≥ 98% of the fitted ones trusted, at 24 fits every one
+    fitted = ~np.asarray(res.failed)
+    assert all("too little excitation" in e for e in res.member_errors), res.member_errors
+    assert fitted.sum() >= FITS - 2
+    trusted = np.asarray(res.converged)[fitted]
+    assert trusted.all(), res.diagnosis
+    # ~70 moments (tr I = 1: two in three independent): the 2σ share of a calibrated σ is 95% ± 3%
+    # (1 sd); [0.85, 1] reaches 3 sd below. σ must not be inflated on white residuals either
+    z = _z(res, truth)[fitted]
+    assert 0.85 <= np.mean(z < 2) <= 1.0, np.mean(z < 2)
+    std, white = (np.asarray(getattr(res, k))[fitted] for k in ("moment_std", "moment_std_white"))
+    np.testing.assert_allclose(std, white, rtol=0.05)
+    assert all(d.startswith("residuals like the noise") for d, f in zip(res.diagnosis, fitted, strict=True) if f)
+
+
+@pytest.mark.parametrize(
+    "case",
+    # each case is a new batch of fits (~10 s each on 2 cores): two in the quick suite
+    [
+        "bias",
+        "scale",
+        pytest.param("jitter", marks=pytest.mark.slow),
+        pytest.param("rate_std_small", marks=pytest.mark.slow),
+    ],
+)
+def test_trusted_fits_cover_the_truth_under_an_unmodelled_effect(fits, case):
+    # the issue's bar: among fits marked trusted, ≥ 95% of the moments within 3σ of the truth. The
+    # white-noise σ alone covers 68% (bias) and 40% (scale) of them (measured at 20 fits); the χ² test
+    # passed most of the bias fits, so the old verdict trusted them
+    res, truth = fits(case)
+    trusted = np.asarray(res.converged)
+    assert trusted.mean() >= 0.75, res.diagnosis  # measured 0.95-1.0 at 20 fits
+    z = _z(res, truth)[trusted]
+    assert np.mean(z < 3) >= 0.93, (np.mean(z < 3), np.sort(z.max(1)))
+
+
+def test_a_bias_is_named_and_sigma_grows_to_cover_it(fits):
+    res, truth = fits("bias")
+    named = [d for d in res.diagnosis if "gyro bias" in d or "rotor" in d]
+    # a bias and a rotor both offset the rates by a constant: either name is right about the cause's
+    # form; measured 16 of 20 bias-named at 20 fits
+    assert len(named) >= FITS // 2, res.diagnosis
+    white = np.abs(np.asarray(res.principal_moments) - truth) / np.asarray(res.moment_std_white)
+    assert np.mean(white < 3) < 0.85  # the white σ misses the truth: the case tests something
+
+
+def test_a_slow_misfit_is_not_trusted(fits):
+    # anisotropic drag at ~15%/s: the residual is correlated over ~180 of 401 samples, beyond what the
+    # HAC window or a linearised cause describes: such fits are flagged, not trusted
+    res, truth = fits("aniso_drag")
+    structured = np.asarray(res.misfit_structured)
+    assert structured.mean() >= 0.75
+    assert not np.any(np.asarray(res.converged) & structured)
+    assert all("too structured" in d for d, s in zip(res.diagnosis, structured, strict=True) if s)
+
+
+def test_a_fit_on_the_edge_of_physical_inertias_is_not_trusted():
+    # a flat body (I3 = I1 + I2) lands on the edge about half the time; there the linearised σ does not
+    # describe the one-sided constraint: on_boundary implies not trusted
+    from scipy.integrate import solve_ivp
+
+    jax.config.update("jax_enable_x64", True)
+    I = np.diag([1.0, 2.0, 3.0]) / 6
+    t = np.arange(401) / 200.0
+    rng = np.random.default_rng(3)
+    gyro = []
+    for _ in range(8):
+        w0 = rng.normal(size=3)
+        w0 *= 5 / np.linalg.norm(w0)
+        sol = solve_ivp(lambda _, w: np.linalg.solve(I, np.cross(I @ w, w)), (0, 2), w0, "DOP853", t_eval=t, rtol=1e-11)
+        gyro.append(sol.y.T + rng.normal(0, 0.01, (401, 3)))
+    res = rb.fit_inertia(t, None, body_rates=np.stack(gyro))
+    edge = np.asarray(res.on_boundary)
+    assert edge.any()  # measured 3 of 8 draws
+    assert not np.any(np.asarray(res.converged) & edge)
+
+
+def test_repr_shows_the_moments_verdict_and_diagnosis(fits):
+    res, _ = fits("bias")
+    one = jax.tree.map(lambda a: a[0], res)
+    text = repr(one)
+    m = np.asarray(one.principal_moments)
+    assert text.startswith(f"FitResult(principal_moments=[{m[0]:.4g} ± ")
+    assert f"trusted={bool(one.converged)}" in text and one.diagnosis in text
+    assert "x the gyro noise (estimated)" in one.diagnosis
+
+
+def test_bartlett_sum_equals_its_definition():
+    # Σ_{|l|<m} (1 - |l|/m) Σ_t z_t z_{t-l}ᵀ, written out lag by lag (float64 rounding)
+    rng = np.random.default_rng(0)
+    z = rng.normal(size=(50, 3))
+    for m in (1, 2, 7, 50):
+        ref = sum(
+            (1 - abs(lag) / m) * (z[max(lag, 0) : 50 + min(lag, 0)].T @ z[max(-lag, 0) : 50 - max(lag, 0)])
+            for lag in range(-m + 1, m)
+        )
+        np.testing.assert_allclose(np.asarray(bartlett_meat(jax.numpy.asarray(z), m)), ref, rtol=1e-12, atol=1e-12)
+
+
+def test_window_and_correlation_length_follow_an_ar1_series():
+    # AR(1) with ρ = 0.8: the integrated autocorrelation time is (1 + ρ) / (1 - ρ) = 9; Andrews' window
+    # for ρ = 0.8, α = 4ρ² / ((1 - ρ)² (1 + ρ)²) = 19.75, T = 4000: 1 + ⌊1.1447 (α T)^{1/3}⌋ = 50.
+    # Estimates of ρ from 4000 samples scatter by ~0.01 (sd √((1 - ρ²)/T)), which moves the length by
+    # ~10% and the window by ~4%: length within 15%, window within 10%
+    rng = np.random.default_rng(1)
+    e = rng.normal(size=(4000, 3))
+    x = np.zeros_like(e)
+    for i in range(1, 4000):
+        x[i] = 0.8 * x[i - 1] + e[i]
+    ell = float(correlation_length(jax.numpy.asarray(x[None]), jax.numpy.ones((1, 4000))))
+    assert abs(ell - 9) < 0.15 * 9, ell
+    m = int(andrews_window(jax.numpy.asarray(x)))
+    assert abs(m - 50) < 0.1 * 50, m
+    white = float(correlation_length(jax.numpy.asarray(e[None]), jax.numpy.ones((1, 4000))))
+    assert white < 1.1, white
