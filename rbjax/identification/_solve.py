@@ -21,7 +21,7 @@ import numpy as np
 from .._pytree import new_unchecked, replace
 from . import _robust
 from ._checks import check_arrays, check_options
-from ._model import model_residuals, model_shapes
+from ._model import SegmentJacobian, densify, model_residuals, model_shapes, normal_equations
 from ._problem import prepare
 from ._queue import run_queue
 from ._result import CONSISTENCY_ALPHA, FitResult, consistency, summarise
@@ -135,10 +135,10 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
     ``y``, ``converged``, ``iterations``, final weights ``rw`` and, where kept
     (:func:`_keeps_jacobian`), ``r`` and ``J`` at ``y``: the input of :func:`_summarise_batch`.
     """
-    opts = dict(model_opts)
+    opts = dict(model_opts, dense=False)  # J as its nonzero blocks: JᵀJ from those alone
     model, shapes = (functools.partial(f, **opts) for f in (model_residuals, model_shapes))
     keep = _keeps_jacobian(y0, data, model_opts, unbatch)
-    lm = LMMember(model, rtol, atol, max_steps, keep_jacobian=keep, shapes=shapes)
+    lm = LMMember(model, rtol, atol, max_steps, keep_jacobian=keep, shapes=shapes, normal=normal_equations)
     zero = jnp.zeros((), jnp.int32)
 
     def start(y, d, round=zero, total=zero):
@@ -150,7 +150,8 @@ def _fit_batch(y0, data, *, model_opts, loss, rtol, atol, max_steps, unbatch):
         rw = d["seg"].rw
         out = dict(y=y, converged=lm.converged(slot), iterations=total, rw=rw)
         if lm.keep_jacobian:
-            out.update(r=slot["r"], J=slot["J"])
+            J = slot["J"]
+            out.update(r=slot["r"], J=densify(J) if isinstance(J, SegmentJacobian) else J)
         if loss == "squared":
             return jnp.array(False), slot, out
         rw_new = _robust.weights(slot["r"], rw, loss, d["loss_scale"])

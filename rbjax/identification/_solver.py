@@ -146,7 +146,8 @@ class LMMember:
     """One member's Levenberg–Marquardt solve as a state machine for :func:`._queue.run_queue`.
 
     ``model(y, data) -> (r, J)``: residuals ``(m,)`` and their Jacobian
-    ``(m, n)``. A slot is a dict of arrays: ``y`` (accepted), ``y_eval``
+    ``(m, n)``, or a pytree of its blocks with ``normal(r, J) -> (JᵀJ, Jᵀr)``.
+    A slot is a dict of arrays: ``y`` (accepted), ``y_eval``
     (trial), at ``y`` the residuals ``r``, ``G = JᵀJ`` and ``g = Jᵀr``,
     ``step_size``, ``first``, ``steps``, ``terminate`` and ``ok`` (every
     iterate finite). ``J`` itself is kept only with ``keep_jacobian`` (then
@@ -159,9 +160,13 @@ class LMMember:
     default ``jax.eval_shape`` of it, which traces the model once more.
     """
 
-    def __init__(self, model, rtol: float, atol: float, max_steps: int, keep_jacobian: bool = False, shapes=None):
+    def __init__(
+        self, model, rtol: float, atol: float, max_steps: int, keep_jacobian: bool = False, shapes=None, normal=None
+    ):
         self.model, self.rtol, self.atol, self.max_steps = model, rtol, atol, max_steps
         self.keep_jacobian = keep_jacobian
+        # (r, J) -> (JᵀJ, Jᵀr): for a J that is not a matrix (a pytree of its nonzero blocks)
+        self.normal = normal or (lambda r, J: (J.T @ J, J.T @ r))
         # (y, data) -> the shapes of model(y, data), if known without tracing the model
         self.shapes = shapes or functools.partial(jax.eval_shape, model)
 
@@ -169,7 +174,7 @@ class LMMember:
         """A fresh solve from ``y``; ``r``, ``G`` and ``g`` are filled in by the first step."""
         r, J = self.shapes(y, data)
         n = y.shape[0]
-        kept = {"J": jnp.zeros(J.shape, J.dtype)} if self.keep_jacobian else {}
+        kept = {"J": jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), J)} if self.keep_jacobian else {}
         return {
             **kept,
             "y": y,
@@ -208,8 +213,9 @@ class LMMember:
 
         y = jnp.where(accept, y_eval, y)
         r = jnp.where(accept, r_e, r)
-        G, g = jnp.where(accept, J_e.T @ J_e, G), jnp.where(accept, J_e.T @ r_e, g)
-        kept = {"J": jnp.where(accept, J_e, slot["J"])} if self.keep_jacobian else {}
+        G_e, g_e = self.normal(r_e, J_e)
+        G, g = jnp.where(accept, G_e, G), jnp.where(accept, g_e, g)
+        kept = {"J": jax.tree.map(lambda a, b: jnp.where(accept, a, b), J_e, slot["J"])} if self.keep_jacobian else {}
         y_next = y + _damped_step(G, g, step_size)
         ok = slot["ok"] & jnp.all(jnp.isfinite(y_next)) & jnp.all(jnp.isfinite(r))
         return {
