@@ -14,6 +14,7 @@ from . import _methods
 
 # state and bodies
 from ._state import Forces, MatrixState, ParticleState, State
+from ._rotors import Rotors, rotor_rates
 from ._body import (
     TRIANGLE_RTOL,
     Body,
@@ -115,6 +116,8 @@ __all__ = [
     "MatrixState",
     "ParticleState",
     "State",
+    "Rotors",
+    "rotor_rates",
     "TRIANGLE_RTOL",
     "Body",
     "box",

@@ -170,7 +170,7 @@ def after_step(rec: dict, state: Any, step: Any, checks: Checks, steps: int) -> 
     cores = core_ndim_of(state)
     nonfinite = jnp.zeros(batch, bool)
     for name in type(state)._rbjax_data_fields:
-        if name in consts:
+        if name in consts or getattr(state, name) is None:
             continue
         nonfinite = nonfinite | _per_body_any(~jnp.isfinite(getattr(state, name)), cores[name], batch)
     if isinstance(state, State):

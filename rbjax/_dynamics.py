@@ -10,6 +10,10 @@ and for tests against scipy:
 * ``MatrixState`` ``(x, v, R, ω)``: ``Ṙ = ω̃ R``,
   ``ω̇ = I_w⁻¹ (τ - ω × I_w ω)`` (the Coriolis/gyroscopic term of the notes).
 * ``ParticleState``: ``ẋ = v``, ``v̇ = F/m``.
+
+With rotors (a gyrostat, :mod:`rbjax._rotors`) ``ω = R I_L⁻¹ (Rᵀ L - h)``,
+``ḣ_k = τ_k`` (``Forces.rotor_torque``), and in the ``(x, v, R, ω)`` form
+``ω̇ = R I_L⁻¹ (Rᵀ τ - ω_b × (I_L ω_b + h) - ḣ)``.
 """
 
 from __future__ import annotations
@@ -33,17 +37,29 @@ from ._math import (
     transpose3,
 )
 from ._pytree import replace
+from ._rotors import spin_momentum
 from ._state import AnyState, Forces, ParticleState, State, StateT
 
 __all__ = ["derivative"]
 
 
 def omega_world(s: State) -> Array:
+    """``ω = I_w⁻¹ L`` (world, rad/s, ``(3,)``) of one body; of a gyrostat ``R I_L⁻¹ (Rᵀ L - h)``."""
+    if s.rotors is not None:
+        return quat_rotate_unchecked(s.orientation, omega_body(s))
     # ω = I_w⁻¹ L = R I_L⁻¹ Rᵀ L, evaluated with quaternion rotations (no matrix)
     return quat_rotate_unchecked(
         s.orientation,
         matvec3(s.body.inverse_inertia, quat_rotate_inverse_unchecked(s.orientation, s.angular_momentum)),
     )
+
+
+def omega_body(s: State) -> Array:
+    """``ω_b = I_L⁻¹ (Rᵀ L - h)`` (body frame, rad/s, ``(3,)``) of one body; ``h = 0`` without rotors."""
+    m = quat_rotate_inverse_unchecked(s.orientation, s.angular_momentum)
+    if s.rotors is not None:
+        m = m - spin_momentum(s.rotors, s.rotor_momentum)
+    return matvec3(s.body.inverse_inertia, m)
 
 
 def _one_derivative(s: AnyState, f: Forces) -> AnyState:
@@ -52,6 +68,10 @@ def _one_derivative(s: AnyState, f: Forces) -> AnyState:
     if isinstance(s, ParticleState):
         return replace(s, position=s.velocity, velocity=a)
     tau = jnp.zeros_like(s.velocity) if f.torque is None else f.torque
+    rotor = {}
+    if s.rotors is not None:
+        h_dot = jnp.zeros_like(s.rotor_momentum) if f.rotor_torque is None else f.rotor_torque
+        rotor = {"rotor_momentum": h_dot}
     if isinstance(s, State):
         w = omega_world(s)
         if f.torque is not None:
@@ -68,7 +88,13 @@ def _one_derivative(s: AnyState, f: Forces) -> AnyState:
             velocity=a,
             orientation=0.5 * pure_quat_multiply(w, s.orientation),
             angular_momentum=tau,
+            **rotor,
         )
+    if s.rotors is not None:
+        h = spin_momentum(s.rotors, s.rotor_momentum)
+        hd = None if f.rotor_torque is None else f.rotor_torque @ s.rotors.axes
+        R_dot, w_dot = matrix_rates(s.rotation, s.angular_velocity, s.body, tau, h, hd)
+        return replace(s, position=s.velocity, velocity=a, rotation=R_dot, angular_velocity=w_dot, **rotor)
     R_dot, w_dot = matrix_rates(s.rotation, s.angular_velocity, s.body, tau)
     return replace(s, position=s.velocity, velocity=a, rotation=R_dot, angular_velocity=w_dot)
 
@@ -84,7 +110,9 @@ def rotation_rate(R: Array, w: Array) -> Array:
     return _rotation_rate(entries3(R), (w[..., 0], w[..., 1], w[..., 2]))
 
 
-def matrix_rates(R: Array, w: Array, body: Body, torque: Array | None) -> tuple[Array, Array]:
+def matrix_rates(
+    R: Array, w: Array, body: Body, torque: Array | None, h: Array | None = None, h_dot: Array | None = None
+) -> tuple[Array, Array]:
     """``(Ṙ, ω̇)`` of one body in the ``(x, v, R, ω)`` form: ``Ṙ = ω̃ R`` (1/s, (3, 3)) and
     ``ω̇ = I_w⁻¹ (τ - ω × I_w ω)`` (rad/s², world frame, (3,)).
 
@@ -100,12 +128,20 @@ def matrix_rates(R: Array, w: Array, body: Body, torque: Array | None) -> tuple[
     from one set of slices (:func:`rbjax._math.entries3`). :func:`derivative`
     (hence the Runge–Kutta methods), ``"euler"`` and the Scene's general kernel
     take their rates from here.
+
+    A gyrostat's rotors add ``h`` and ``ḣ`` (body frame, ``(3,)``, kg m²/s and
+    N m; :mod:`rbjax._rotors`): ``ω̇_b = I_L⁻¹ (Rᵀ τ - ω_b × (I_L ω_b + h) - ḣ)``.
     """
     r = entries3(R)
     rt = transpose3(r)
     w_world = (w[..., 0], w[..., 1], w[..., 2])
     w_b = apply3(rt, w_world)
-    gyro = cross_components(w_b, apply3(entries3(inertia_of(body)), w_b))
+    momentum = apply3(entries3(inertia_of(body)), w_b)
+    if h is not None:
+        momentum = tuple(p + h[..., i] for i, p in enumerate(momentum))
+    gyro = cross_components(w_b, momentum)
+    if h_dot is not None:
+        gyro = tuple(g + h_dot[..., i] for i, g in enumerate(gyro))
     if torque is None:
         rhs = tuple(-g for g in gyro)
     else:

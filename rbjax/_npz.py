@@ -83,6 +83,12 @@ def write_atomic(path: Path, write: Callable[[IO[bytes]], object]) -> None:
 
 def _structure(obj: Any, prefix: str, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
     """JSON description of ``obj``; fills ``arrays`` with its leaves by dotted path."""
+    if type(obj).__name__ == "Rotors":
+        raise ValueError(
+            "save: this state is a gyrostat (it has rotors), which the file format does not store yet (save, "
+            "simulate_chunked's writer); store its fields with np.savez, or save a rotor-free copy, "
+            "dataclasses.replace(state, rotors=None, rotor_momentum=None), where the rotors may be dropped"
+        )
     if type(obj).__name__ not in TYPES or type(obj) is not TYPES[type(obj).__name__]:
         raise TypeError(
             f"save: can store State, MatrixState, ParticleState, Body, Forces or FitResult, got {type(obj)}"

@@ -14,7 +14,7 @@ from jaxtyping import Float
 
 from ._batching import lift
 from ._body import inertia_of
-from ._dynamics import omega_world
+from ._dynamics import omega_body, omega_world
 from ._math import (
     array_arg,
     broadcasts_to,
@@ -27,6 +27,7 @@ from ._math import (
     quat_to_matrix_unchecked,
 )
 from ._pytree import new_unchecked
+from ._rotors import rotor_energy, spin_momentum
 from ._state import AnyState, MatrixState, ParticleState, RigidState, State
 from ._typing import ArrayLike
 
@@ -63,8 +64,8 @@ def _one_angular_velocity(s: RigidState) -> Array:
 def angular_velocity(state: RigidState) -> Float[Array, "*B 3"]:
     """World-frame angular velocity ``ω`` (rad/s), ``(*B, 3)``.
 
-    For :class:`State` ``ω = I_w⁻¹ L = R I_L⁻¹ Rᵀ L``; for :class:`MatrixState`
-    the stored ``ω``.
+    For :class:`State` ``ω = I_w⁻¹ L = R I_L⁻¹ Rᵀ L`` (a gyrostat's:
+    ``R I_L⁻¹ (Rᵀ L - h)``, :mod:`rbjax._rotors`); for :class:`MatrixState` the stored ``ω``.
     """
     _expect(state, "angular_velocity")
     return lift(_one_angular_velocity)(state)
@@ -72,6 +73,8 @@ def angular_velocity(state: RigidState) -> Float[Array, "*B 3"]:
 
 def _one_body_angular_velocity(s: RigidState) -> Array:
     if isinstance(s, State):
+        if s.rotors is not None:
+            return omega_body(s)
         return matvec3(s.body.inverse_inertia, quat_rotate_inverse_unchecked(s.orientation, s.angular_momentum))
     return matvec3(jnp.swapaxes(s.rotation, -1, -2), s.angular_velocity)
 
@@ -118,6 +121,9 @@ def _one_angular_momentum(s: AnyState, about: Array | None) -> Array:
         return cross(s.position - (0.0 if about is None else about), s.mass * s.velocity)
     if isinstance(s, State):
         L = s.angular_momentum
+    elif s.rotors is not None:
+        m = matvec3(inertia_of(s.body), matvec3(s.rotation.T, s.angular_velocity))
+        L = matvec3(s.rotation, m + spin_momentum(s.rotors, s.rotor_momentum))
     else:
         L = matvec3(s.rotation, matvec3(inertia_of(s.body), matvec3(s.rotation.T, s.angular_velocity)))
     if about is not None:
@@ -128,7 +134,8 @@ def _one_angular_momentum(s: AnyState, about: Array | None) -> Array:
 def angular_momentum(state: AnyState, about: Float[ArrayLike, "*B 3"] | None = None) -> Float[Array, "*B 3"]:
     """Angular momentum (world, kg m²/s), ``(*B, 3)``.
 
-    Rigid bodies: spin ``L = I_w ω`` about the centre of mass, plus the orbital
+    Rigid bodies: spin ``L = I_w ω`` about the centre of mass (a gyrostat's:
+    the total ``R (I_L ω_b + h)`` of body and rotors), plus the orbital
     term ``(x - a) × m v`` when a world point ``about = a`` is given. Particles:
     ``L = r × p`` about ``about`` (default the world origin), as in the notes.
     """
@@ -172,11 +179,20 @@ def _one_kinetic_energy(s: AnyState) -> Array:
         return e
     w = _one_angular_velocity(s)
     L = s.angular_momentum if isinstance(s, State) else _one_angular_momentum(s, None)
+    if s.rotors is not None:
+        # ½ ω_bᵀ I ω_b + ω_b·h + ½ Σ h_k²/J_k = ½ ω·(L + R h) + ½ Σ h_k²/J_k with L = R (I ω_b + h)
+        R = _one_rotation(s)
+        h = s.rotor_momentum
+        return e + 0.5 * dot3(w, L + matvec3(R, spin_momentum(s.rotors, h))) + rotor_energy(s.rotors, h)
     return e + 0.5 * dot3(w, L)
 
 
 def kinetic_energy(state: AnyState) -> Float[Array, "*B"]:
-    """Kinetic energy ``½ m ‖v‖² + ½ ω · L`` (J), ``(*B,)``; translation only for particles."""
+    """Kinetic energy ``½ m ‖v‖² + ½ ω · L`` (J), ``(*B,)``; translation only for particles.
+
+    A gyrostat's (:mod:`rbjax._rotors`) includes its rotors:
+    ``½ m ‖v‖² + ½ ω_bᵀ I_L ω_b + ω_b · h + ½ Σ_k h_k² / J_k`` (body frame, ``h_k = J_k Ω_k``).
+    """
     _expect(state, "kinetic_energy", _ANY)
     return lift(_one_kinetic_energy)(state)
 
@@ -184,7 +200,8 @@ def kinetic_energy(state: AnyState) -> Float[Array, "*B"]:
 def to_matrix_state(state: State) -> MatrixState:
     """Convert ``(x, v, q, L)`` to ``(x, v, R, ω)`` (same motion, no validation).
 
-    ``R = R(q)`` (body to world, ``(*B, 3, 3)``), ``ω = I_w⁻¹ L`` (world frame).
+    ``R = R(q)`` (body to world, ``(*B, 3, 3)``), ``ω = I_w⁻¹ L`` (world frame;
+    a gyrostat's ``R I_L⁻¹ (Rᵀ L - h)``, its rotors carried over).
     """
     _expect(state, "to_matrix_state", (State,))
     return _same_motion(MatrixState, state, rotation=rotation_matrix(state), angular_velocity=angular_velocity(state))
@@ -193,14 +210,23 @@ def to_matrix_state(state: State) -> MatrixState:
 def to_state(state: MatrixState) -> State:
     """Convert ``(x, v, R, ω)`` to ``(x, v, q, L)`` (same motion, no validation).
 
-    ``q`` from ``R`` (body to world, ``(*B, 4)``), ``L = I_w ω`` (world frame).
+    ``q`` from ``R`` (body to world, ``(*B, 4)``), ``L = I_w ω`` (world frame;
+    a gyrostat's total ``R (I_L ω_b + h)``, its rotors carried over).
     """
     _expect(state, "to_state", (MatrixState,))
     return _same_motion(State, state, orientation=orientation(state), angular_momentum=angular_momentum(state))
 
 
 def _same_motion(cls: type, state: RigidState, **rotational: Array) -> Any:
-    """A ``cls`` with ``state``'s body, position, velocity and time and the given rotational fields (unchecked)."""
+    """A ``cls`` with ``state``'s body, position, velocity, time and rotors and the given rotational fields
+    (unchecked)."""
     return new_unchecked(
-        cls, body=state.body, position=state.position, velocity=state.velocity, time=state.time, **rotational
+        cls,
+        body=state.body,
+        position=state.position,
+        velocity=state.velocity,
+        time=state.time,
+        rotors=state.rotors,
+        rotor_momentum=state.rotor_momentum,
+        **rotational,
     )

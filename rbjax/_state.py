@@ -31,6 +31,7 @@ from ._math import (
     quat_tolerance,
 )
 from ._pytree import core_shape_of, field, pytree_dataclass, replace
+from ._rotors import Rotors, convert_rotors, rotor_rates_of
 from ._trajectory import BatchIndexing
 from ._typing import ArrayLike, array_like, optional_array_like
 
@@ -83,6 +84,7 @@ def _convert(obj: Any, *names: str) -> None:
             object.__setattr__(obj, n, a.astype(dtype))
     if body is not None:
         object.__setattr__(obj, "body", _body_as(body, dtype))
+    convert_rotors(obj, dtype)
     batch = getattr(obj, names[0]).shape[:-1]
     # one clock per body, so that slicing every leaf of a batch (jax.tree.map) keeps it
     t = _time(type(obj).__name__, obj.time, dtype, batch)
@@ -194,6 +196,7 @@ class _StateBase(BatchIndexing):
 
 
 _Rigid = TypeVar("_Rigid", bound="_RigidStateBase")  # create returns the class it is called on
+_Rotor = Union[tuple[Rotors, Array], None]  # a gyrostat's rotors and their momenta (*B, k), or none
 
 
 class _RigidStateBase(_StateBase):
@@ -217,6 +220,8 @@ class _RigidStateBase(_StateBase):
         orientation: Float[ArrayLike, "*B 4"] | Float[ArrayLike, "*B 3 3"] | None = None,
         angular_velocity: Float[ArrayLike, "*B 3"] | None = None,
         time: Float[ArrayLike, ""] = 0.0,
+        rotors: Rotors | None = None,
+        rotor_rates: Float[ArrayLike, "*B k"] | None = None,
     ) -> _Rigid:
         """State from kinematic quantities; missing ones are zero / identity.
 
@@ -227,8 +232,18 @@ class _RigidStateBase(_StateBase):
         ``L = R I_L Rᵀ ω`` and the quaternion, :class:`MatrixState` ``ω`` and
         ``R``. All arguments broadcast against the body's batch shape; ``time``
         (s) is the state's ``t``.
+
+        ``rotors`` (:class:`rbjax.Rotors`) makes the body a gyrostat, its rotors
+        spinning at ``rotor_rates`` ``Ω`` ``(*B, k)`` (rad/s, relative to the body;
+        default zero): the state carries ``rotor_momentum`` ``h_k = J_k Ω_k``
+        (kg m²/s), and the angular momentum is the total ``L = R (I ω_b + h)``
+        with ``h = Σ_k h_k a_k`` (body frame).
         """
         where = f"{cls.__name__}.create"
+        if rotors is None and rotor_rates is not None:
+            raise ValueError(f"{where}: rotor_rates were given without rotors; give rotors=rb.Rotors(axes, inertia)")
+        if rotors is not None and not isinstance(rotors, Rotors):
+            raise TypeError(f"{where}: rotors must be an rbjax.Rotors, got {type(rotors).__name__}")
         body, x, v, o, w = _kinematics(body, position, velocity, orientation, angular_velocity)
         if is_concrete(o) and not np.all(np.isfinite(np.asarray(o))):
             raise ValueError(f"{where}: orientation must be finite, got non-finite entries")
@@ -244,14 +259,24 @@ class _RigidStateBase(_StateBase):
         _check_vectors(where, position=x, velocity=v, angular_velocity=w)
         vectors = dict(position=x.shape[:-1], velocity=v.shape[:-1], angular_velocity=w.shape[:-1])
         orientation_batch = o.shape[:-1] if o.shape[-1:] == (4,) else o.shape[:-2]
-        shape = _batch(where, body.batch_shape, **vectors, orientation=orientation_batch)
-        return cls._from_kinematics(body, x, v, o, w, _time(where, time, x.dtype, shape))
+        if rotors is None:
+            shape = _batch(where, body.batch_shape, **vectors, orientation=orientation_batch)
+            return cls._from_kinematics(body, x, v, o, w, _time(where, time, x.dtype, shape))
+        rotors, rates = rotor_rates_of(where, rotors, rotor_rates, x.dtype)
+        rotor_batch = dict(rotors=rotors.inertia.shape[:-1], rotor_rates=rates.shape[:-1])
+        shape = _batch(where, body.batch_shape, **vectors, orientation=orientation_batch, **rotor_batch)
+        h = jnp.broadcast_to(rotors.inertia * rates, shape + rates.shape[-1:])
+        t = _time(where, time, x.dtype, shape)
+        return cls._from_kinematics(body, x, v, o, w, t, (rotors, h))
 
     @classmethod
-    def _from_kinematics(cls: type[_Rigid], body: Body, x: Array, v: Array, o: Array, w: Array, t: Array) -> _Rigid:
+    def _from_kinematics(
+        cls: type[_Rigid], body: Body, x: Array, v: Array, o: Array, w: Array, t: Array, rotor: _Rotor = None
+    ) -> _Rigid:
         """The state from ``create``'s checked arrays, broadcast to ``t``'s batch shape ``B``.
 
-        ``o``: a unit quaternion ``(..., 4)`` or a rotation matrix ``(..., 3, 3)``.
+        ``o``: a unit quaternion ``(..., 4)`` or a rotation matrix ``(..., 3, 3)``;
+        ``rotor``: the rotors and their momenta ``h`` ``(*B, k)``, or ``None``.
         """
         raise NotImplementedError
 
@@ -265,12 +290,19 @@ class State(_RigidStateBase):
         position: ``(*B, 3)`` centre of mass ``x`` (world, m).
         velocity: ``(*B, 3)`` centre-of-mass velocity ``v`` (world, m/s).
         orientation: ``(*B, 4)`` unit quaternion ``q = [w, x, y, z]``, body to world.
-        angular_momentum: ``(*B, 3)`` ``L`` about the centre of mass (world, kg m²/s).
+        angular_momentum: ``(*B, 3)`` ``L`` about the centre of mass (world, kg m²/s);
+            of a gyrostat, the total of body and rotors.
         time: ``(*B,)`` time ``t`` (s) of each state; the bodies of a batch that
             is stepped together share one clock. ``step`` advances it by ``dt``;
             ``simulate`` starts from it, so continuing a run needs no ``t0``.
+        rotors: :class:`rbjax.Rotors` (axes, axial inertias) of a gyrostat, or
+            ``None`` (default: a plain rigid body, no pytree leaves).
+        rotor_momentum: ``(*B, k)`` rotor momenta ``h_k = J_k Ω_k`` (kg m²/s)
+            relative to the body, or ``None`` (with ``rotors``).
 
-    The angular velocity is derived: ``ω = I_w⁻¹ L`` with ``I_w = R I_L Rᵀ``.
+    The angular velocity is derived: ``ω = I_w⁻¹ L`` with ``I_w = R I_L Rᵀ``;
+    with rotors ``ω = R I_L⁻¹ (Rᵀ L - h)``, ``h = Σ_k h_k a_k`` (body frame;
+    see :mod:`rbjax._rotors`).
     Direct construction takes array-likes (nested lists too) and validates shapes,
     finiteness and ``‖q‖ = 1`` (tolerance :func:`quat_tolerance`) when values
     are concrete.
@@ -291,17 +323,29 @@ class State(_RigidStateBase):
     orientation: Float[Array, "*B 4"] = field(core_shape=(4,), converter=array_like)
     angular_momentum: Float[Array, "*B 3"] = field(core_shape=(3,), converter=array_like)
     time: Float[Array, "*B"] = field(core_shape=(), default=0.0, converter=array_like)
+    rotors: Rotors | None = None
+    rotor_momentum: Float[Array, "*B k"] | None = field(core_ndim=1, default=None, converter=optional_array_like)
+
+    constant_fields: ClassVar[tuple[str, ...]] = ("body", "rotors", "time")
 
     def __post_init__(self) -> None:
         _convert_and_check(self)
         check_unit_quaternions("State", "orientation", self.orientation)
 
     @classmethod
-    def _from_kinematics(cls, body: Body, x: Array, v: Array, o: Array, w: Array, t: Array) -> State:
+    def _from_kinematics(
+        cls, body: Body, x: Array, v: Array, o: Array, w: Array, t: Array, rotor: _Rotor = None
+    ) -> State:
         q = o if o.shape[-1:] == (4,) else matrix_to_quat_unchecked(o)
-        L = quat_rotate_unchecked(q, matvec3(inertia_of(body), quat_rotate_inverse_unchecked(q, w)))
+        w_b = quat_rotate_inverse_unchecked(q, w)
+        if rotor is None:
+            L = quat_rotate_unchecked(q, matvec3(inertia_of(body), w_b))
+        else:
+            rotors, h = rotor
+            hb = jnp.einsum("...k,...kj->...j", h, rotors.axes)  # Σ_k h_k a_k, per body or shared axes
+            L = quat_rotate_unchecked(q, matvec3(inertia_of(body), w_b) + hb)
         bc = lambda a: jnp.broadcast_to(a, t.shape + a.shape[-1:])
-        return cls(body, bc(x), bc(v), bc(q), bc(L), t)
+        return cls(body, bc(x), bc(v), bc(q), bc(L), t, *(rotor or ()))
 
 
 @pytree_dataclass
@@ -316,6 +360,11 @@ class MatrixState(_RigidStateBase):
             the body axes in world coordinates).
         angular_velocity: ``(*B, 3)`` ``ω`` (world, rad/s).
         time: ``(*B,)`` time ``t`` (s), as in :class:`State`.
+        rotors: :class:`rbjax.Rotors` of a gyrostat, or ``None``, as in :class:`State`.
+        rotor_momentum: ``(*B, k)`` ``h_k = J_k Ω_k`` (kg m²/s), or ``None``, as in :class:`State`.
+
+    With rotors, Euler's equation (body frame) is
+    ``I ω̇_b = Rᵀ τ - ω_b × (I ω_b + h) - ḣ`` (:mod:`rbjax._rotors`).
     """
 
     body: Body
@@ -324,16 +373,23 @@ class MatrixState(_RigidStateBase):
     rotation: Float[Array, "*B 3 3"] = field(core_shape=(3, 3), converter=array_like)
     angular_velocity: Float[Array, "*B 3"] = field(core_shape=(3,), converter=array_like)
     time: Float[Array, "*B"] = field(core_shape=(), default=0.0, converter=array_like)
+    rotors: Rotors | None = None
+    rotor_momentum: Float[Array, "*B k"] | None = field(core_ndim=1, default=None, converter=optional_array_like)
+
+    constant_fields: ClassVar[tuple[str, ...]] = ("body", "rotors", "time")
 
     def __post_init__(self) -> None:
         _convert_and_check(self)
         check_rotations("MatrixState", "rotation", self.rotation)
 
     @classmethod
-    def _from_kinematics(cls, body: Body, x: Array, v: Array, o: Array, w: Array, t: Array) -> MatrixState:
+    def _from_kinematics(
+        cls, body: Body, x: Array, v: Array, o: Array, w: Array, t: Array, rotor: _Rotor = None
+    ) -> MatrixState:
         R = quat_to_matrix_unchecked(o) if o.shape[-1:] == (4,) else o
         bc = lambda a: jnp.broadcast_to(a, t.shape + a.shape[-1:])
-        return cls(body, bc(x), bc(v), jnp.broadcast_to(R, t.shape + (3, 3)), bc(w), t)
+        Rb = jnp.broadcast_to(R, t.shape + (3, 3))
+        return cls(body, bc(x), bc(v), Rb, bc(w), t, *(rotor or ()))
 
 
 def check_particle_mass(mass: Any, owner: str = "ParticleState", name: str = "mass") -> None:
@@ -419,6 +475,11 @@ class Forces:
     Attributes:
         force: ``(*B, 3)`` net force on the centre of mass (N), or ``None`` for none.
         torque: ``(*B, 3)`` net torque about the centre of mass (N m), or ``None``.
+        rotor_torque: ``(*B, k)`` torques on a gyrostat's rotors (N m), or ``None``:
+            ``τ_k = ḣ_k``, the rate of rotor ``k``'s momentum relative to the body.
+            Internal: it changes the rotor momenta, never the total ``L``. The
+            motor's own torque is ``τ_k + J_k a_k · ω̇_b`` (see :mod:`rbjax._rotors`).
+            Only for states with ``rotors``.
 
     ``None`` is static: a step given ``Forces(force=f)`` compiles no torque work.
     Forces add with ``+``.
@@ -426,10 +487,13 @@ class Forces:
 
     force: Float[Array, "*B 3"] | None = field(core_shape=(3,), default=None, converter=optional_array_like)
     torque: Float[Array, "*B 3"] | None = field(core_shape=(3,), default=None, converter=optional_array_like)
+    rotor_torque: Float[Array, "*B k"] | None = field(core_ndim=1, default=None, converter=optional_array_like)
 
     def __post_init__(self) -> None:
-        floats(self, "force", "torque")
+        floats(self, "force", "torque", "rotor_torque")
         _check_vectors("Forces", force=self.force, torque=self.torque)
+        if self.rotor_torque is not None and self.rotor_torque.ndim < 1:
+            raise ValueError("Forces: rotor_torque must end in (k,), one torque (N m) per rotor, got a scalar")
 
     @classmethod
     def at_point(cls, force: Float[ArrayLike, "*B 3"], point: Float[ArrayLike, "*B 3"], state: AnyState) -> Forces:
@@ -480,7 +544,12 @@ class Forces:
 
         # both were checked when built; their sum is not re-checked, so that it also adds the
         # batch-last (3, *B) forces of simulate's scan
-        return replace(self, force=add(self.force, other.force), torque=add(self.torque, other.torque))
+        return replace(
+            self,
+            force=add(self.force, other.force),
+            torque=add(self.torque, other.torque),
+            rotor_torque=add(self.rotor_torque, other.rotor_torque),
+        )
 
 
 ForceLike = Union[Forces, Callable[[Any, Array], Forces], None]

@@ -67,7 +67,7 @@ def stack_frames(frames: Any, initial: Any, times: Any) -> Any:
     nb = len(initial.batch_shape)
     changes = {}
     for name in type(initial)._rbjax_data_fields:
-        if name == "time" or getattr(frames, name) is not None:
+        if name == "time" or getattr(frames, name) is not None or getattr(initial, name) is None:
             continue
 
         def per_frame(a: Any, core: int) -> Any:
