@@ -30,6 +30,7 @@ from ._force_model import (
 from ._math import broadcasts_to
 from ._methods import DEFAULT_METHOD, Method, OrderWarning
 from ._pytree import replace
+from ._rotors import rotor_torque_shape
 from ._scan import check_checkpoint, checkpointed_scan, frames_as_outputs, frames_in_buffer
 from ._state import ForceLike, Forces, ParticleState, StateT, split_constants
 from ._trajectory import stack_frames
@@ -55,10 +56,13 @@ __all__ = ["step", "simulate", "run_simulation"]
 def _canonical(state: Any) -> Any:
     """A frame of a trajectory in the shapes of a fresh state: one compiled program for both.
 
-    Drops the leading size-1 batch axes of the shared fields (``body``: ``(1,)``
-    → ``()``) and makes a one-element ``time`` a scalar.
+    Drops the leading size-1 batch axes of the shared fields (``body``, ``rotors``:
+    ``(1,)`` → ``()``) and makes a one-element ``time`` a scalar.
     """
-    if isinstance(state, ParticleState) or 1 not in state.body.mass.shape:
+    if isinstance(state, ParticleState):
+        return state
+    rotors = state.rotors
+    if 1 not in state.body.mass.shape and (rotors is None or 1 not in rotors.inertia.shape[:-1]):
         return state
 
     def squeeze(a: Array, core: int) -> Array:
@@ -68,7 +72,7 @@ def _canonical(state: Any) -> Any:
             drop += 1
         return a.reshape(a.shape[drop:])
 
-    return replace(state, body=map_leaves(state.body, squeeze))
+    return replace(state, body=map_leaves(state.body, squeeze), rotors=map_leaves(rotors, squeeze))
 
 
 def prepare_state(state: Any, principal: bool = False) -> Any:
@@ -111,6 +115,7 @@ def step(
     check_state(state, "step")
     resolved = _methods.resolve(method, "step")
     fn = resolved.step(type(state))
+    _methods.check_rotors(resolved, state, "step")
     check_dt(dt)
     if t0 is not None:
         check_dt(t0, "t0", positive=False)
@@ -127,6 +132,7 @@ def step(
                     f"{want} (batch shape {state.batch_shape} + (3,)); step takes one step's forces (a time "
                     "series (steps, *batch, 3) is for simulate)"
                 )
+        rotor_torque_shape(forces, state, "step: forces")
     elif isinstance(forces, ForceModel):
         check_force_model(forces, state, "step")
     dt = jnp.asarray(dt, dtype)

@@ -30,6 +30,7 @@ from ._math import broadcasts_to, index_tuple
 from ._methods import Method
 from ._pytree import data_fields, is_rbjax_dataclass, new_unchecked, replace
 from ._quantities import body_angular_velocity
+from ._rotors import rotor_torque_shape
 from ._state import AnyState, ForceLike, Forces, MatrixState, ParticleState, State
 
 __all__ = [
@@ -382,6 +383,9 @@ def check_forces_output(out: Any, state: Any, fn: Any) -> Forces:
             )
         # broadcast here: the batch-last transposes that follow assume full shapes
         fixed[name] = jnp.broadcast_to(jnp.asarray(a).astype(state.dtype), want)
+    k = rotor_torque_shape(out, state, f"force callable {_name(fn)!r}")
+    if k is not None:
+        fixed["rotor_torque"] = jnp.broadcast_to(jnp.asarray(out.rotor_torque).astype(state.dtype), k)
     return new_unchecked(Forces, **fixed)
 
 
@@ -409,9 +413,9 @@ def as_force_fn(forces: ForceLike) -> Callable[[Any, Array], Forces]:
 def cast_forces(forces: Forces, dtype: Any) -> Forces:
     """``forces`` with its arrays in the state's ``dtype`` (a float64 force must not promote a float32 state)."""
     cast = lambda a: None if a is None else a.astype(dtype)
-    if all(a is None or a.dtype == dtype for a in (forces.force, forces.torque)):
+    if all(a is None or a.dtype == dtype for a in (forces.force, forces.torque, forces.rotor_torque)):
         return forces
-    return replace(forces, force=cast(forces.force), torque=cast(forces.torque))
+    return replace(forces, force=cast(forces.force), torque=cast(forces.torque), rotor_torque=cast(forces.rotor_torque))
 
 
 def start_time(state: AnyState) -> Array:
@@ -451,7 +455,9 @@ def _time_range(t: Array) -> tuple[Array, Array]:
 
 
 def is_time_series(forces: Forces, state: AnyState, steps: int) -> bool:
-    leaves = [a for a in (forces.force, forces.torque) if a is not None]
+    """Whether ``forces`` has a leading time axis ``(steps, *B, 3)`` (``rotor_torque``: ``(steps, *B, k)``);
+    ``ValueError`` when some of its arrays have one and others not, or a wrong length."""
+    leaves = [a for a in (forces.force, forces.torque, forces.rotor_torque) if a is not None]
     if not leaves:
         return False
     nb = len(state.batch_shape)
@@ -460,11 +466,11 @@ def is_time_series(forces: Forces, state: AnyState, steps: int) -> bool:
         for a in leaves:
             if a.ndim - 1 <= nb or a.shape[0] != steps:
                 raise ValueError(
-                    f"time-series forces must have shape (steps={steps}, *batch, 3); got {a.shape} "
-                    f"for a state of batch shape {state.batch_shape}"
+                    f"time-series forces must have shape (steps={steps}, *batch, 3) (rotor_torque: "
+                    f"(steps, *batch, k)); got {a.shape} for a state of batch shape {state.batch_shape}"
                 )
-        return True
-    return False
+    rotor_torque_shape(forces, state, "simulate: forces", series=any(series))
+    return any(series)
 
 
 def check_run(
@@ -481,6 +487,7 @@ def check_run(
     check_state(state, fn)
     method = _methods.resolve(method, fn)
     method.step(type(state))
+    _methods.check_rotors(method, state, fn)
     steps = check_count("steps", steps, 0)
     save_every = check_count("save_every", save_every, 1)
     if steps % save_every:

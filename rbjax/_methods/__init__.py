@@ -39,6 +39,7 @@ from ._registry import (
     OrderWarning,
     StepFn,
     available,
+    check_rotors,
     for_kind,
     get,
     is_registered,
@@ -59,6 +60,7 @@ __all__ = [
     "lookup",
     "available",
     "resolve",
+    "check_rotors",
     "for_kind",
     "is_registered",
 ]

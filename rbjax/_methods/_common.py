@@ -31,10 +31,18 @@ def kicked_velocity(s: State, f: Forces, h) -> Array:
     return s.velocity if f.force is None else kick3(s.velocity, f.force, s.body.mass, h)
 
 
+def rotor_kick(s, f: Forces, h) -> dict:
+    """``{"rotor_momentum": h_k + τ_k h}`` of a gyrostat (``τ_k`` = ``f.rotor_torque``, N m; ``h`` in s),
+    ``{}`` without rotors or rotor torque: fields to ``replace`` after a step's kick."""
+    if getattr(s, "rotors", None) is None or f.rotor_torque is None:
+        return {}
+    return {"rotor_momentum": s.rotor_momentum + f.rotor_torque * h}
+
+
 def kick(s: State, f: Forces, h) -> State:
-    """``v += F/m h``, ``L += τ h`` (world frame): the exact flow of constant forces."""
+    """``v += F/m h``, ``L += τ h`` (world frame), rotor momenta ``h_k += τ_k h``: the exact flow of constant forces."""
     L = s.angular_momentum if f.torque is None else s.angular_momentum + f.torque * h
-    return replace(s, velocity=kicked_velocity(s, f, h), angular_momentum=L)
+    return replace(s, velocity=kicked_velocity(s, f, h), angular_momentum=L, **rotor_kick(s, f, h))
 
 
 def solve3(A: Array, b: Array) -> Array:

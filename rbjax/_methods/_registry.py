@@ -99,6 +99,10 @@ class Method:
             splitting methods kick with the start velocities: first order, measured
             in tests/test_force_protocol.py); ``None`` when it is ``order``.
             :func:`rbjax.simulate` gives an :class:`rbjax.OrderWarning` for such a run.
+        rotors: the steps handle gyrostats (states with ``rotors``, :mod:`rbjax._rotors`):
+            the rotor momenta in the map from ``L`` to ``ω`` (or in Euler's equation)
+            and ``Forces.rotor_torque``. Every public run refuses a gyrostat state,
+            with ``ValueError`` naming the methods that do, for a method without.
     """
 
     name: str
@@ -115,6 +119,7 @@ class Method:
     principal_frame: bool = False
     order_with_velocity_forces: int | None = None
     forces_at_step_start: bool = False
+    rotors: bool = False
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
@@ -156,6 +161,24 @@ class Method:
 
 
 _REGISTRY: dict[str, Method] = {}
+
+
+def check_rotors(method: Method, state: Any, where: str) -> None:
+    """``ValueError`` naming ``method`` and the methods that support rotors, when ``state`` is a
+    gyrostat (has ``rotors``) and ``method`` does not handle them (:attr:`Method.rotors`)."""
+    if getattr(state, "rotors", None) is None or method.rotors:
+        return
+    names = ", ".join(repr(n) for n, m in _REGISTRY.items() if m.rotors)
+    scene = (
+        ""
+        if method.name not in _REGISTRY or is_registered(method)
+        else " (a Scene specialised on a body kind steps with kernels that know no rotors: build it with "
+        "kind='general')"
+    )
+    raise ValueError(
+        f"{where}: method {method.name!r} does not support rotors (this state is a gyrostat){scene}; "
+        f"the methods that do: {names}"
+    )
 
 
 def register(method: Method) -> Method:
@@ -218,8 +241,13 @@ def resolve(method: Any, where: str) -> Method:
 def _anonymous(fn: StepFn) -> Method:
     # a user's step is written for the batch-first layout and takes any state form
     name = getattr(fn, "__qualname__", None) or repr(fn)
+    # rotors=True: a user's step is given the whole state, rotors included, and owns what it does with them
     return Method(
-        name=name, order=0, steps=dict.fromkeys((State, MatrixState, ParticleState), fn), layout_agnostic=False
+        name=name,
+        order=0,
+        steps=dict.fromkeys((State, MatrixState, ParticleState), fn),
+        layout_agnostic=False,
+        rotors=True,
     )
 
 
@@ -246,6 +274,8 @@ def for_kind(method: Method, kind: str, torque_free: bool) -> Method:
         layout_agnostic=method.layout_agnostic and not any((kind, T) in method.batch_first_kernels for T in own),
         batch_first_kernels=frozenset(),
         native_code=None,
+        # the kernels specialised on a body kind know no rotors
+        rotors=False,
         # a kind's kernel turns about its symmetry axis: no frame, unless a state type keeps the general step
         principal_frame=method.principal_frame and any(T not in own for T in (State, MatrixState) if T in method.steps),
     )

@@ -161,6 +161,7 @@ def _register(name: str, base: str, order: int, cost: float) -> Method:
             order_with_velocity_forces=base_method.order_with_velocity_forces,
             cost=cost,
             principal_frame=base_method.principal_frame,
+            rotors=base_method.rotors,
         )
     )
 

@@ -9,6 +9,10 @@ Every update uses the old state (no update sees another's new value):
   ``ω += I_w⁻¹ (τ - ω × I_w ω) dt`` with ``I_w⁻¹ = R I_L⁻¹ Rᵀ``.
 * ``ParticleState``: ``x += v dt``; ``v += F/m dt``.
 
+Gyrostats (rotors, :mod:`rbjax._rotors`): ``ω = R I_L⁻¹ (Rᵀ L - h)`` and
+``h_k += τ_k dt`` in the L-form; the rotor terms of Euler's equation in the
+``(x, v, R, ω)`` form.
+
 First order. In the L-form torque-free ``L`` is exact, but ``|L|`` in body
 axes and the energy grow every step (by ``dt² |L × ω|²`` in ``|L|²``-weighted
 terms): choose it for teaching and for matching the notes, not for long runs.
@@ -29,8 +33,10 @@ from .._math import (
     quat_normalize_unchecked,
 )
 from .._pytree import replace
+from .._rotors import spin_momentum
 from .._state import Forces, MatrixState, ParticleState, State
 from . import specialised
+from ._common import rotor_kick
 from ._registry import Method, register
 
 
@@ -51,17 +57,22 @@ def euler_state(s: State, f: Forces, dt) -> State:
     q = s.orientation
     q = quat_normalize_unchecked(q + 0.5 * dt * pure_quat_multiply(w, q))
     L = s.angular_momentum if f.torque is None else s.angular_momentum + f.torque * dt
-    return replace(s, position=x, velocity=v, orientation=q, angular_momentum=L)
+    return replace(s, position=x, velocity=v, orientation=q, angular_momentum=L, **rotor_kick(s, f, dt))
 
 
 def euler_matrix(s: MatrixState, f: Forces, dt) -> MatrixState:
     """One explicit-Euler step of one body in the ``(x, v, R, ω)`` form."""
     x, v = _translate(s.position, s.velocity, s.body.mass, f, dt)
     R, w = s.rotation, s.angular_velocity
-    R_dot, w_dot = matrix_rates(R, w, s.body, f.torque)
+    if s.rotors is None:
+        R_dot, w_dot = matrix_rates(R, w, s.body, f.torque)
+    else:
+        h = spin_momentum(s.rotors, s.rotor_momentum)
+        h_dot = None if f.rotor_torque is None else spin_momentum(s.rotors, f.rotor_torque)
+        R_dot, w_dot = matrix_rates(R, w, s.body, f.torque, h, h_dot)
     R_new = orthonormalize_unchecked(R + R_dot * dt)
     w_new = w + w_dot * dt
-    return replace(s, position=x, velocity=v, rotation=R_new, angular_velocity=w_new)
+    return replace(s, position=x, velocity=v, rotation=R_new, angular_velocity=w_new, **rotor_kick(s, f, dt))
 
 
 def euler_particles(s: ParticleState, f: Forces, dt) -> ParticleState:
@@ -90,5 +101,6 @@ register(
         native_code=0,
         # its steps read the forces once, at the step's start state and time
         forces_at_step_start=True,
+        rotors=True,
     )
 )

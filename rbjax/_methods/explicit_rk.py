@@ -154,6 +154,8 @@ def register_tableau(
             stable_dt_omega=stable_dt_omega,
             kernels=kernels or {},
             native_code=native_code,
+            # derivative() carries the rotor terms and the rotor momenta's rates
+            rotors=True,
         )
     )
     return fn

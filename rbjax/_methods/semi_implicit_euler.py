@@ -9,6 +9,9 @@ One step of ``dt`` (forces ``F``, ``τ`` evaluated once, at the old state and ``
 * ``MatrixState``: the same map in ``(x, v, R, ω)`` coordinates
   (``L = R I_L Rᵀ ω``; ``R₁ = exp(ω̃ dt) R``; ``ω₁ = R₁ I_L⁻¹ R₁ᵀ L₁``).
 * ``ParticleState``: ``v₁ = v + F/m dt``, ``x₁ = x + v₁ dt`` (symplectic Euler).
+* Gyrostats (:mod:`rbjax._rotors`): the kick also takes ``h_k₁ = h_k + τ_k dt``,
+  and ``ω = R₀ I_L⁻¹ (R₀ᵀ L₁ - h₁)``; a gyrostat's ``MatrixState`` runs the
+  ``State`` step through the conversion (the same map).
 
 Order 1. Conserves: torque-free ``L`` (world) exactly, ``|q| = 1`` to round-off;
 for particles in conservative fields the energy error stays bounded (it is
@@ -37,7 +40,7 @@ from .._math import (
 )
 from .._pytree import replace
 from .._state import Forces, MatrixState, ParticleState, State
-from ._common import batch, kick
+from ._common import batch, kick, via_state
 from ._registry import Method, register
 
 
@@ -68,13 +71,24 @@ def semi_implicit_particles(s: ParticleState, f: Forces, dt) -> ParticleState:
     return replace(s, position=s.position + v * dt, velocity=v)
 
 
+_state_step = batch(semi_implicit_state)
+_matrix_step = batch(semi_implicit_matrix)
+_gyrostat_matrix_step = via_state(_state_step)
+
+
+def _matrix_or_gyrostat(state, force_fn, t, dt):
+    # a gyrostat's MatrixState runs the L-form step through via_state (the same map), which
+    # carries the rotors' momenta; the direct (x, v, R, ω) step knows none
+    return (_matrix_step if state.rotors is None else _gyrostat_matrix_step)(state, force_fn, t, dt)
+
+
 register(
     Method(
         name="semi_implicit_euler",
         order=1,
         steps={
-            State: batch(semi_implicit_state),
-            MatrixState: batch(semi_implicit_matrix),
+            State: _state_step,
+            MatrixState: _matrix_or_gyrostat,
             ParticleState: batch(semi_implicit_particles),
         },
         conserves="torque-free: L exactly, |L| in body axes; energy drifts O(dt) (particles: bounded)",
@@ -84,5 +98,6 @@ register(
         native_code=3,
         # its steps read the forces once, at the step's start state and time
         forces_at_step_start=True,
+        rotors=True,
     )
 )

@@ -58,6 +58,11 @@ rotations, two force evaluations, sub-steps materialised; see :func:`free_rotor`
 Choose it for long or stiff (fast-spinning, anisotropic) runs, Dzhanibekov
 flips, and anything where energy must not drift.
 
+Gyrostats (rotors, :mod:`rbjax._rotors`): the kicks also take the rotor
+momenta (``h_k += τ_k h/2``) and the drift turns the body by the split flow of
+:func:`free_gyrostat` with the rotor momentum held fixed: still explicit,
+symmetric (order 2), world ``L`` untouched.
+
 The principal frame is computed from the body by :func:`rbjax._eigh3.principal_frame`
 (Jacobi sweeps, :func:`rbjax._eigh3.eigh3`, outside the differentiated path),
 once per ``simulate`` call, before its loop (:func:`rbjax._body.prepare`).
@@ -88,6 +93,7 @@ from .._math import (
     quat_rotate_inverse_unchecked,
 )
 from .._pytree import replace
+from .._rotors import spin_momentum
 from .._state import ParticleState, State
 from ._common import degenerate_flow, kick, rigid_steps
 from ._registry import Method, register
@@ -126,9 +132,14 @@ def _rotate_about(qp, m, k, i, h):
     ``m ← Rot_i(-θ) m``: with ``(i, j, k)`` cyclic, ``m_j ← c m_j + s m_k``,
     ``m_k ← c m_k - s m_j`` (``c, s = cos θ, sin θ``), ``m_i`` unchanged.
     """
-    j, l = (i + 1) % 3, (i + 2) % 3
     c2, t2 = _cayley(h * k[i] / 4, m[i] * m[i])
-    s2 = t2 * m[i]
+    return _turn(qp, m, i, c2, t2 * m[i])
+
+
+def _turn(qp, m, i, c2, s2):
+    """A turn about principal axis ``i`` (static) of half-angle cosine and sine ``c2``, ``s2``:
+    ``qp ← qp ⊗ (c2, s2 e_i)``, ``m ← Rot_i(-θ) m`` (see :func:`_rotate_about`)."""
+    j, l = (i + 1) % 3, (i + 2) % 3
     c, s = 1 - 2 * s2 * s2, 2 * s2 * c2
     qw, u = qp[0], (qp[1], qp[2], qp[3])
     # (qw, u) ⊗ (c2, s2 e_i) = (qw c2 - s2 u_i, c2 u + s2 (qw e_i + u × e_i)), (u × e_i) = (0, u_l, -u_j) in (i, j, l)
@@ -161,6 +172,44 @@ def free_rotor(q, L, body, h):
         if axis == 0:
             qp, m = degenerate_flow(qp, m, w, h / 2)
     # H_L commutes with H₁ and H₃, so its two half-steps are one full turn
+    qp = quat_multiply(_turn_about_momentum(L, e[1], h), qp)
+    return quat_normalize_unchecked(quat_multiply(qp, quat_conjugate(p)))
+
+
+# (principal axis, fraction of h) of the gyrostat's symmetric composition H₃'(h/2) H₂'(h/2) H₁'(h) H₂'(h/2) H₃'(h/2)
+_GYROSTAT_SEQUENCE = ((2, 0.5), (1, 0.5), (0, 1.0), (1, 0.5), (2, 0.5))
+
+
+def free_gyrostat(q, L, hb, body, h):
+    """Orientation after the split flow of time ``h`` of a free gyrostat with rotor momentum ``hb`` held fixed.
+
+    ``hb`` (body frame, kg m²/s, ``(3,)``) is ``Σ_k h_k a_k`` (:mod:`rbjax._rotors`),
+    constant over the drift; world ``L`` is unchanged. In the principal frame
+    (moments ``d_i``, ``e_i = 1/d_i``, momentum ``m``, rotor momentum ``η``) the
+    energy ``H = Σ_i (m_i - η_i)² / (2 d_i)`` is, up to a constant,
+    ``|m|²/(2 d₂) + Σ_i H_i'`` with ``H_i' = ½ (e_i - e₂) m_i² - e_i η_i m_i``:
+    each ``H_i'`` depends on ``m_i`` alone, so its exact flow turns the body about
+    principal axis ``i`` by ``θ_i = h ((e_i - e₂) m_i - e_i η_i)`` (``m_i`` kept),
+    and ``|m|²/(2 d₂)`` turns it about world ``L`` as in :func:`free_rotor`. The
+    composition ``Rot_L(h) H₃'(h/2) H₂'(h/2) H₁'(h) H₂'(h/2) H₃'(h/2)`` is symmetric:
+    order 2, world ``L`` untouched, and exact when the ``H_i'`` commute (a
+    symmetric top with its rotors on the symmetry axis). Turns are Cayley
+    rotations (:func:`_cayley`) of their angle.
+    """
+    d, p, w = principal_frame_of(body)
+    e = 1 / d
+    k = jnp.stack([e[0] - e[1], e[1] * 0, e[2] - e[1]])
+    eta = e * quat_rotate_inverse_unchecked(p, hb)
+    qp = quat_multiply(q, p)
+    m = quat_rotate_inverse_unchecked(qp, L)
+    for axis, frac in _GYROSTAT_SEQUENCE:
+        if axis == 0:
+            qp, m = degenerate_flow(qp, m, w, h / 2)
+        # θ = 4 g with the unit "length" n² = 1 of _cayley: a turn by the angle itself
+        c2, s2 = _cayley(frac * h * (k[axis] * m[axis] - eta[axis]) / 4, jnp.ones_like(m[axis]))
+        qp, m = jax.lax.optimization_barrier(_turn(qp, m, axis, c2, s2))
+        if axis == 0:
+            qp, m = degenerate_flow(qp, m, w, h / 2)
     qp = quat_multiply(_turn_about_momentum(L, e[1], h), qp)
     return quat_normalize_unchecked(quat_multiply(qp, quat_conjugate(p)))
 
@@ -206,7 +255,11 @@ def splitting_of_kind(state, force_fn, t, dt, kind: str, torque_free: bool):
 
 
 def _drift(s: State, h) -> State:
-    q = free_rotor(s.orientation, s.angular_momentum, s.body, h)
+    if s.rotors is None:
+        q = free_rotor(s.orientation, s.angular_momentum, s.body, h)
+    else:
+        hb = spin_momentum(s.rotors, s.rotor_momentum)
+        q = free_gyrostat(s.orientation, s.angular_momentum, hb, s.body, h)
     return replace(s, position=s.position + s.velocity * h, orientation=q)
 
 
@@ -247,5 +300,6 @@ register(
         native_code=2,
         principal_frame=True,
         order_with_velocity_forces=1,
+        rotors=True,
     )
 )

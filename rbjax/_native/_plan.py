@@ -61,6 +61,8 @@ def native_plan(
         return f"method {method.name!r} has no native kernel (those with one: {', '.join(METHODS)})"
     if type(state) is not State:
         return f"{type(state).__name__} has no native kernel (State has)"
+    if state.rotors is not None:
+        return "a gyrostat (a state with rotors) has no native kernel: it steps in JAX"
     if state.dtype not in (jnp.float32, jnp.float64):
         return f"dtype {state.dtype} has no native kernel (float32 and float64 have)"
     if not series and native_terms(forces) is None and not method.forces_at_step_start:
