@@ -127,6 +127,7 @@ def shoot(
     S, nd = bshape[0], len(bshape)
     resolved = _methods.resolve(method, "shoot")
     resolved.step(type(starts))  # ValueError now for a state type the method has no step for
+    _methods.check_rotors(resolved, starts, "shoot")  # ValueError for a gyrostat the method would not turn
     dtype = starts.dtype
     dt = jnp.asarray(dt, dtype)
     if dt.ndim == 0:

@@ -268,6 +268,16 @@ def test_other_methods_refuse_in_words(method):
         rb.step(gyrostat(), None, 0.01, method)
 
 
+def test_shoot_refuses_and_runs():
+    starts = rb.State.create(
+        rb.Body(2.0, INERTIA), angular_velocity=np.stack([W0, -W0]), rotors=rb.Rotors(AXES, J), rotor_rates=RATES0
+    )
+    with pytest.raises(ValueError, match="shoot: method 'rk4_body' does not support rotors"):
+        rb.shoot(starts, None, 0.01, 3, "rk4_body")
+    traj, ends = rb.shoot(starts, None, 0.01, 3, "splitting")
+    np.testing.assert_array_equal(ends.angular_momentum, starts.angular_momentum)
+
+
 def test_scene_kernels_refuse():
     """A Scene specialised on an axisymmetric body would step with kernels that know no rotors."""
     s = gyrostat(inertia=np.diag([0.4, 0.4, 0.7]))
