@@ -284,6 +284,8 @@ def test_scene_kernels_refuse():
     scene = rb.Scene.build(s, None, "splitting")
     with pytest.raises(ValueError, match="kind='general'"):
         scene.simulate(s, 0.01, 2)
+    with pytest.raises(ValueError, match="method 'rk4' does not support rotors"):  # rk4's kernels cover every kind
+        rb.Scene.build(s, None, "rk4", kind="general").simulate(s, 0.01, 2)
     general = rb.Scene.build(s, None, "splitting", kind="general")
     a = general.simulate(s, 0.01, 5)
     b = rb.simulate(s, None, 0.01, 5, "splitting")

@@ -172,8 +172,8 @@ def check_rotors(method: Method, state: Any, where: str) -> None:
     scene = (
         ""
         if method.name not in _REGISTRY or is_registered(method)
-        else " (a Scene specialised on a body kind steps with kernels that know no rotors: build it with "
-        "kind='general')"
+        else " (a Scene steps with kernels specialised on its body kind, which know no rotors: step the "
+        "gyrostat with rb.simulate, or with a Scene of 'splitting' built with kind='general')"
     )
     raise ValueError(
         f"{where}: method {method.name!r} does not support rotors (this state is a gyrostat){scene}; "
