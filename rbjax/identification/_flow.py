@@ -120,7 +120,10 @@ def _stage_torque(x, j, substeps, frame, drag, qs, Ls, inv, k, c):
         tau = rotate_components(qs, tau) if frame == "body" else tau
     if drag:
         w = _apply(inv, rotate_components(_conj(qs), Ls))
-        speed = jnp.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+        s2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
+        # |ω| with the derivative 0 at ω = 0 (sqrt's is inf there, and inf·0 = NaN in the tangents):
+        # the damping torque c₂|ω|ω is flat there (a segment that starts at rest)
+        speed = jnp.where(s2 > 0, jnp.sqrt(jnp.where(s2 > 0, s2, 1)), 0)
         damping = k[0] + k[1] * speed
         tau_d = rotate_components(qs, tuple(-damping * wi for wi in w))
         tau = tuple(a + b for a, b in zip(tau, tau_d, strict=True))

@@ -47,7 +47,7 @@ def _pad_segments(prob: Problem, total: int) -> Problem:
     blank = jax.tree.map(lambda v: np.repeat(v[:, -1:], pad, axis=1), seg)
     blank = replace(blank, first=np.zeros_like(blank.first), mask=np.zeros_like(blank.mask), dt=np.zeros_like(blank.dt))
     seg = jax.tree.map(lambda a, b: np.concatenate([a, b], 1), seg, blank)
-    y0 = np.concatenate([prob.y0, np.repeat(prob.y0[:, -SEGMENT_PARAMS:], pad, axis=1)], 1)
+    y0 = np.concatenate([prob.y0, np.tile(prob.y0[:, -SEGMENT_PARAMS:], (1, pad))], 1)  # copies of the last p_s
     data = dict(prob.data, seg=seg, n_unused=prob.data["n_unused"] + SEGMENT_PARAMS * pad)
     rows = lambda a, fill: np.concatenate([a, np.full((pad,) + a.shape[1:], fill, a.dtype)])
     return prob._replace(
