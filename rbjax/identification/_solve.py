@@ -120,7 +120,8 @@ def _member(tree, i):
 def _keeps_jacobian(y0, data, model_opts, unbatch: bool) -> bool:
     """Whether every solve keeps ``J`` at its accepted point: where the batch's ``J`` fit in
     ``_KEEP_J_BYTES``. Then the result pass needs no model (its compile), see :func:`_summarise_batch`."""
-    _, J = model_shapes(y0[0], _member(data, 0), **dict(model_opts))
+    _, J = model_shapes(y0[0], _member(data, 0), **dict(model_opts))  # dense: the kept J's size
+    assert not isinstance(J, SegmentJacobian)
     n, C = y0.shape[0], min(_SLOTS, y0.shape[0])
     return unbatch or (n + 1 + C) * J.size * J.dtype.itemsize <= _KEEP_J_BYTES
 
