@@ -62,7 +62,11 @@ def test_clean_tumbles_are_trusted_with_calibrated_sigma(fits):
     z = _z(res, truth)[fitted]
     assert 0.85 <= np.mean(z < 2) <= 1.0, np.mean(z < 2)
     std, white = (np.asarray(getattr(res, k))[fitted] for k in ("moment_std", "moment_std_white"))
-    np.testing.assert_allclose(std, white, rtol=0.05)
+    # σ is never below the white-noise σ, and on white residuals hardly above it: one factor
+    # scales the HAC covariance to the white one on the moment that needs it most, so the other
+    # moments' σ may rise a little (measured median 1.02 over 200 fits; single ratios up to ~1.2)
+    ratio = std / white
+    assert np.all(ratio >= 1 - 1e-9) and np.median(ratio) <= 1.1 and np.max(ratio) <= 1.5, ratio
     assert all(d.startswith("residuals like the noise") for d, f in zip(res.diagnosis, fitted, strict=True) if f)
 
 
@@ -126,6 +130,7 @@ def test_a_fit_on_the_edge_of_physical_inertias_is_not_trusted():
     edge = np.asarray(res.on_boundary)
     assert edge.any()  # measured 3 of 8 draws
     assert not np.any(np.asarray(res.converged) & edge)
+    assert not np.any(np.asarray(res.well_determined) & edge)
 
 
 def test_repr_shows_the_moments_verdict_and_diagnosis(fits):

@@ -145,8 +145,9 @@ class FitResult:
             recordings fail it (measured p = 1e-70 on tossed phones), and
             ``moment_std`` allows for what the residuals show.
         well_determined: every ``moment_std`` is finite and at most 0.1 of
-            ``tr I``: beyond that the linearised covariance does not describe
-            the estimate (the moments live in ``[0, tr I / 2]``).
+            ``tr I``, and the fit is not ``on_boundary``: beyond that the linearised
+            covariance does not describe the estimate (the moments live in
+            ``[0, tr I / 2]``, and on the edge the constraint is one-sided).
         noise_std: ``(3,)`` noise levels that whiten the residuals:
             orientation (rad), gyro (rad/s), accelerometer (m/s²); the ones
             given, or else estimated from the data (the MAD of what local
@@ -667,7 +668,9 @@ def summarise(
     present = [i for i, on in enumerate((use_orientations, use_rates, use_accel)) if on]
     # the tail probabilities themselves are taken on the host (consistency, below): the statistics
     nu_est = data["noise_dof"][jnp.array(present)]
-    well_determined = jnp.all(std <= _SIGMA_MAX_REL * jnp.sum(moments))  # False for NaN/inf too
+    # False for NaN/inf too; and on the edge of the consistent set, where the linearised σ does not
+    # describe the one-sided constraint (real windows with the hand in them landed there with σ 1e-10)
+    well_determined = jnp.all(std <= _SIGMA_MAX_REL * jnp.sum(moments)) & ~on_boundary
     n_samples = jnp.sum(valid)
     corr_len = (
         jnp.full(3, jnp.nan, y.dtype)
