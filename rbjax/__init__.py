@@ -14,7 +14,8 @@ from . import _methods
 
 # state and bodies
 from ._state import Forces, MatrixState, ParticleState, State
-from ._rotors import Rotors, rotor_rates
+from ._rotors import Rotors
+from ._rotor_rates import rotor_rates
 from ._body import (
     TRIANGLE_RTOL,
     Body,

@@ -18,6 +18,8 @@ With rotors (a gyrostat, :mod:`rbjax._rotors`) ``ω = R I_L⁻¹ (Rᵀ L - h)``,
 
 from __future__ import annotations
 
+from typing import cast
+
 import jax
 import jax.numpy as jnp
 from jax import Array
@@ -70,7 +72,7 @@ def _one_derivative(s: AnyState, f: Forces) -> AnyState:
     tau = jnp.zeros_like(s.velocity) if f.torque is None else f.torque
     rotor = {}
     if s.rotors is not None:
-        h_dot = jnp.zeros_like(s.rotor_momentum) if f.rotor_torque is None else f.rotor_torque
+        h_dot = jnp.zeros_like(cast(Array, s.rotor_momentum)) if f.rotor_torque is None else f.rotor_torque
         rotor = {"rotor_momentum": h_dot}
     if isinstance(s, State):
         w = omega_world(s)

@@ -16,7 +16,7 @@ in the body frame gains the rotor terms ``I ω̇_b = Rᵀ τ - ω_b × (I ω_b +
 
 The torque a motor exerts on rotor ``k`` is ``τ_k + J_k a_k · ω̇_b``: ``τ_k``
 is the rate of the rotor's momentum relative to the body, which is what a
-prescribed rate schedule fixes (``τ_k = J_k Ω̇_k``, :func:`rotor_rates`). The
+prescribed rate schedule fixes (``τ_k = J_k Ω̇_k``, :func:`rbjax.rotor_rates`). The
 kinetic energy is ``T = ½ ω_bᵀ I ω_b + ω_b · h + ½ Σ_k h_k² / J_k`` and changes
 at the motors' power ``Σ_k Ω_k (τ_k + J_k a_k · ω̇_b)``.
 
@@ -25,7 +25,6 @@ Everything below the class is written for one body and lifted by its callers.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -38,9 +37,9 @@ from jaxtyping import Float
 from ._body import finite_float
 from ._math import array_arg, broadcasts_to, is_concrete
 from ._pytree import field, pytree_dataclass, replace
-from ._typing import ArrayLike, array_like
+from ._typing import array_like
 
-__all__ = ["Rotors", "rotor_rates", "spin_momentum", "rotor_energy"]
+__all__ = ["Rotors", "spin_momentum", "rotor_energy"]
 
 #: Relative tolerance on ``|a_k| = 1``: axes further from unit length are refused (``Rotors``
 #: normalises the rest), so that a mistyped axis is not rescaled silently.
@@ -184,61 +183,19 @@ def rotor_torque_shape(forces: Any, state: Any, where: str, series: bool = False
     return want
 
 
-def spin_momentum(rotors: Rotors, h: Array) -> Array:
+def spin_momentum(rotors: Rotors, h: Array | None) -> Array:
     """``h = Σ_k h_k a_k`` (body frame, kg m²/s, ``(3,)``) of one body's rotor momenta ``h_k`` ``(k,)``."""
-    return h @ rotors.axes
+    return _momenta(h) @ rotors.axes
 
 
-def rotor_energy(rotors: Rotors, h: Array) -> Array:
+def _momenta(h: Array | None) -> Array:
+    """A gyrostat state's ``rotor_momentum``: its ``rotors`` come with it (:func:`convert_rotors`)."""
+    if h is None:
+        raise ValueError("a state with rotors must carry rotor_momentum (h_k = J_k Ω_k, kg m²/s, (*B, k))")
+    return h
+
+
+def rotor_energy(rotors: Rotors, h: Array | None) -> Array:
     """``½ Σ_k h_k² / J_k`` (J, scalar): the rotors' spin energy relative to the body, for one body."""
+    h = _momenta(h)
     return 0.5 * jnp.sum(h * h / rotors.inertia, axis=-1)
-
-
-def rotor_rates(
-    rotors: Rotors,
-    rates: Callable[[Any], Any] | Float[ArrayLike, "T *B k"],
-    dt: Float[ArrayLike, ""] | None = None,
-) -> Any:
-    """The rotor torques that make the rotors follow prescribed rates ``Ω_k(t)`` (rad/s, relative to the body).
-
-    ``τ_k = J_k Ω̇_k`` (N m), the rate of each rotor's momentum relative to the
-    body (see :mod:`rbjax._rotors`), as forces for :func:`rbjax.simulate`:
-
-    * ``rates`` a callable ``t -> (*B, k)`` (or ``(k,)``): returns a force callable
-      ``(state, t) -> Forces(rotor_torque=J Ω̇(t))`` with ``Ω̇`` from ``jax.jvp``
-      (the callable must be differentiable in ``t``). Each method integrates it at
-      its own order, so the momenta follow ``J Ω(t)`` to that order.
-    * ``rates`` an array ``(steps + 1, *B, k)`` of rates at the step times
-      ``t0 + n dt`` and ``dt`` (s): returns time-series :class:`rbjax.Forces`
-      ``(steps, *B, k)`` with ``τ_n = J (Ω_{n+1} - Ω_n) / dt``, constant over
-      step ``n``. Every method that supports rotors integrates a constant torque
-      exactly, so the momenta equal ``J Ω_n`` at every step (to round-off).
-
-    Start the state with ``rotor_rates=Ω(t0)`` (:meth:`rbjax.State.create`).
-    """
-    from ._state import Forces  # _state imports this module
-
-    if not isinstance(rotors, Rotors):
-        raise TypeError(f"rotor_rates: rotors must be an rbjax.Rotors, got {type(rotors).__name__}")
-    J = rotors.inertia
-    if callable(rates):
-
-        def forces(state: Any, t: Any) -> Any:
-            t = jnp.asarray(t, state.dtype)
-            _, rate = jax.jvp(lambda s: jnp.asarray(rates(s), state.dtype), (t,), (jnp.ones_like(t),))
-            return Forces(rotor_torque=J.astype(state.dtype) * rate)
-
-        return forces
-    if dt is None:
-        raise ValueError(
-            "rotor_rates: a sampled schedule needs dt, the step (s) of the run whose step times it samples; "
-            "or pass a callable t -> rates"
-        )
-    r = array_arg("rotor_rates", "rates", rates)
-    if r.ndim < 2 or r.shape[-1] != rotors.count or r.shape[0] < 2:
-        raise ValueError(
-            f"rotor_rates: rates must have shape (steps + 1, *B, k) with k = {rotors.count} (rad/s at the step "
-            f"times, two at least), got {tuple(r.shape)}"
-        )
-    h = jnp.asarray(dt, r.dtype)
-    return Forces(rotor_torque=J.astype(r.dtype) * (r[1:] - r[:-1]) / h)

@@ -345,7 +345,8 @@ class State(_RigidStateBase):
             hb = jnp.einsum("...k,...kj->...j", h, rotors.axes)  # Σ_k h_k a_k, per body or shared axes
             L = quat_rotate_unchecked(q, matvec3(inertia_of(body), w_b) + hb)
         bc = lambda a: jnp.broadcast_to(a, t.shape + a.shape[-1:])
-        return cls(body, bc(x), bc(v), bc(q), bc(L), t, *(rotor or ()))
+        rotors, h = (None, None) if rotor is None else rotor
+        return cls(body, bc(x), bc(v), bc(q), bc(L), t, rotors, h)
 
 
 @pytree_dataclass
@@ -389,7 +390,8 @@ class MatrixState(_RigidStateBase):
         R = quat_to_matrix_unchecked(o) if o.shape[-1:] == (4,) else o
         bc = lambda a: jnp.broadcast_to(a, t.shape + a.shape[-1:])
         Rb = jnp.broadcast_to(R, t.shape + (3, 3))
-        return cls(body, bc(x), bc(v), Rb, bc(w), t, *(rotor or ()))
+        rotors, h = (None, None) if rotor is None else rotor
+        return cls(body, bc(x), bc(v), Rb, bc(w), t, rotors, h)
 
 
 def check_particle_mass(mass: Any, owner: str = "ParticleState", name: str = "mass") -> None:
