@@ -157,6 +157,13 @@ def derivative(state: StateT, forces: Forces) -> StateT:
     """Time derivative of every changing field of ``state`` under ``forces`` (world frame).
 
     Returns the same pytree type; its constant fields (``body``, particle
-    ``mass``) are the state's own, unchanged. Shapes as the state's.
+    ``mass``) are the state's own, unchanged. Shapes as the state's. A
+    gyrostat's ``rotor_momentum`` rate is ``forces.rotor_torque`` (``ḣ_k = τ_k``,
+    zero without); a rotor torque for a state without rotors is a ``ValueError``.
     """
+    if forces.rotor_torque is not None and getattr(state, "rotors", None) is None:
+        raise ValueError(
+            "derivative: forces.rotor_torque was given, but the state has no rotors; build it with "
+            "rb.State.create(..., rotors=rb.Rotors(axes, inertia)) or drop rotor_torque"
+        )
     return lift(_one_derivative)(state, forces)

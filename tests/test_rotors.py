@@ -309,6 +309,8 @@ def test_rotor_torque_without_rotors_refused():
         rb.simulate(plain, lambda s, t: rb.Forces(rotor_torque=jnp.ones(1)), 0.01, 2, "rk4")
     with pytest.raises(ValueError, match="state has no rotors"):
         rb.step(plain, rb.Forces(rotor_torque=[0.1]), 0.01)
+    with pytest.raises(ValueError, match="state has no rotors"):
+        rb.derivative(plain, rb.Forces(rotor_torque=[0.1]))
     with pytest.raises(ValueError, match=r"rotor_torque has shape \(3,\)"):
         rb.simulate(gyrostat(), rb.Forces(rotor_torque=[0.1, 0.2, 0.3]), 0.01, 2)
 
