@@ -180,6 +180,16 @@ SLOTS: list[Slot] = [
     Slot("ParticleState", "create.mass", lambda v: rb.ParticleState.create(v), REAL + ("non_positive",)),
     Slot("ParticleState", "create.velocity", lambda v: rb.ParticleState.create(1.0, velocity=v), ("non_finite",), (3,)),
     Slot("Forces", "force", lambda v: rb.Forces(force=v), VEC, (3,)),
+    Slot("Forces", "rotor_torque", lambda v: rb.Forces(rotor_torque=v), REAL, (2,)),
+    Slot("Rotors", "axes", lambda v: rb.Rotors(v, [1e-3]), VEC, (1, 3)),
+    Slot("Rotors", "inertia", lambda v: rb.Rotors([[0.0, 0.0, 1.0]], v), REAL + ("non_positive",), (1,)),
+    Slot(
+        "rotor_rates",
+        "rates",
+        lambda v: rb.rotor_rates(rb.Rotors([[0.0, 0.0, 1.0]], [1e-3]), v, 0.01),
+        REAL + ("wrong_shape",),
+        (3, 1),
+    ),
     Slot("Checks", "energy_factor", lambda v: rb.Checks(energy_factor=v), ("wrong_type", "non_positive", "non_finite")),
     # ---- simulation
     Slot("simulate", "dt", lambda v: _sim(dt=v), REAL + ("non_positive", "bool")),
