@@ -445,6 +445,11 @@ def torque_free(state: RigidStateT, t: Float[ArrayLike, "*T"]) -> RigidStateT:
     """
     if not isinstance(state, (State, MatrixState)):
         raise TypeError(f"torque_free: state must be State or MatrixState, got {type(state).__name__}")
+    if state.rotors is not None:
+        raise ValueError(
+            "torque_free: the Euler-Poinsot closed form is for rigid bodies without rotors; this state is a "
+            "gyrostat: integrate it with rb.simulate (e.g. method='rk8' at a small step for a reference)"
+        )
     if isinstance(t, jax.core.Tracer):
         ndim = t.ndim
     else:

@@ -301,6 +301,11 @@ def test_native_routes_to_jax():
     assert np.array_equal(np.asarray(a.orientation), np.asarray(b.orientation))
 
 
+def test_torque_free_refuses_gyrostats():
+    with pytest.raises(ValueError, match="torque_free: .* gyrostat"):
+        rb.torque_free(gyrostat(), 1.0)
+
+
 def test_rotor_torque_without_rotors_refused():
     plain = rb.State.create(rb.box(1.0, [0.1, 0.2, 0.3]), angular_velocity=[1.0, 2, 3])
     with pytest.raises(ValueError, match="state has no rotors"):
