@@ -74,11 +74,13 @@ def covariance(J, n_rows, n_cont, row_s2, F, hac=None):
     if n_cont:
         _, _, Vc = jnp.linalg.svd(Js[n_rows:], full_matrices=True)
         Z = Vc[n_cont:].T  # (p, p - n_cont): the joins' null space
-    else:
-        Z = jnp.eye(J.shape[1], dtype=dtype)
-    U, sv, Vt = jnp.linalg.svd(Js[:n_rows] @ Z, full_matrices=False)
+        U, sv, Vt = jnp.linalg.svd(Js[:n_rows] @ Z, full_matrices=False)
+        ZV = Z @ Vt.T
+    else:  # Z = I: no (n_rows, p) product with it (XLA keeps a product with an identity)
+        U, sv, Vt = jnp.linalg.svd(Js[:n_rows], full_matrices=False)
+        ZV = Vt.T
     good = sv > max(Js.shape) * eps * sv[0]
-    FB = F @ (D[:, None] * (Z @ Vt.T))  # (f, k): the functionals along the singular directions
+    FB = F @ (D[:, None] * ZV)  # (f, k): the functionals along the singular directions
     FBs = FB * jnp.where(good, 1 / jnp.where(good, sv, 1), 0)
     M = U.T @ (row_s2[:, None] * U)
     # a functional that moves along an undetermined direction (beyond rounding of the basis)
