@@ -149,6 +149,8 @@ def test_repr_shows_the_moments_verdict_and_diagnosis(fits):
     assert text.startswith(f"FitResult(principal_moments=[{m[0]:.4g} ± ")
     assert f"trusted={bool(one.converged)}" in text and one.diagnosis in text
     assert "x the gyro noise (estimated)" in one.diagnosis
+    # one line, however long the recording: never the residuals' numbers
+    assert "\n" not in text and len(text) < 400 and np.asarray(one.residuals).size > 400
 
 
 def test_bartlett_sum_equals_its_definition():

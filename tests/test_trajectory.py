@@ -281,11 +281,7 @@ def test_repr_summarises_shapes():
     assert len(text) < 400 and "f64[1000,3]" in text and "position" in text
     traj = rb.simulate(s, None, 0.1, 2)
     assert "f64[3,1000,3]" in repr(traj) and len(repr(traj)) < 400
-    # a fit result with a 4000-sample residual vector: shapes, not 4000 numbers
-    fields = {f.name: jnp.zeros(4000 if f.name == "residuals" else 3) for f in dataclasses.fields(rb.FitResult)}
-    text = repr(rb._pytree.new_unchecked(rb.FitResult, **fields))
-    # ~22 characters per field (30 fields with the sensor models): far from 4000 numbers
-    assert "residuals=f64[4000]" in text and len(text) < 25 * len(fields)
+    # a FitResult's repr is its one-line verdict (tests/test_fit_verdict.py), not a tree of fields
 
 
 def test_batch_sharding_replicates_shared_leaves():
