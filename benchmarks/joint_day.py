@@ -5,7 +5,7 @@ The second call fits new throws of the same lengths (the same compiled programs)
 goals: joint ≤ 10 s first call and ≤ 3 s second, separate ≤ 15 s and ≤ 5 s, on a quiet 2-core
 machine. Each line also says how far the joint moments are from the truth in units of their σ.
 
-    python benchmarks/joint_day.py [--throws 82] [--out results/joint_day.json]
+    python benchmarks/joint_day.py [--throws 82] [--out results/joint_day.json] [--quick]
 """
 
 from __future__ import annotations
@@ -33,7 +33,10 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--throws", type=int, default=82)
     ap.add_argument("--out", default=None)
+    ap.add_argument("--quick", action="store_true", help="6 throws (a smoke run)")
     args = ap.parse_args()
+    if args.quick:
+        args.throws = 6
     rng = np.random.default_rng(0)
     lengths = rng.integers(41, 103, args.throws)
     out = {"throws": args.throws, "lengths": [int(n) for n in lengths]}
