@@ -341,7 +341,7 @@ def test_cli_fits_each_throw_of_a_phyphox_export(export, tmp_path, capsys):
     png, out = tmp_path / "fits.png", tmp_path / "fit.json"
     assert main(["fit", str(export), "--plot", str(png), "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "3 throw(s)" in text and text.count("converged True") == 3
+    assert "3 throw(s)" in text and text.count("converged (trust) True") == 3
     assert png.read_bytes()[:4] == b"\x89PNG"
     import json
 

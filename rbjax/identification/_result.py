@@ -593,7 +593,8 @@ def summarise(
         ]
     )
     rows_shape = (S, n_blocks, K + 1, 3)
-    hac = (r_kept.reshape(-1), rows_shape, 12, n_eff / (n_eff - p_eff))
+    sampled = jnp.any(kept > 0, axis=1).reshape(-1)  # (S (K+1),): samples, not padding or set aside
+    hac = (r_kept.reshape(-1), rows_shape, 12, n_eff / (n_eff - p_eff), sampled)
     C, C_hac, window, U_good, G12 = covariance(J_c, n_rows, n_cont, row_s2, F, hac)
     var_white = jnp.diagonal(C)[:3]
     C12 = honest(C[:12, :12], C_hac)

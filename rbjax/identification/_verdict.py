@@ -51,11 +51,11 @@ def covariance(J, n_rows, n_cont, row_s2, F, hac=None):
         F C Fᵀ = FBs M FBsᵀ,   FBs = F D Z V S⁻¹,   M = Uᵀ Σ U,   Σ = diag(row_s2),
 
     ``row_s2`` the residual variance of each data row in units of its noise
-    level squared. With ``hac = (r_rows, rows_shape, n_hac, dof_factor)`` the HAC
+    level squared. With ``hac = (r_rows, rows_shape, n_hac, dof_factor, sampled)`` the HAC
     covariance of the first ``n_hac`` functionals replaces ``M`` by the Bartlett sum
     of the per-sample scores ``Uᵀ r`` (``r_rows`` the data residuals, laid out
     ``rows_shape = (S, B, K+1, 3)``, zero for padding and set-aside samples) times
-    ``dof_factor = n / (n - p)``.
+    ``dof_factor = n / (n - p)``; ``sampled (S (K+1),)`` marks the samples the window is chosen from.
     A dropped direction (singular value at rounding level) is one the data do
     not determine: a functional that depends on it has variance ``inf``, never 0.
     Exactly zero columns (parameters pinned by the model) are left out.
@@ -94,13 +94,13 @@ def covariance(J, n_rows, n_cont, row_s2, F, hac=None):
     C_white = finish(FBs @ M @ FBs.T, unbounded)
     if hac is None:
         return C_white
-    r_rows, rows_shape, n_hac, dof_factor = hac
+    r_rows, rows_shape, n_hac, dof_factor, sampled = hac
     # per-sample scores of the first n_hac functionals: z_t = FBs Uᵀ r over the rows of sample t
     S, B, K1, _ = rows_shape
     k = U.shape[1]
     h = (U * r_rows[:, None]).reshape(S, B, K1, 3, k).sum((1, 3)).reshape(S * K1, k)
     z = h @ FBs[:n_hac].T  # (T, n_hac)
-    m = andrews_window(z[:, :3])
+    m = andrews_window(z[:, :3], sampled)
     C_hac = finish(dof_factor * bartlett_meat(z, m), unbounded[:n_hac])
     U_good = U * good.astype(dtype)
     return C_white, C_hac, m, U_good, FBs[:n_hac]
@@ -122,17 +122,22 @@ def bartlett_meat(z, m):
     return s.T @ s / m.astype(z.dtype)
 
 
-def andrews_window(z):
+def andrews_window(z, sampled=None):
     """Bartlett window ``m = 1 + ⌊1.1447 (α T)^{1/3}⌋`` (samples) for the score series ``z (T, a)``.
 
     Andrews (1991): each column an AR(1) ``z_t = ρ z_{t-1} + e_t`` (``ρ`` clipped to
     ``±0.97``, ``σ² = var e``); ``α = Σ 4ρ²σ⁴/((1-ρ)⁶(1+ρ)²) / Σ σ⁴/(1-ρ)⁴``. At most ``T``.
+    ``sampled (T,)``: which rows are samples (not a batch's padding); ``T`` counts those, and
+    ``ρ``, ``σ²`` come from pairs of consecutive samples, so a padded recording gets the
+    window it gets alone.
     """
-    T = z.shape[0]
-    a, b = z[1:], z[:-1]
+    v = jnp.ones(z.shape[0], z.dtype) if sampled is None else sampled.astype(z.dtype)
+    T = jnp.maximum(jnp.sum(v), 1)
+    pair = (v[1:] * v[:-1])[:, None]
+    a, b = z[1:] * pair, z[:-1] * pair
     den = jnp.sum(b * b, 0)
     rho = jnp.clip(jnp.sum(a * b, 0) / jnp.where(den > 0, den, 1), -_RHO_MAX, _RHO_MAX)
-    s2 = jnp.mean((a - rho * b) ** 2, 0)
+    s2 = jnp.sum((a - rho * b) ** 2, 0) / jnp.maximum(jnp.sum(pair), 1)
     num = jnp.sum(4 * rho**2 * s2**2 / ((1 - rho) ** 6 * (1 + rho) ** 2))
     den2 = jnp.sum(s2**2 / (1 - rho) ** 4)
     alpha = num / jnp.where(den2 > 0, den2, 1)
