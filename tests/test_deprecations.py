@@ -192,3 +192,8 @@ def test_spring_between_index_keywords():
         lambda: rb.Spring.between(body_a=[0], body_b=[2], stiffness=3.0, point_a=_P, damping=0.1), "index_a", "index_b"
     )
     _same_model(old, new)
+    # the indices land where they belong: index_a is the spring's body, index_b its other end
+    np.testing.assert_array_equal(new.body_index, [0])
+    np.testing.assert_array_equal(new.other_index, [2])
+    with pytest.raises(TypeError, match="both index_a= and its deprecated spelling body_a="):
+        rb.Spring.between(index_a=[0], body_a=[0], index_b=[2], stiffness=3.0)
