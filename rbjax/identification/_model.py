@@ -311,9 +311,8 @@ def model_residuals(
     eye = jnp.eye(S, dtype=y.dtype)
     blocks = lambda B, E: jnp.einsum("sra,st->srta", B, E).reshape(B.shape[0] * B.shape[1], -1)
     if at.size == 0:  # recordings of one segment each: nothing joined
-        if not dense:
-            return r_seg.reshape(-1), SegmentJacobian(J_seg, jnp.zeros((0, y.shape[0]), y.dtype), n_theta)
-        return r_seg.reshape(-1), densify(SegmentJacobian(J_seg, jnp.zeros((0, y.shape[0]), y.dtype), n_theta))
+        J = SegmentJacobian(J_seg, jnp.zeros((0, y.shape[0]), y.dtype), n_theta)
+        return r_seg.reshape(-1), J if not dense else densify(J)
     c = functools.partial(_continuity, continuity_weight=data["continuity_weight"])  # traced: no recompile
     nxt = jax.tree.map(lambda a: a[at + 1], seg)
     cj = jax.jacfwd(lambda e, pn, dn: (c(e, pn, dn),) * 2, argnums=(0, 1), has_aux=True)
@@ -352,8 +351,8 @@ def normal_equations(r: Array, J: Array | SegmentJacobian) -> tuple[Array, Array
 
     Blocks: ``G_θθ = Σ_s A_sᵀA_s``, ``G_θs = A_sᵀB_s``, ``G_ss = B_sᵀB_s`` (``A_s``, ``B_s``:
     segment ``s``'s columns of θ and of ``p_s``), plus the join rows' ``J_cᵀJ_c``: the
-    products of the nonzero blocks only (a joint fit of 82 throws: 30,000 rows, 581
-    columns, ``JᵀJ`` 300x fewer operations).
+    products of the nonzero blocks only, ``O(m (n_θ + 6)²)`` instead of ``O(m n²)`` (a joint
+    fit of 82 throws: 29,664 rows, 581 columns).
     """
     if not isinstance(J, SegmentJacobian):
         return J.T @ J, J.T @ r
