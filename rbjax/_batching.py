@@ -70,13 +70,16 @@ def to_batch_first(obj: Any) -> Any:
 
 def _batch_dims(obj: Any) -> list[tuple[int, ...]]:
     """Batch shapes of every array leaf of an rbjax pytree (in the current layout)."""
-    return [shape for _, shape in _labelled_batch_dims(obj)]
+    return [shape for _, shape in _leaf_batch_dims(obj, None)]
 
 
-def _labelled_batch_dims(obj: Any, owner: str = "") -> list[tuple[str, tuple[int, ...]]]:
-    """``(name, batch shape)`` of every array leaf, named as ``Class.field`` (nested: ``Outer.field.inner``)."""
+def _leaf_batch_dims(obj: Any, owner: str | None) -> list[tuple[str, tuple[int, ...]]]:
+    """``(name, batch shape)`` of every array leaf; the names (``Class.field``, nested
+    ``Outer.field.inner``) are written only when ``owner`` is given: an error message needs
+    them, the traces that call this on every leaf do not."""
     last = _BATCH_LAST.get()
-    owner = owner or type(obj).__name__
+    if owner == "":
+        owner = type(obj).__name__
     out: list[tuple[str, tuple[int, ...]]] = []
     for name, core in type(obj)._rbjax_core_ndim.items():
         if name not in type(obj)._rbjax_data_fields:
@@ -84,17 +87,17 @@ def _labelled_batch_dims(obj: Any, owner: str = "") -> list[tuple[str, tuple[int
         v = getattr(obj, name)
         if v is None:
             continue
+        label = "" if owner is None else f"{owner}.{name}"
         if is_rbjax_dataclass(v):
-            out.extend(_labelled_batch_dims(v, f"{owner}.{name}"))
+            out.extend(_leaf_batch_dims(v, None if owner is None else label))
         else:
-            out.append((f"{owner}.{name}", tuple(v.shape[core:] if last else v.shape[: v.ndim - core])))
+            out.append((label, tuple(v.shape[core:] if last else v.shape[: v.ndim - core])))
     return out
 
 
 def batch_shape(*trees: Any) -> tuple[int, ...]:
     """Broadcast batch shape of rbjax pytrees; ``ValueError`` naming the fields if incompatible."""
-    labelled = [e for t in trees if is_rbjax_dataclass(t) for e in _labelled_batch_dims(t)]
-    shapes = [s for _, s in labelled]
+    shapes = [s for t in trees if is_rbjax_dataclass(t) for s in _batch_dims(t)]
     nd = max((len(s) for s in shapes), default=0)
     result: list[int] = []
     for i in range(nd):
@@ -104,7 +107,7 @@ def batch_shape(*trees: Any) -> tuple[int, ...]:
         if len(sizes) > 1:
             # name one field per distinct batch shape, so a user sees which of their arrays is off
             named: dict[tuple[int, ...], str] = {}
-            for label, s in labelled:
+            for label, s in (e for t in trees if is_rbjax_dataclass(t) for e in _leaf_batch_dims(t, "")):
                 named.setdefault(s, label)
             listed = ", ".join(f"{label} {s}" for s, label in sorted(named.items()))
             raise ValueError(
