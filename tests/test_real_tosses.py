@@ -10,9 +10,17 @@ percent off, the same for every toss.
 What must hold on real data, whatever the windows: a fit the verdict trusts is
 near the box values within its σ (no trusted wrong answer), and a fit on the edge
 of physical inertias (a flat-body ratio 0 : 1, where the windows that include
-the hand land) is neither trusted nor reported as well determined. That most
-throws are trusted needs free flight found from the gyro alone without the hand
-(issue 57, item 6): not yet, an expected failure below.
+the hand land) is neither trusted nor reported as well determined. The gyro-only
+windows now leave the hand and the impacts out (issue 57, item 6): the long
+flights of the phone land near the box and near each other. That most throws
+are trusted is still an expected failure below: the phone's gyro misfit is
+correlated over a quarter or more of a 0.8 s flight, which the verdict flags.
+
+Six of the exports (12-22-44 and after) show a different motion: ``ω`` turns in
+the body's x-y plane with ``ω_z`` near 0, which a torque-free phone cannot do
+(``I_z ω̇_z = (I_x - I_y) ω_x ω_y``); their fits give ``I_x ≈ I_y ≈ I_z / 2``,
+consistently across exports. Whatever was tossed there is not the box, so the
+tests below hold the box to the windows near it and never to those.
 """
 
 from __future__ import annotations
@@ -90,9 +98,29 @@ def test_a_real_fit_on_the_edge_is_neither_trusted_nor_well_determined(tosses):
     assert all("x the gyro noise" in d for d, e in zip(res.diagnosis, edge, strict=True) if e)
 
 
+def test_the_gyro_alone_finds_the_phones_flights_without_the_hand(tosses):
+    # before the impact test and the refitted cut, 22 of 29 windows held the hand or a knock and fitted
+    # a flat body (0.00 : 1.00), and none of the long ones came within the band of the box. Measured
+    # 2026-12-07: 10 of 41 windows are determined and within the band, at 0.205-0.234 : 0.785-0.807
+    names, res = tosses
+    r, rs = _ratios(res)
+    near = np.asarray(res.well_determined) & ~np.asarray(res.failed) & np.all(np.abs(r - BOX) < BAND, axis=1)
+    assert near.sum() >= 8, [f"{n}: {ri.round(3)}" for n, ri in zip(names, r, strict=True)]
+    # one phone: its flights agree with their median within 3σ plus 0.01 (a few % of the ratio: the
+    # hand-made throws differ in air drag, which the fit does not model here)
+    median = np.median(r[near], axis=0)
+    off = [
+        f"{names[i]}: {r[i].round(3)} ± {rs[i].round(3)}"
+        for i in np.flatnonzero(near)
+        if np.any(np.abs(r[i] - median) > 3 * rs[i] + 0.01)
+    ]
+    assert not off, (median, off)
+
+
 @pytest.mark.xfail(
     strict=True,
-    reason="find_throws' gyro-only windows include the hand (issue 57, item 6): 0 of 29 trusted on 2026-12-07",
+    reason="the phone's gyro misfit is correlated over a quarter or more of each flight, flagged by the "
+    "verdict (issue 57): 6 of 41 windows trusted on 2026-12-07",
 )
 def test_most_real_throws_are_trusted_and_agree_with_the_box(tosses):
     names, res = tosses

@@ -18,6 +18,8 @@ makes it jump.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from ._recording_data import Recording
@@ -58,16 +60,23 @@ def find_throws(
     From the gyro alone (``sensor="gyro"``, the default without an
     accelerometer): a flight is a run of samples with ``|ω|`` (3-sample running
     median, rad/s) above ``rate_threshold``, cut to where the motion is
-    torque-free. With ``ω̇_i`` from central differences (irregular times
-    allowed), the inertia ``I`` (symmetric, up to scale) that best satisfies
-    ``I ω̇_i + ω_i × I ω_i = 0`` (body frame) on the middle half of the run is
-    the smallest right singular vector of that homogeneous linear system; the
-    flight extends from the middle while each sample's residual (3-sample
-    running median) stays below 8 times the middle's median residual, and the
-    first sample beyond is the release (or catch): the hand's torque, or the
-    impact, breaks the torque-free law. A run that one inertia cannot explain
-    over at least ``min_duration`` gives no window. ``margin`` and
-    ``min_duration`` apply as above.
+    torque-free, in two steps. First, impacts: torque-free, ``|ω̈| ≤ |ω|³``
+    for any physical inertia (the triangle inequality bounds each
+    ``|(I_j - I_k)/I_i|`` by 1), so a second difference of ``ω`` above
+    ``5 |ω|³ h²`` (``h`` the sample spacing) plus the noise floor (ten times the run's median) is a
+    knock, a catch the body rides through, or a glitch: the run is split there
+    and that sample left out. Then, the hand: with ``ω̇_i`` from central
+    differences (irregular times allowed), the inertia ``I`` (symmetric, up to
+    scale) that best satisfies ``I ω̇_i + ω_i × I ω_i = 0`` (body frame) on the
+    middle half of each piece is the smallest right singular vector of that
+    homogeneous linear system; the flight extends from the middle while each
+    sample's residual (3-sample running median) stays below 8 times the middle's
+    median residual, the inertia is fitted again to what it explains, and the
+    cut repeated (up to three times) so that a middle half with some of the
+    hand in it gives way to the flight's own inertia. The first sample beyond is
+    the release (or catch). A piece that one inertia cannot explain over at
+    least ``min_duration`` gives no window. ``margin`` and ``min_duration``
+    apply as above.
 
     Args:
         recording: a :class:`rbjax.Recording` with ``accelerations`` ``(T, 3)``
@@ -87,7 +96,8 @@ def find_throws(
 
     Returns:
         A list of ``(t0, t1)`` pairs in seconds on the recording's clock; pass
-        them to :meth:`Recording.window`. Empty when there is no flight.
+        them to :meth:`Recording.window`. Empty, with a ``UserWarning`` saying
+        why and what to change, when there is no flight.
 
     Raises:
         ValueError: a recording without the sensor asked for (or with neither),
@@ -120,10 +130,35 @@ def find_throws(
         raise ValueError(f"find_throws: margin must be finite and >= 0 (s), got {margin!r}")
     t = recording.times
     if sensor == "gyro" and gyro is not None:
-        runs = _torque_free_runs(t, gyro, float(rate_threshold))
-        return _windows(t, runs, margin, min_duration)
+        windows = _windows(t, _torque_free_runs(t, gyro, float(rate_threshold)), margin, min_duration)
+        if not windows:
+            fast = float(np.max(np.linalg.norm(gyro, axis=-1), initial=0.0))
+            why = (
+                f"|ω| never exceeds rate_threshold = {rate_threshold} rad/s (largest {fast:.3g} rad/s)"
+                if fast <= rate_threshold
+                else f"no stretch of fast rotation is torque-free for min_duration = {min_duration} s after "
+                f"trimming margin = {margin} s (the hand or an impact everywhere)"
+            )
+            _no_flight(why, "lower rate_threshold or min_duration")
+        return windows
     free = _median3(np.linalg.norm(np.asarray(recording.accelerations), axis=-1)) < threshold  # checked above
-    return _windows(t, _runs(free), margin, min_duration)
+    windows = _windows(t, _runs(free), margin, min_duration)
+    if not windows:
+        _no_flight(
+            f"|a| is not below threshold = {threshold:.3g} m/s² for min_duration = {min_duration} s after "
+            f"trimming margin = {margin} s",
+            "raise threshold or lower min_duration",
+        )
+    return windows
+
+
+def _no_flight(why: str, remedy: str) -> None:
+    warnings.warn(
+        f"find_throws: no free flight in this recording: {why}. Check it with rbjax.plot_throws; if it holds "
+        f"a flight, {remedy}, or cut the window by hand with Recording.window(t0, t1)",
+        UserWarning,
+        stacklevel=3,
+    )
 
 
 def _median3(x: np.ndarray) -> np.ndarray:
@@ -149,6 +184,11 @@ def _windows(t, runs, margin, min_duration) -> list[tuple[float, float]]:
 
 # residual above this multiple of the flight's median residual: the torque-free law is broken
 _TORQUE_FREE_LIMIT = 8.0
+# a torque-free second difference is about h² ω̈ with |ω̈| ≤ |ω|³ (see _impacts); this multiple of that
+# bound leaves room for the Taylor remainder, of relative size (|ω| h)² (0.1 at 30 rad/s and 100 Hz)
+_IMPACT_FACTOR = 5.0
+# the noise floor of the second differences, in multiples of their median over the run
+_IMPACT_NOISE = 10.0
 
 
 def _euler_rows(w: np.ndarray, wdot: np.ndarray) -> np.ndarray:
@@ -162,36 +202,80 @@ def _euler_rows(w: np.ndarray, wdot: np.ndarray) -> np.ndarray:
     return Iwdot + np.moveaxis(np.cross(w[:, None, :], Iw), 1, 2)
 
 
+def _rate_derivative(t: np.ndarray, gyro: np.ndarray, i: np.ndarray) -> np.ndarray:
+    """``ω̇`` at samples ``i`` by central differences on irregular times (exact for a quadratic)."""
+    h0, h1 = t[i] - t[i - 1], t[i + 1] - t[i]
+    return (
+        -(h1 / (h0 * (h0 + h1)))[:, None] * gyro[i - 1]
+        + ((h1 - h0) / (h0 * h1))[:, None] * gyro[i]
+        + (h0 / (h1 * (h0 + h1)))[:, None] * gyro[i + 1]
+    )
+
+
+def _impacts(t: np.ndarray, gyro: np.ndarray, start: int, stop: int) -> np.ndarray:
+    """Samples of ``start .. stop - 1`` where ``ω`` jumps more than any torque-free motion can.
+
+    Torque-free, ``ω̇ = I⁻¹ (I ω × ω)``; with the triangle inequality each
+    ``|(I_j - I_k) / I_i| ≤ 1`` in the principal frame, so ``|ω̇_i| ≤ |ω_j ω_k|``,
+    ``|ω̈_i| ≤ |ω_i| (ω_j² + ω_k²)`` and ``|ω̈| ≤ |ω|³`` whatever the inertia. A second
+    difference ``|ω_{i+1} - 2 ω_i + ω_{i-1}|`` above ``5 |ω|³ h²`` (``|ω|`` the
+    largest of the three samples, ``h`` their mean spacing) plus ten times the run's
+    median (the noise) is an impulse: an impact or a catch that the phone rides
+    through, or a glitch. The 3-sample median of the torque-free residual
+    below would hide a one-sample spike; this bound does not depend on a fitted
+    inertia.
+    """
+    i = np.arange(start + 1, stop - 1)
+    h = 0.5 * (t[i + 1] - t[i - 1])
+    jump = np.linalg.norm(gyro[i + 1] - 2 * gyro[i] + gyro[i - 1], axis=-1)
+    rate = np.max(np.linalg.norm(gyro[np.stack([i - 1, i, i + 1])], axis=-1), axis=0)
+    bound = _IMPACT_FACTOR * rate**3 * h**2 + _IMPACT_NOISE * np.median(jump)
+    return i[jump > bound]
+
+
+def _pieces(t: np.ndarray, gyro: np.ndarray, start: int, stop: int) -> list[tuple[int, int]]:
+    """``start .. stop`` split at its impacts (each impact sample left out), pieces of 8 or more samples."""
+    edges = [start]
+    for j in _impacts(t, gyro, start, stop):
+        edges += [int(j), int(j) + 1]
+    edges.append(stop)
+    return [(a, b) for a, b in zip(edges[::2], edges[1::2], strict=True) if b - a >= 8]
+
+
+def _torque_free_part(t: np.ndarray, gyro: np.ndarray, a: int, b: int) -> tuple[int, int] | None:
+    """The samples around the middle of ``a .. b - 1`` that one inertia explains as torque-free, or ``None``."""
+    i = np.arange(a + 1, b - 1)
+    A = _euler_rows(gyro[i], _rate_derivative(t, gyro, i))
+    n = len(i)
+    lo, hi = n // 4, n - n // 4
+    # the inertia of the middle half, then of the part that it explains, until the part stops moving:
+    # a middle half with a little of the hand in it gives way to the flight's own inertia
+    for _ in range(3):
+        x = np.linalg.svd(A[lo:hi].reshape(-1, 6), full_matrices=False)[2][-1]
+        r = _median3(np.linalg.norm(A @ x, axis=-1))
+        inside = r <= _TORQUE_FREE_LIMIT * np.median(r[lo:hi])
+        first = last = n // 2
+        if not inside[first]:
+            return None
+        while first > 0 and inside[first - 1]:
+            first -= 1
+        while last < n - 1 and inside[last + 1]:
+            last += 1
+        if (first, last + 1) == (lo, hi):
+            break
+        lo, hi = first, last + 1
+    return int(i[lo]), int(i[hi - 1]) + 1
+
+
 def _torque_free_runs(t: np.ndarray, gyro: np.ndarray, rate_threshold: float) -> list[tuple[int, int]]:
     """Sample runs of torque-free motion (see :func:`find_throws`) inside the fast runs of ``gyro``."""
     fast = _median3(np.linalg.norm(gyro, axis=-1)) > rate_threshold
     out = []
     for start, stop in _runs(fast):
-        if stop - start < 8:  # too few samples to fit 5 shape parameters to a middle half
-            continue
-        # central differences on irregular times (exact for a quadratic), the ends one-sided
-        i = np.arange(start + 1, stop - 1)
-        h0, h1 = t[i] - t[i - 1], t[i + 1] - t[i]
-        wdot = (
-            -(h1 / (h0 * (h0 + h1)))[:, None] * gyro[i - 1]
-            + ((h1 - h0) / (h0 * h1))[:, None] * gyro[i]
-            + (h0 / (h1 * (h0 + h1)))[:, None] * gyro[i + 1]
-        )
-        A = _euler_rows(gyro[i], wdot)
-        n = len(i)
-        core = slice(n // 4, n - n // 4)
-        x = np.linalg.svd(A[core].reshape(-1, 6), full_matrices=False)[2][-1]
-        r = _median3(np.linalg.norm(A @ x, axis=-1))
-        limit = _TORQUE_FREE_LIMIT * np.median(r[core])
-        inside = r <= limit
-        a = b = n // 2
-        if not inside[a]:
-            continue
-        while a > 0 and inside[a - 1]:
-            a -= 1
-        while b < n - 1 and inside[b + 1]:
-            b += 1
-        out.append((int(i[a]), int(i[b]) + 1))
+        for a, b in _pieces(t, gyro, start, stop):
+            part = _torque_free_part(t, gyro, a, b)
+            if part is not None:
+                out.append(part)
     return out
 
 
