@@ -38,8 +38,9 @@ def save(
         path: file to write (written as given; no ``.npz`` is appended). Written
             atomically: a temporary file renamed into place.
         obj: a :class:`State`, :class:`MatrixState`, :class:`ParticleState` (one
-            body, a batch ``(*B, ...)`` or a trajectory ``(T, *B, ...)``), a :class:`Body` or
-            :class:`Forces`, or a :class:`FitResult` (one fit or a batch; its
+            body, a batch ``(*B, ...)`` or a trajectory ``(T, *B, ...)``; a gyrostat's
+            :class:`Rotors` and ``rotor_momentum`` with it), a :class:`Body`,
+            :class:`Rotors` or :class:`Forces`, or a :class:`FitResult` (one fit or a batch; its
             flags and ``member_errors`` are kept in the metadata record).
             Leaves are stored exactly, in their dtype.
         method, dt, save_every, t0: optional metadata describing how a

@@ -10,10 +10,11 @@ length. Two semantic checks know field names, the
 orientation kinds: ``orientation`` must hold unit quaternions and ``rotation``
 rotation matrices (tolerance :func:`rbjax._state.quat_tolerance`), in every
 frame that is finite; non-finite frames load as saved (a run that blew up).
-A :class:`Body` (alone, or a state's) and a :class:`ParticleState`'s masses
-go through the constructors' own checks (:func:`rbjax._body.check_body`,
-:func:`rbjax._state.check_particle_mass`): a file edited to a negative mass or
-an indefinite inertia would otherwise run, and report negative energies. A
+A :class:`Body` (alone, or a state's), a :class:`ParticleState`'s masses and a
+gyrostat's :class:`Rotors` go through the constructors' own checks
+(:func:`rbjax._body.check_body`, :func:`rbjax._state.check_particle_mass`,
+``Rotors``): a file edited to a negative mass, an indefinite inertia or a
+rotor of ``J ≤ 0`` would otherwise run, and report negative energies. A
 simulation never changes them, so a run that blew up still loads.
 Errors are ``ValueError`` naming the file and the field.
 """
@@ -30,6 +31,7 @@ from ._body import Body, check_body
 from ._math import quat_tolerance
 from ._npz import TYPES
 from ._pytree import core_shape_of
+from ._rotors import Rotors
 from ._state import ParticleState, check_particle_mass
 
 __all__ = ["check_arrays", "core_shape"]
@@ -130,6 +132,11 @@ def _check_masses(cls: type, prefix: str, arrays: dict[str, np.ndarray], path: P
             )
         elif cls is ParticleState:
             check_particle_mass(arrays[prefix + "mass"], owner, repr(prefix + "mass"))
+        elif cls is Rotors:
+            try:  # the constructor's checks: unit axes, J > 0, finite
+                Rotors(arrays[prefix + "axes"], arrays[prefix + "inertia"])
+            except ValueError as e:
+                raise ValueError(f"{owner}: {prefix.rstrip('.')}: {e}") from None
     except ValueError as e:
         raise ValueError(f"{e} (the file was edited or corrupted)") from None
 

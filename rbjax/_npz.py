@@ -30,6 +30,7 @@ import numpy as np
 
 from ._body import Body
 from ._pytree import is_rbjax_dataclass, new_unchecked
+from ._rotors import Rotors
 from ._state import Forces, MatrixState, ParticleState, State
 from .identification._result import FitResult
 
@@ -49,7 +50,7 @@ _FORMAT = "rbjax-npz"
 _FORMAT_VERSION = 1
 META_KEY = "__rbjax__"
 # the pytree types a file may hold, by name
-TYPES: dict[str, type] = {t.__name__: t for t in (State, MatrixState, ParticleState, Body, Forces, FitResult)}
+TYPES: dict[str, type] = {t.__name__: t for t in (State, MatrixState, ParticleState, Body, Rotors, Forces, FitResult)}
 
 
 def _version() -> str:
@@ -83,15 +84,9 @@ def write_atomic(path: Path, write: Callable[[IO[bytes]], object]) -> None:
 
 def _structure(obj: Any, prefix: str, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
     """JSON description of ``obj``; fills ``arrays`` with its leaves by dotted path."""
-    if type(obj).__name__ == "Rotors":
-        raise ValueError(
-            "save: this state is a gyrostat (it has rotors), which the file format does not store yet (save, "
-            "simulate_chunked's writer); store its fields with np.savez, or save a rotor-free copy, "
-            "dataclasses.replace(state, rotors=None, rotor_momentum=None), where the rotors may be dropped"
-        )
     if type(obj).__name__ not in TYPES or type(obj) is not TYPES[type(obj).__name__]:
         raise TypeError(
-            f"save: can store State, MatrixState, ParticleState, Body, Forces or FitResult, got {type(obj)}"
+            f"save: can store State, MatrixState, ParticleState, Body, Rotors, Forces or FitResult, got {type(obj)}"
         )
     fields: dict[str, Any] = {}
     for f in dataclasses.fields(obj):
