@@ -10,7 +10,9 @@ per sample ``t`` and axis ``a``):
 - ``bias``: the reading plus ``e_a``: a constant residual mean (a gyro bias);
 - ``rotor``: an internal rotor's constant body-frame momentum ``h``,
   ``ω = I⁻¹ (L - h)``, ``L̇ = L × ω``: a constant offset ``-I⁻¹h`` of the rates and the
-  torque ``-L × I⁻¹ h`` it exerts;
+  torque ``-L × I⁻¹ h`` it exerts; with rotors modelled (``rotor_rates=``), a constant
+  momentum beyond theirs (e.g. a wrong ``rotor_inertia``, or a rotor left out), the
+  linearisation taken about ``L = I ω + h_modelled``;
 - ``scale``: the reading plus ``ω_a e_a``: a residual proportional to the rate.
 
 Its share is what ``X`` explains of the residual beyond the fit's own parameters
@@ -76,12 +78,12 @@ def cause_terms(seg, kept, r_kept, U_good, G, I, gyro_block, rows_shape, s2_gyro
     zero = jnp.zeros_like(per_axis)
     I_inv = jnp.linalg.inv(I)
     ones = jnp.broadcast_to(eye, per_axis.shape)
-    L = w @ I
+    L = w @ I if seg.h is None else w @ I + seg.h  # body-frame momentum, modelled rotors' included
     h_torque = -jnp.cross(L[..., None, :], jnp.broadcast_to(I_inv, per_axis.shape))  # -L × I⁻¹ e_a
     sens = dict(
-        drag=rate_sensitivity(I_inv, w, seg.dt, valid, -per_axis, zero),
+        drag=rate_sensitivity(I_inv, w, seg.dt, valid, -per_axis, zero, seg.h),
         bias=ones * valid[..., None, None],
-        rotor=rate_sensitivity(I_inv, w, seg.dt, valid, h_torque, -jnp.broadcast_to(I_inv, per_axis.shape)),
+        rotor=rate_sensitivity(I_inv, w, seg.dt, valid, h_torque, -jnp.broadcast_to(I_inv, per_axis.shape), seg.h),
         scale=per_axis * valid[..., None, None],
     )
     r_rows = r_kept.reshape(-1)

@@ -49,9 +49,17 @@ def _apply(m, v):
     return apply3((m[0:3], m[3:6], m[6:9]), v)
 
 
-def _q_rate(q, L, inv):
-    """``½ (0, ω_w) ⊗ q`` with ``ω_w = R I⁻¹ Rᵀ L`` (world frame), as :func:`rbjax.derivative`."""
-    w = rotate_components(q, _apply(inv, rotate_components(_conj(q), L)))
+def _body_rate(q, L, inv, h=None):
+    """``ω = I⁻¹ (Rᵀ L - h)`` (body frame); ``h``: the rotors' body-frame momentum, or ``None`` (no rotor)."""
+    Lb = rotate_components(_conj(q), L)
+    if h is not None:
+        Lb = tuple(a - b for a, b in zip(Lb, h, strict=True))
+    return _apply(inv, Lb)
+
+
+def _q_rate(q, L, inv, h=None):
+    """``½ (0, ω_w) ⊗ q`` with ``ω_w = R I⁻¹ (Rᵀ L - h)`` (world frame), as :func:`rbjax.derivative`."""
+    w = rotate_components(q, _body_rate(q, L, inv, h))
     u = q[1:]
     c = cross_components(w, u)
     return (-0.5 * (w[0] * u[0] + w[1] * u[1] + w[2] * u[2]),) + tuple(0.5 * (q[0] * w[i] + c[i]) for i in range(3))
@@ -63,8 +71,11 @@ assert all(not any(row[:-1]) for row in _A[1:]), "the stage loop needs a sub-dia
 _STAGES = tuple(zip((0.0,) + tuple(row[-1] for row in _A[1:]), _B, _C, strict=True))
 
 
-def _rk4(q, L, inv, k, dt, torque, looped: bool = False):
+def _rk4(q, L, inv, k, dt, torque, looped: bool = False, rotor=None):
     """One step; ``torque(q_stage, L_stage, inv, k, c)`` is the world torque at stage node ``c``, or ``None``.
+
+    ``rotor(c)``: the rotors' body-frame momentum ``h`` at stage node ``c`` (a 3-tuple of rows), or
+    ``None`` without rotors; it enters only the map ``ω = I⁻¹ (Rᵀ L - h)`` (world ``L`` is the total).
 
     ``k``: the drag coefficients ``(c₁, c₂)`` (rows over the bodies) or ``()``.
     ``looped``: the four stages as a ``lax.scan`` of one stage instead of
@@ -80,7 +91,8 @@ def _rk4(q, L, inv, k, dt, torque, looped: bool = False):
         ``acc + b k`` (``acc``: the weighted sum of the stages so far, ``None`` before the first)."""
         qs, *Ls = y if k_prev is None else jax.tree.map(lambda x, r: x + dt * (a * r), y, k_prev)
         Ls = Ls[0] if Ls else L
-        k_i = (_q_rate(qs, Ls, inv),) + ((torque(qs, Ls, inv, k, c),) if torque is not None else ())
+        hs = None if rotor is None else rotor(c)
+        k_i = (_q_rate(qs, Ls, inv, hs),) + ((torque(qs, Ls, inv, k, c),) if torque is not None else ())
         weighted = jax.tree.map(lambda r: b * r, k_i)
         return k_i, weighted if acc is None else jax.tree.map(jnp.add, acc, weighted)
 
@@ -107,11 +119,18 @@ def _rk4(q, L, inv, k, dt, torque, looped: bool = False):
     return tuple(x / norm for x in q), L
 
 
-def _stage_torque(x, j, substeps, frame, drag, qs, Ls, inv, k, c):
+def _stage_rotor(x, j, substeps, c):
+    """The rotors' body-frame momentum ``h`` at node ``c`` of sub-step ``j``: linear over the sample interval."""
+    f = (j + c) / substeps  # where the stage lies in its sample interval
+    return tuple(a + f * (b - a) for a, b in zip(x["h_lo"], x["h_hi"], strict=True))
+
+
+def _stage_torque(x, j, substeps, frame, drag, rotor, qs, Ls, inv, k, c):
     """World torque at node ``c`` of sub-step ``j``.
 
     Known torques: linear over the interval, turned by ``qs`` if body-frame.
-    Drag: ``τ_b = -(c₁ + c₂ |ω|) ω`` with ``ω = I⁻¹ Rᵀ L`` (body frame), turned into the world.
+    Drag: ``τ_b = -(c₁ + c₂ |ω|) ω`` with ``ω = I⁻¹ (Rᵀ L - h)`` (body frame; ``h = rotor(c)``, the
+    rotors' momentum, or none), turned into the world.
     """
     tau = (0.0, 0.0, 0.0)
     if frame is not None:
@@ -119,7 +138,7 @@ def _stage_torque(x, j, substeps, frame, drag, qs, Ls, inv, k, c):
         tau = tuple(a + f * (b - a) for a, b in zip(x["lo"], x["hi"], strict=True))
         tau = rotate_components(qs, tau) if frame == "body" else tau
     if drag:
-        w = _apply(inv, rotate_components(_conj(qs), Ls))
+        w = _body_rate(qs, Ls, inv, None if rotor is None else rotor(c))
         s2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
         # |ω| with the derivative 0 at ω = 0 (sqrt's is inf there, and inf·0 = NaN in the tangents):
         # the damping torque c₂|ω|ω is flat there (a segment that starts at rest)
@@ -136,7 +155,16 @@ def _soa(a: Array, core: int) -> tuple:
     return tuple(jnp.moveaxis(rows[..., i], 0, -1) for i in range(rows.shape[-1]))
 
 
-def _flow(args, *, substeps: int, torque_frame: str | None, observe, drag: bool = False, looped: bool = False):
+def _flow(
+    args,
+    *,
+    substeps: int,
+    torque_frame: str | None,
+    observe,
+    drag: bool = False,
+    looped: bool = False,
+    rotor: bool = False,
+):
     q0, L0, inv = _soa(args["q"], 1), _soa(args["L"], 1), _soa(args["inv"], 2)
     dq0, dL0, dinv = _soa(args["dq"], 1), _soa(args["dL"], 1), _soa(args["dinv"], 2)
     k, dk = (_soa(args["drag"], 1), _soa(args["ddrag"], 1)) if drag else ((), ())
@@ -147,6 +175,10 @@ def _flow(args, *, substeps: int, torque_frame: str | None, observe, drag: bool 
         tau = args["tau"]  # (M, K+1, 3) at the sample times
         xs["lo"] = tuple(tau[:, :-1, i].T for i in range(3))
         xs["hi"] = tuple(tau[:, 1:, i].T for i in range(3))
+    if rotor:
+        spin = args["h"]  # (M, K+1, 3) the rotors' body-frame momentum at the sample times
+        xs["h_lo"] = tuple(spin[:, :-1, i].T for i in range(3))
+        xs["h_hi"] = tuple(spin[:, 1:, i].T for i in range(3))
 
     def seen(q, L, inv, obs):
         """``observe`` of every body (one-body function lifted over the trailing body axis)."""
@@ -158,10 +190,11 @@ def _flow(args, *, substeps: int, torque_frame: str | None, observe, drag: bool 
 
         def sub(carry, j):  # sub-step j of the interval, with its tangents
             torque = None
+            spin = functools.partial(_stage_rotor, x, j, substeps) if rotor else None
             if torque_frame is not None or drag:
-                torque = functools.partial(_stage_torque, x, j, substeps, torque_frame, drag)
+                torque = functools.partial(_stage_torque, x, j, substeps, torque_frame, drag, spin)
             (q, L), (dq, dL) = carry
-            step = functools.partial(_rk4, dt=h, torque=torque, looped=looped)
+            step = functools.partial(_rk4, dt=h, torque=torque, looped=looped, rotor=spin)
             push = lambda tq, tL, ti, tk: jax.jvp(step, (q, L, inv, k), (tq, tL, ti, tk))
             return jax.vmap(push, out_axes=(None, 0))(dq, dL, dinv, dk), None
 
@@ -181,7 +214,9 @@ def _flow(args, *, substeps: int, torque_frame: str | None, observe, drag: bool 
 
 
 @functools.cache
-def flow(substeps: int, torque_frame: str | None, observe, drag: bool = False, looped: bool = False):
+def flow(
+    substeps: int, torque_frame: str | None, observe, drag: bool = False, looped: bool = False, rotor: bool = False
+):
     """``rk4`` on ``M`` bodies' ``(q, L)`` over ``K`` sample intervals, observed after each, with tangents.
 
     ``flow(substeps, torque_frame, observe)(args)``; ``args`` is a dict of
@@ -206,12 +241,25 @@ def flow(substeps: int, torque_frame: str | None, observe, drag: bool = False, l
     ``looped``: the RK4 stages as a loop of one stage (see :func:`_rk4`), for
     programs whose compile costs more than their run.
 
+    ``rotor``: a gyrostat: ``args["h"]`` ``(M, K+1, 3)`` is the rotors' momentum
+    relative to the body (body frame, kg m²/s) at the interval ends, linear in
+    time between them (so the steps, which never straddle a sample, keep RK4's
+    order), and the body rate is ``ω = I⁻¹ (Rᵀ L - h)`` with ``L`` the total
+    world angular momentum, constant without torques. ``obs`` then carries
+    ``h`` at each sample for ``observe``.
+
     Under ``vmap`` (the fit's work queue) the mapped axis is folded into the
     body axis instead of being batched op by op.
     """
     fn = jax.custom_batching.custom_vmap(
         functools.partial(
-            _flow, substeps=substeps, torque_frame=torque_frame, observe=observe, drag=drag, looped=looped
+            _flow,
+            substeps=substeps,
+            torque_frame=torque_frame,
+            observe=observe,
+            drag=drag,
+            looped=looped,
+            rotor=rotor,
         )
     )
 

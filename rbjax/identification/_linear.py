@@ -47,11 +47,12 @@ def _entries_to_matrix(x: np.ndarray) -> np.ndarray:
     return np.stack([np.stack([xx, xy, xz], -1), np.stack([xy, yy, yz], -1), np.stack([xz, yz, zz], -1)], -2)
 
 
-def momentum_system(times, q, w, tau):
-    """Normal matrix ``MᵀM`` and ``Mᵀb`` of ``R_i A(ω_i) x_I - L_0 = H_i`` (one recording).
+def momentum_system(times, q, w, tau, h=None):
+    """Normal matrix ``MᵀM`` and ``Mᵀb`` of ``R_i A(ω_i) x_I - L_0 = H_i - R_i h_i`` (one recording).
 
-    ``H_i = ∫_{t0}^{t_i} τ dt`` by the trapezoid rule (zero without torques).
-    The ``I`` columns are scaled by the RMS rate so both blocks are O(1).
+    ``H_i = ∫_{t0}^{t_i} τ dt`` by the trapezoid rule (zero without torques);
+    ``h_i`` ``(T, 3)`` the rotors' body-frame momentum (none: zero), part of the
+    total ``L = R (I ω + h)``. The ``I`` columns are scaled by the RMS rate so both blocks are O(1).
     """
     R = np_qmat(q)
     scale = np.sqrt(np.mean(np.sum(w * w, -1))) + 1e-300
@@ -63,6 +64,8 @@ def momentum_system(times, q, w, tau):
         dt = np.diff(times)[:, None]
         H = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * dt * (tau[1:] + tau[:-1]), 0)])
         b = H.reshape(-1)
+    if h is not None:
+        b = b - np.einsum("tij,tj->ti", R, h).reshape(-1)
     return M.T @ M, M.T @ b, scale
 
 
@@ -79,7 +82,7 @@ def _cumtrapz(times: np.ndarray, f: np.ndarray) -> np.ndarray:
     return np.concatenate([np.zeros_like(f[:1]), np.cumsum(0.5 * dt * (f[1:] + f[:-1]), 0)])
 
 
-def body_momentum_system(times, w, tau_b):
+def body_momentum_system(times, w, tau_b, h=None):
     """Normal matrix and right side of the body-frame integral form (gyro only, one recording).
 
     Euler's equations ``I ω̇ + ω × I ω = τ_b`` integrated from ``t0``:
@@ -87,12 +90,16 @@ def body_momentum_system(times, w, tau_b):
     ``l_0 = I ω(t0)`` a free unknown, linear in ``(I, l_0)`` and, unlike the
     differentiated form of :func:`fit_inertia_linear`, free of ``ω̇``. Rows
     ``[A(ω_i) + ∫[ω]× A(ω) dt, -1]`` (the ``I`` columns scaled by the RMS rate).
+    With rotors of body-frame momentum ``h`` ``(T, 3)`` (``d(Iω + h)/dt + ω × (Iω + h) = τ_b``,
+    ``l_0 = I ω(t0) + h(t0)``) the right side gains ``-h_i - ∫ ω × h dt``.
     """
     scale = np.sqrt(np.mean(np.sum(w * w, -1))) + 1e-300
     A = _regressor(w)
     C = _cumtrapz(times, skew(w) @ A)
     M = np.concatenate([(A + C) / scale, -np.broadcast_to(np.eye(3), (w.shape[0], 3, 3))], -1).reshape(-1, 9)
     b = np.zeros(M.shape[0]) if tau_b is None else _cumtrapz(times, tau_b).reshape(-1)
+    if h is not None:
+        b = b - (h + _cumtrapz(times, np.cross(w, h))).reshape(-1)
     return M.T @ M, M.T @ b, scale
 
 

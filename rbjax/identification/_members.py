@@ -26,7 +26,14 @@ def is_ragged(times) -> bool:
     return isinstance(times, (list, tuple)) and len(times) > 0 and all(np.ndim(t) == 1 for t in times)
 
 
-PER_MEMBER_NDIM = {"orientations": 3, "body_rates": 3, "torques": 3, "body_torques": 3, "accelerations": 3}
+PER_MEMBER_NDIM = {
+    "orientations": 3,
+    "body_rates": 3,
+    "torques": 3,
+    "body_torques": 3,
+    "accelerations": 3,
+    "rotor_momentum": 3,
+}
 
 
 def ragged_members(times, arrays):
@@ -79,7 +86,7 @@ def fit_members(members, options) -> FitResult:
     results: dict[int, FitResult] = {}
     if len(lengths) == 1 and all(members[i][0] is members[good[0]][0] for i in good):
         t = members[good[0]][0]
-        stacked = {k: _stack_or_share([members[i][1][k] for i in good]) for k in PER_MEMBER_NDIM}
+        stacked = {k: _stack_or_share([members[i][1].get(k) for i in good]) for k in PER_MEMBER_NDIM}
         batch = jax.tree.map(np.asarray, fit_regular(t, stacked, options))  # see _fit_padded
         for j, i in enumerate(good):
             results[i] = jax.tree.map(lambda a, j=j: a[j], batch)

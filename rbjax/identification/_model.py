@@ -52,7 +52,8 @@ def unpack(y: Array, n_theta: int, S: int):
 
 
 def _start(x, d, *, n_theta, scale_fixed):
-    """Start state of one segment from ``x = (θ, δ_s, ω_s)``: ``q = q_start ⊗ exp(δ_s)``, ``L = R I ω_s``."""
+    """Start state of one segment from ``x = (θ, δ_s, ω_s)``: ``q = q_start ⊗ exp(δ_s)``, ``L = R (I ω_s + h)``
+    (``h``: the rotors' body-frame momentum at the segment's first sample, none without rotors)."""
     I = _inertia(x[:n_theta], scale_fixed)
     # delta_free = 0 pins segment 0's rotation where no orientation data fix the world frame
     delta, w0 = d.delta_free * x[n_theta : n_theta + 3], x[n_theta + 3 :]
@@ -60,7 +61,8 @@ def _start(x, d, *, n_theta, scale_fixed):
     one = jnp.ones((), I.dtype)
     body = new_unchecked(Body, mass=one, inertia=I, _inverse=inverse_3x3(I))
     zero = jnp.zeros(3, I.dtype)
-    L0 = quat_rotate_unchecked(q0, matvec3(I, w0))
+    Lb = matvec3(I, w0) if d.h is None else matvec3(I, w0) + d.h[0]  # with rotors: I ω + h
+    L0 = quat_rotate_unchecked(q0, Lb)
     return new_unchecked(
         State, body=body, position=zero, velocity=zero, orientation=q0, angular_momentum=L0, time=zero[0]
     )
@@ -71,9 +73,11 @@ def _observe(q, L, inv, o, c):
 
     ``q``, ``L``: the simulated attitude and world-frame angular momentum;
     ``inv``: body-frame ``I⁻¹``; ``o``: the sample (``q_meas``, ``w_meas``,
-    ``weight``); ``c``: the segment's inverse noise levels (``wq``, ``ww``).
+    ``weight``, and with rotors ``h``, their body-frame momentum: then
+    ``ω = I⁻¹ (Rᵀ L - h)``); ``c``: the segment's inverse noise levels (``wq``, ``ww``).
     """
-    w = matvec3(inv, quat_rotate_inverse_unchecked(q, L))
+    Lb = quat_rotate_inverse_unchecked(q, L)
+    w = matvec3(inv, Lb if "h" not in o else Lb - o["h"])
     r_q = o["weight"] * c["wq"] * quat_log(quat_multiply(quat_conjugate(q), o["q_meas"]))
     return r_q, o["weight"] * c["ww"] * (w - o["w_meas"]), w
 
@@ -156,6 +160,8 @@ def _segments(X, seg, *, layout: Layout, scale_fixed, method, substeps, use_rate
     inv, dinv = body.inverse_inertia, dbody.inverse_inertia
     const = dict(wq=seg.wq, ww=seg.ww)
     obs = dict(q_meas=seg.q_meas, w_meas=seg.w_meas, weight=seg.mask)  # samples 1..K
+    if seg.h is not None:  # the rotors' momentum at samples 1..K
+        obs["h"] = seg.h[:, 1:]
 
     def observe(r, dr, obs):  # every segment's observations of one sample, tangents (S, n, ...)
         def one(r, dr, inv, dinv, obs, c):
@@ -173,7 +179,10 @@ def _segments(X, seg, *, layout: Layout, scale_fixed, method, substeps, use_rate
             coefficients = lambda x: _drag_model(x, scale_fixed, layout)
             k, dk = jax.vmap(lambda x: _pushforward(coefficients, x, basis))(X)
             args.update(drag=k, ddrag=dk)
-        (q_end, dq_end), y, dy = flow(substeps, frame, _observe, bool(layout.drag), looped)(args)
+        if seg.h is not None:
+            args["h"] = seg.h
+        rotor = seg.h is not None
+        (q_end, dq_end), y, dy = flow(substeps, frame, _observe, bool(layout.drag), looped, rotor)(args)
     else:
         K = seg.dt.shape[1]
         dts = jnp.broadcast_to((seg.dt / substeps).T[:, None], (K, substeps, X.shape[0]))
@@ -184,6 +193,8 @@ def _segments(X, seg, *, layout: Layout, scale_fixed, method, substeps, use_rate
 
     # samples 0..K of every segment: the first sample, then those after each interval
     first = dict(q_meas=seg.q_first, w_meas=seg.w_first, weight=seg.first)
+    if seg.h is not None:  # each segment's start sample (the recording's first in segment 0)
+        first["h"] = seg.h[:, 0]
     y0, dy0 = observe(r0, dr0, first)
     (r_q, r_w, w), (dr_q, dr_w, dw) = jax.tree.map(
         lambda a0, a, axis: jnp.concatenate([jnp.expand_dims(a0, axis), a], axis),
@@ -217,12 +228,13 @@ def _segments(X, seg, *, layout: Layout, scale_fixed, method, substeps, use_rate
         g = weight[:, :, None] * seg.wa[:, None, None]  # (S, K+1, 1)
         th, ra, ba = X[0, :n_I], X[0, n_A : n_A + 3], X[0, n_A + 3 : n_A + 6]
 
-        def accel(th, w, ra, ba):
-            return accelerometer_reading(_inertia(th, scale_fixed), w, ra, ba)
+        def accel(th, w, ra, ba, *spin):  # spin: the rotors' (h, ḣ) at the sample, if any
+            return accelerometer_reading(_inertia(th, scale_fixed), w, ra, ba, *spin)
 
-        each = lambda f: jax.vmap(jax.vmap(f))(w)
-        a_pred = each(lambda w: accel(th, w, ra, ba))
-        Fth, Fw, Fr, Fb = each(lambda w: jax.jacfwd(accel, argnums=(0, 1, 2, 3))(th, w, ra, ba))
+        spins = () if seg.h is None else (seg.h, seg.h_rate)  # (S, K+1, 3) each
+        each = lambda f: jax.vmap(jax.vmap(f))(w, *spins)
+        a_pred = each(lambda w, *sp: accel(th, w, ra, ba, *sp))
+        Fth, Fw, Fr, Fb = each(lambda w, *sp: jax.jacfwd(accel, argnums=(0, 1, 2, 3))(th, w, ra, ba, *sp))
         a_meas = jnp.concatenate([seg.a_first[:, None], seg.a_meas], 1)
         r_a = g * (a_pred - a_meas)
         dr_a = g[:, None] * jnp.einsum("skij,snkj->snki", Fw, dw)

@@ -30,6 +30,7 @@ from ._linear import (
     skew,
 )
 from ._noise import noise_dof, noise_std, orientation_noise_std
+from ._rotor import gyro_attitude
 from ._segments import Segments
 
 # Default numerics (see fit_inertia's docstring for the error budget)
@@ -111,6 +112,22 @@ def _check_gyro_units(rates: np.ndarray, implied: np.ndarray) -> None:
             )
 
 
+def rotor_rate_at_samples(t: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """``ḣ`` ``(T, 3)`` at the samples of the rotors' momentum ``h`` ``(T, 3)``, linear between samples.
+
+    The interpolant's slope jumps at each sample; this is the mean of the slopes on
+    either side (one-sided at the ends): the centred difference, second order in
+    the sample interval for a smooth ``h``. Only the accelerometer's ``ω̇`` reads it;
+    the integrator needs no ``ḣ`` (world ``L`` is the total momentum).
+    """
+    slope = np.diff(h, axis=0) / np.diff(t)[:, None]
+    return 0.5 * (np.concatenate([slope[:1], slope]) + np.concatenate([slope, slope[-1:]]))
+
+
+# methods whose fit model runs through ._flow (the rotor is modelled there only)
+_FLOW_METHODS = ("rk4",)
+
+
 # fitted drag coefficients per model: "linear" c₁, "quadratic" c₁ and c₂ (τ_b = -(c₁ + c₂|ω|) ω)
 _DRAG_COEFFICIENTS = {None: 0, "linear": 1, "quadratic": 2}
 
@@ -150,6 +167,7 @@ def prepare(
     acceleration_std=None,
     pad_intervals=None,
     drag=None,
+    rotor_momentum=None,
 ) -> Problem:
     """Validate recordings and pack them for :func:`rbjax.fit_inertia` (arguments as there).
 
@@ -160,6 +178,9 @@ def prepare(
     Without orientations (gyro only) the
     body frame at ``times[0]`` is taken as the world frame: every segment starts
     from the identity times its fitted rotation, chained by the joins.
+    ``rotor_momentum``: ``(T, 3)`` / ``(N, T, 3)`` the rotors' momentum relative
+    to the body, ``h = Σ J_k Ω_k a_k`` (body frame; :mod:`._rotor` makes it from
+    ``fit_inertia``'s rotor arguments): it fixes the scale like a torque does.
     """
     _methods.get(method, State)  # unknown method: ValueError now, not in the solver
     t, q, wr, tau, tau_b = check_inputs(times, orientations, body_rates, torques, body_torques)
@@ -176,6 +197,17 @@ def prepare(
     if not np.issubdtype(dtype, np.floating):
         dtype = jax.dtypes.canonicalize_dtype(np.float64)
     torque_free = tau is None and tau_b is None
+    use_rotor = rotor_momentum is not None
+    # only I's shape is identifiable: torque-free and without a rotor, whose known momentum fixes the scale
+    scale_free = torque_free and not use_rotor
+    if use_rotor:
+        if method not in _FLOW_METHODS:
+            raise ValueError(f"fit_inertia: rotor_rates= are modelled with method='rk4' only, got method={method!r}")
+        hr = np.asarray(rotor_momentum, np.float64)
+        if hr.shape not in (lead + (3,), (T, 3)):
+            raise ValueError(f"fit_inertia: the rotors' momentum must have shape {lead + (3,)}, got {hr.shape}")
+        hr = np.broadcast_to(hr, lead + (3,))
+        hr = hr if batched else hr[None]
     use_rates = wr is not None
     if isinstance(gyro_bias, (bool, np.bool_)):
         gyro_bias = bool(gyro_bias)
@@ -229,6 +261,8 @@ def prepare(
         speed = np.linalg.norm(np.asarray(wr, np.float64), axis=-1)
         angles = 0.5 * (speed[:, 1:] + speed[:, :-1]) * dts  # rad turned per interval (trapezoid)
         q = np.broadcast_to(np.array([1.0, 0.0, 0.0, 0.0]), (N, T, 4))  # body frame at t0 = world
+        if use_rotor:  # the segments' start attitudes from the gyro (see gyro_attitude)
+            q = gyro_attitude(t, np.asarray(wr, np.float64))
     turned = _glitch_free_angles(angles, dts)
     if substeps is None:  # a power of two, so similar recordings share a compiled program
         substeps = _next_pow2(np.ceil(turned.max() / _MAX_STEP_ANGLE))
@@ -243,7 +277,7 @@ def prepare(
     if S < 1 or (T - 1) // S < 2:
         raise ValueError(f"fit_inertia: segments={segments} needs at least 2 intervals each; T = {T}")
     layout = Layout(
-        inertia=5 if torque_free else 6,
+        inertia=5 if scale_free else 6,
         gyro_bias=3 * gyro_bias,
         gyro_rotation=3 * gyro_rotation,
         accelerometer=6 * use_accel,
@@ -298,33 +332,36 @@ def prepare(
     for n in range(N):
         tau_n = None if tau is None else np.asarray(tau[n], np.float64)
         taub_n = None if tau_b is None else np.asarray(tau_b[n], np.float64)
+        h_n = hr[n] if use_rotor else None
         if use_q:
             # world-frame torques for the momentum law: body ones rotated by the recorded attitude
             tau_w = tau_n if taub_n is None else np.einsum("tij,tj->ti", np_qmat(q[n]), taub_n)
-            MtM, Mtb, scale = momentum_system(t, q[n], rates[n], tau_w)
+            MtM, Mtb, scale = momentum_system(t, q[n], rates[n], tau_w, h_n)
         else:
-            MtM, Mtb, scale = body_momentum_system(t, rates[n], taub_n)
+            MtM, Mtb, scale = body_momentum_system(t, rates[n], taub_n, h_n)
         try:
-            check_identifiability(MtM, excitation_tol, torque_free)
+            check_identifiability(MtM, excitation_tol, scale_free)
         except ValueError as e:
             if use_rates and np.median(np.linalg.norm(rates[n], axis=-1)) > _DEG_HINT_RATE:
                 raise ValueError(f"{e} {_deg_hint(rates[n])}") from None
             raise
         if initial_inertia is None:
-            I0 = initial_inertia_estimate(MtM, Mtb, scale, torque_free)
+            I0 = initial_inertia_estimate(MtM, Mtb, scale, scale_free)
         else:
             I0 = np.asarray(initial_inertia, np.float64)
             Body(1.0, I0)  # validates a user guess
-        if torque_free:  # the gauge log L00 = 0: rescale so that Σ_xx = 1, drop θ0
+        if scale_free:  # the gauge log L00 = 0: rescale so that Σ_xx = 1, drop θ0
             I0 = I0 / (0.5 * np.trace(I0) - I0[0, 0])
         # the gyro bias, the gyro frame's rotation and the drag start at zero
         theta0 = np.zeros(layout.shared)
-        theta0[layout.span("inertia")] = np_params_from_inertia(I0)[(1 if torque_free else 0) :]
+        theta0[layout.span("inertia")] = np_params_from_inertia(I0)[(1 if scale_free else 0) :]
         if use_accel:
             # lever arm and bias from linear least squares: a = ([ω̇]× + [ω]×²) r + b_a with the
             # start inertia's ω̇ = -I⁻¹ (ω × I ω), linear in (r, b_a)
             wn = rates[n]
-            wd = -np.linalg.solve(I0, np.cross(wn, wn @ I0.T).T).T
+            Lb = wn @ I0.T if h_n is None else wn @ I0.T + h_n
+            spin_rate = 0.0 if h_n is None else rotor_rate_at_samples(t, h_n)
+            wd = -np.linalg.solve(I0, (np.cross(wn, Lb) + spin_rate).T).T
             Wx = skew(wn)
             A = np.concatenate([skew(wd) + Wx @ Wx, np.broadcast_to(np.eye(3), (T, 3, 3))], -1).reshape(-1, 6)
             theta0[layout.span("accelerometer")] = np.linalg.lstsq(A, acc[n].reshape(-1), rcond=None)[0]
@@ -365,6 +402,13 @@ def prepare(
             seg = replace(seg, t_samples=t[samp] - t[0], tau=tau_n[samp])
         if taub_n is not None:
             seg = replace(seg, t_samples=t[samp] - t[0], tau_b=taub_n[samp])
+        if h_n is not None:
+            # the rotors' momentum at every segment's samples, linear between them; padding repeats the
+            # segment's last sample (the observed rate at its end reads h there, and dt = 0 keeps the state)
+            at = starts[:, None] + np.minimum(np.arange(K + 1)[None, :], n_real[:, None])
+            seg = replace(seg, h=h_n[at])
+            if use_accel:
+                seg = replace(seg, h_rate=rotor_rate_at_samples(t, h_n)[at])
         # without orientations segment 0's rotation δ_0 is pinned (delta_free = 0): 3 parameters
         # with a zero Jacobian column, not degrees of freedom of the fit
         n_unused = 0.0 if use_q else 3.0
@@ -388,7 +432,7 @@ def prepare(
         y0=np.stack(y0s).astype(dtype),
         data=data,
         static=dict(
-            scale_fixed=not torque_free,
+            scale_fixed=not scale_free,
             method=method,
             substeps=int(substeps),
             use_rates=use_rates,

@@ -192,8 +192,14 @@ class FitResult:
         failed: ``True`` for a recording of a batch or list that could not be
             fitted (its reason in ``member_errors``); its other fields are NaN
             (``False``, 0). Always ``False`` for a single recording, which raises instead.
-        scale_fixed: ``True`` when known torques fix the absolute scale;
-            ``False`` for torque-free data, where only ``I / tr I`` is identifiable.
+        scale_fixed: ``True`` when known torques or a rotor (``rotor_rates=``) fix
+            the scale; ``False`` for torque-free data without a rotor, where only
+            ``I / tr I`` is identifiable.
+        inertia_units: what the numbers of ``inertia`` (and ``principal_moments``,
+            ``moment_std``, ...) are: ``"kg m^2"`` (known torques, or a rotor of
+            known ``rotor_inertia``), ``"rotor inertia J"`` (a rotor whose
+            inertia was left out: the inertia is ``I / J``, multiply by ``J`` in
+            kg m² for kg m²) or ``"trace-normalised"`` (``I / tr I``).
         segments: number of shooting segments used (for a list of recordings
             fitted one by one: the largest).
         member_errors: for a batch or list with recordings that could not be
@@ -295,6 +301,7 @@ class FitResult:
     member_initial_angular_velocity: Float[Array, "*N M 3"] = field(core_ndim=2, default=((float("nan"),) * 3,))
     member_initial_angular_velocity_std: Float[Array, "*N M 3"] = field(core_ndim=2, default=((float("nan"),) * 3,))
     scale_fixed: bool = static_field(default=False)
+    inertia_units: str = static_field(default="trace-normalised")
     segments: int = static_field(default=1)
     member_errors: tuple = static_field(default=())
     joint: bool = static_field(default=False)
@@ -340,7 +347,10 @@ class FitResult:
         trusted = np.asarray(self.converged) & ~np.asarray(self.failed)
         if m.ndim == 1:
             moments = ", ".join(f"{a:.4g} ± {b:.2g}" for a, b in zip(m, s, strict=True))
-            return f"FitResult(principal_moments=[{moments}], trusted={bool(trusted)}; {self.diagnosis})"
+            return (
+                f"FitResult(principal_moments=[{moments}], inertia_units={self.inertia_units!r}, "
+                f"trusted={bool(trusted)}; {self.diagnosis})"
+            )
         return f"FitResult({m.shape[0]} fits, {int(trusted.sum())} trusted; see .diagnosis and .converged)"
 
     def mjcf_inertial(
@@ -408,6 +418,15 @@ class FitResult:
             raise ValueError(f"FitResult.{who}: the fit failed; there is no inertia to export")
         if not (np.isfinite(mass) and mass > 0):
             raise ValueError(f"FitResult.{who}: mass must be finite and > 0 (kg), got {mass!r}")
+        if self.inertia_units == "rotor inertia J":
+            if scale is None:
+                raise ValueError(
+                    f"FitResult.{who}: the fitted inertia is in units of the rotor's inertia J (rotor_inertia "
+                    "was left out); pass scale=J in kg m², or fit with rotor_inertia=J"
+                )
+            if not (np.isfinite(scale) and scale > 0):
+                raise ValueError(f"FitResult.{who}: scale (J, kg m²) must be finite and > 0, got {scale!r}")
+            return I * float(scale)
         if self.scale_fixed:
             if scale is not None:
                 raise ValueError(

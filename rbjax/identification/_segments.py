@@ -52,6 +52,13 @@ class Segments:
             without torques.
         tau, tau_b: ``(S, K+1, 3)`` known torques at those times (N m), world
             or body frame; ``None`` when not given.
+        h: ``(S, K+1, 3)`` the rotors' momentum relative to the body at each
+            segment's samples, ``Σ_k J_k Ω_k a_k`` (body frame, kg m²/s, or in
+            units of ``J``), linear in time between them; ``None`` without rotors.
+        h_rate: ``(S, K+1, 3)`` its rate at those samples (kg m²/s²): the mean of
+            the linear interpolant's slopes on either side (one-sided at the
+            recording's ends), for the accelerometer's ``ω̇``; ``None`` without
+            rotors or accelerations.
     """
 
     q_start: Any = field(core_ndim=2)
@@ -75,3 +82,5 @@ class Segments:
     t_samples: Any = field(core_ndim=2, default=None)
     tau: Any = field(core_ndim=3, default=None)
     tau_b: Any = field(core_ndim=3, default=None)
+    h: Any = field(core_ndim=3, default=None)
+    h_rate: Any = field(core_ndim=3, default=None)

@@ -26,12 +26,17 @@ def gyro_reading(rho: Array, w: Array) -> Array:
     return quat_rotate_inverse_unchecked(quat_exp(rho), w)
 
 
-def accelerometer_reading(I: Array, w: Array, r: Array, b: Array) -> Array:
+def accelerometer_reading(I: Array, w: Array, r: Array, b: Array, h=None, h_rate=None) -> Array:
     """Free-flight reading ``ω̇ × r + ω × (ω × r) + b`` ``(3,)`` (body frame, m/s²).
 
     ``ω̇ = -I⁻¹ (ω × I ω)``: the torque-free Euler equations with the model's
-    inertia ``I`` ``(3, 3)`` (any scale: ``ω̇`` does not depend on it).
+    inertia ``I`` ``(3, 3)`` (any scale: ``ω̇`` does not depend on it). With
+    rotors of body-frame momentum ``h`` ``(3,)`` changing at ``h_rate`` ``(3,)``
+    (in the units of ``I`` times rad/s, and per s): ``ω̇ = -I⁻¹ (ω × (I ω + h) + ḣ)``.
     """
     # closed-form inverse: a batched LAPACK solve here could deadlock beside another (see _solver.solve_small)
-    wd = -inverse_3x3(I) @ jnp.cross(w, I @ w)
+    if h is None:
+        wd = -inverse_3x3(I) @ jnp.cross(w, I @ w)
+    else:
+        wd = -inverse_3x3(I) @ (jnp.cross(w, I @ w + h) + h_rate)
     return jnp.cross(wd, r) + jnp.cross(w, jnp.cross(w, r)) + b

@@ -165,7 +165,7 @@ def correlation_length(r, valid):
     return (1 + rho) / (1 - rho)
 
 
-def rate_sensitivity(I_inv, w, dt, valid, forcing, direct):
+def rate_sensitivity(I_inv, w, dt, valid, forcing, direct, h=None):
     """``(S, K+1, c, 3)``: first-order change of the gyro's body rates per unit of ``c`` unmodelled parameters.
 
     Along the fitted motion (``w (S, K+1, 3)`` its body rates, ``L = I ω``, body
@@ -174,10 +174,12 @@ def rate_sensitivity(I_inv, w, dt, valid, forcing, direct):
     ``ω = I⁻¹ L``, linearised), from ``δL = 0`` at each segment's start (its free
     start state absorbs the rest), stepped with Heun's rule over the sample
     intervals ``dt (S, K)``; the gyro then reads ``δω = I⁻¹ δL + direct`` (``direct``
-    ``(S, K+1, c, 3)``: what the parameter adds to the reading itself).
+    ``(S, K+1, c, 3)``: what the parameter adds to the reading itself). With
+    modelled rotors of body-frame momentum ``h`` ``(S, K+1, 3)``, ``L = I ω + h``
+    (``ω = I⁻¹ (L - h)``: the same linearisation, ``h`` being data).
     """
     I = jnp.linalg.inv(I_inv)
-    L = w @ I  # I symmetric: rows are I ω
+    L = w @ I if h is None else w @ I + h  # I symmetric: rows are I ω
 
     def rhs(dL, Lt, wt, ft):  # dL (c, 3)
         return jnp.cross(dL, wt) + jnp.cross(Lt[None, :], dL @ I_inv) + ft
