@@ -55,7 +55,8 @@ def half_extents(moments: np.ndarray, mass: np.ndarray, shape: str) -> np.ndarra
 
 
 def frames_of(traj: Any) -> dict[str, Any]:
-    """Positions ``(T, N, 3)``, rotations ``(T, N, 3, 3)``, world ``L`` ``(T, N, 3)``, mass ``(N,)``, inertia."""
+    """Positions ``(T, N, 3)``, rotations ``(T, N, 3, 3)``, world ``L`` ``(T, N, 3)`` (a gyrostat's total),
+    the rotors' world momentum ``h`` ``(T, N, 3)`` (zeros without rotors), mass ``(N,)``, inertia ``(N, 3, 3)``."""
     if not hasattr(traj, "body"):
         raise TypeError(f"rbjax.animate needs a State or MatrixState trajectory (with a body), got {type(traj)}")
     pos = np.asarray(traj.position, np.float64)
@@ -87,14 +88,27 @@ def frames_of(traj: Any) -> dict[str, Any]:
     if hasattr(traj, "orientation"):
         q = field("orientation", (4,))
         R = np_qmat(q / np.linalg.norm(q, axis=-1, keepdims=True))
-        L = field("angular_momentum", (3,))
-    else:  # MatrixState: L = R I_L Rᵀ ω
+    else:
         R = field("rotation", (3, 3))
+    # a gyrostat's rotors: their momentum in the world frame, R Σ_k h_k a_k (zero without rotors)
+    h = np.zeros((T, n, 3))
+    rotors = getattr(traj, "rotors", None)
+    if rotors is not None:
+        axes = np.asarray(rotors.axes, np.float64)
+        k = axes.shape[-2]
+        if axes.ndim - 2 > len(B):  # the rotors carry the time axis too; they never change along it
+            axes = axes[0]
+        axes = np.broadcast_to(axes, (*B, k, 3)).reshape(n, k, 3)
+        h_k = np.asarray(traj.rotor_momentum, np.float64).reshape(T, n, k)
+        h = np.einsum("tnij,tnj->tni", R, np.einsum("tnk,nkj->tnj", h_k, axes))
+    if hasattr(traj, "orientation"):
+        L = field("angular_momentum", (3,))  # the total, rotors included
+    else:  # MatrixState: L = R I_L Rᵀ ω + R Σ_k h_k a_k
         I_w = R @ inertia[None] @ np.swapaxes(R, -1, -2)
-        L = np.einsum("tnij,tnj->tni", I_w, field("angular_velocity", (3,)))
+        L = np.einsum("tnij,tnj->tni", I_w, field("angular_velocity", (3,))) + h
     # one clock per frame: the batch shares it (its first body's)
     times = times.reshape(T, -1)[:, 0] if times is not None and times.size == pos.shape[0] * n else None
-    return {"pos": pos, "R": R, "L": L, "mass": mass, "inertia": inertia, "time": times}
+    return {"pos": pos, "R": R, "L": L, "h": h, "mass": mass, "inertia": inertia, "time": times}
 
 
 def check_numbers(fn: str, **numbers: tuple[Any, str]) -> None:
@@ -192,7 +206,10 @@ def animate(
     labels) holding the body's path plus 1.4 times its largest half extent. The angular-momentum
     arrow starts at the centre of mass and is drawn over the solid; its length is ``1.3 · max h``
     at the largest ``|L|`` the body reaches, so it shows direction and relative size (its scale,
-    kg m²/s per drawn metre, differs between panels).
+    kg m²/s per drawn metre, differs between panels). A gyrostat's ``L`` is the total, rotors
+    included, and a thinner orange arrow on the same scale draws the rotors' own momentum
+    ``R Σ_k h_k a_k`` (world frame), the share of ``L`` that the wheels hold (the scale is then
+    set by the larger of ``|L|`` and that).
 
     Returns:
         ``{"frames": F, "seconds": render time (s), "bytes": file size}``.
@@ -222,7 +239,7 @@ def animate(
     if chosen.size == 0:
         raise ValueError(f"rbjax.animate: frames={frames} selects none of the {T} saved frames")
     frames_idx = chosen[:: max(1, math.ceil(chosen.size / max_frames))]
-    pos, R, L = (data[k][frames_idx][:, idx] for k in ("pos", "R", "L"))
+    pos, R, L, h = (data[k][frames_idx][:, idx] for k in ("pos", "R", "L", "h"))
     mass, inertia = data["mass"][idx], data["inertia"][idx]
     moments, axes = np.linalg.eigh(inertia)
     axes = axes * np.sign(np.linalg.det(axes))[:, None, None]
@@ -233,8 +250,11 @@ def animate(
     longest = np.argmax(half, -1)
     tip_body = axes[np.arange(len(idx)), :, longest] * half[np.arange(len(idx)), longest][:, None]  # (N, 3)
     tips = pos + np.einsum("tnij,nj->tni", R, tip_body)  # (F, N, 3)
-    Lmax = np.maximum(np.linalg.norm(L, axis=-1).max(0), 1e-300)
+    # one scale for L and the rotors' h (a gyrostat's total L may be 0 while its wheels spin)
+    Lmax = np.maximum(np.linalg.norm(np.concatenate([L, h]), axis=-1).max(0), 1e-300)
     L_draw = L * (1.3 * half.max(-1) / Lmax)[None, :, None]
+    h_draw = h * (1.3 * half.max(-1) / Lmax)[None, :, None]
+    rotors = bool(np.any(h))
 
     n = len(idx)
     cols = math.ceil(math.sqrt(n))
@@ -266,8 +286,9 @@ def animate(
         ax.add_collection3d(solid)
         (arrow,) = ax.plot([], [], [], color="crimson", lw=2.0, zorder=3)
         (head,) = ax.plot([], [], [], "o", color="crimson", ms=3, zorder=3)
+        (wheel,) = ax.plot([], [], [], color="darkorange", lw=1.5, zorder=4)
         trail_lines = [ax.plot([], [], [], color="0.25", lw=1.0, alpha=a)[0] for a in np.linspace(0.08, 0.9, 6)]
-        artists.append((solid, arrow, head, trail_lines))
+        artists.append((solid, arrow, head, wheel, trail_lines))
     clock = fig.text(0.01, 0.01, "", fontsize=8)
     if title:
         fig.suptitle(title, fontsize=9)
@@ -275,12 +296,14 @@ def animate(
     times = data["time"]
 
     def draw(f: int):
-        for j, (solid, arrow, head, trail_lines) in enumerate(artists):
+        for j, (solid, arrow, head, wheel, trail_lines) in enumerate(artists):
             v = np.einsum("ij,fkj->fki", R[f, j], verts_body[j]) + pos[f, j]
             solid.set_verts(list(v))
             a, b = pos[f, j], pos[f, j] + L_draw[f, j]
             arrow.set_data_3d(*np.stack([a, b], 1))
             head.set_data_3d(*b[:, None])
+            if rotors:
+                wheel.set_data_3d(*np.stack([a, a + h_draw[f, j]], 1))
             if trail:
                 seg = tips[max(0, f - trail) : f + 1, j]
                 # older parts of the trail fainter: consecutive pieces of rising alpha, each

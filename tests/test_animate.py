@@ -115,3 +115,26 @@ def test_demo_writes_the_gif_next_to_the_png(tmp_path, capsys):
     # demo's 10 s, so at least 2 in 3 s; 0 meant the flips were counted against the wrong axes
     flips = int(re.search(r"T-handle\s+(\d+) flips", out).group(1))
     assert flips >= 2, out
+
+
+def test_a_gyrostat_draws_its_total_L_and_the_rotors_momentum(tmp_path):
+    # a wheel spun up from rest by its motor inside a body at rest: the body counter-rotates, the
+    # total L stays 0 (no external torque) while the rotor's momentum grows. Before, MatrixState's L
+    # arrow drew R I ω alone, the body's share, which is not conserved, and no arrow showed the wheel
+    from rbjax._animate import frames_of
+
+    rotors = rb.Rotors([[0.0, 0.0, 1.0]], [1e-3])
+    for cls in (rb.State, rb.MatrixState):
+        state = cls.create(rb.box(1.0, [0.1, 0.2, 0.3]), angular_velocity=[0.0, 0.0, 0.0], rotors=rotors)
+        traj = rb.simulate(state, rb.Forces(rotor_torque=jnp.array([0.01])), 0.01, 50, "rk4", save_every=10)
+        data = frames_of(traj)
+        # |R h a| = |h|: the wheel's momentum, J Ω = 0.01 N m · t, drawn whole
+        np.testing.assert_allclose(np.linalg.norm(data["h"][:, 0], axis=-1), np.abs(traj.rotor_momentum[:, 0]))
+        assert np.abs(traj.rotor_momentum[-1, 0]) > 4e-3
+        # total L conserved at 0, to round-off of the 5e-3 kg m²/s exchanged
+        np.testing.assert_allclose(data["L"], 0.0, atol=1e-15)
+        rb.animate(traj, tmp_path / f"{cls.__name__}.gif", max_frames=3, trail=0)
+        last = _frames(tmp_path / f"{cls.__name__}.gif")[-1]
+        # the rotor arrow's dark orange (255, 140, 0), which nothing else in the panel uses
+        orange = np.all(np.abs(last - np.array([255, 140, 0])) < 40, axis=-1)
+        assert orange.sum() > 10, orange.sum()
