@@ -148,7 +148,10 @@ def run_fit(args: argparse.Namespace) -> int:
     except (ValueError, TypeError) as e:
         raise CLIError(str(e)) from e
     out = _fit_report(res)
-    unit = "kg m²" if out["scale_fixed"] else "normalised to trace 1 (no torques: scale not identifiable)"
+    unit = {
+        "kg m^2": "kg m²",
+        "rotor inertia J": "units of the rotor's inertia J",
+    }.get(out["inertia_units"], "normalised to trace 1 (no torques: scale not identifiable)")
     print(f"inertia ({unit}), body frame:")
     for row in out["inertia"]:
         print("  [" + "  ".join(f"{v: .6e}" for v in row) + "]")
@@ -483,7 +486,12 @@ def _fit_report(res) -> dict:
     """The JSON-ready fields of a FitResult (plain floats, lists and bools)."""
     import numpy as np
 
-    out: dict = {"scale_fixed": bool(res.scale_fixed), "segments": int(res.segments)}
+    # inertia_units: "kg m^2", "rotor inertia J" (a rotor of unknown J) or "trace-normalised"
+    out: dict = {
+        "scale_fixed": bool(res.scale_fixed),
+        "inertia_units": str(res.inertia_units),
+        "segments": int(res.segments),
+    }
     # principal_axes: columns are the axes (body frame); inertia_covariance: (xx, yy, zz, xy, xz, yz)
     for k in (
         "inertia",

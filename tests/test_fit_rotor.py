@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import rbjax as rb
+from rbjax._cli_fit import _fit_report
 from rbjax.identification._diagnosis import CAUSES
 
 T4K = np.arange(2001) / 4000.0  # 0.5 s of free flight at 4 kHz
@@ -70,6 +71,9 @@ def test_unknown_rotor_inertia_gives_the_inertia_in_units_of_j(clean):
     # the same fit in other units: I / J, to the solver's tolerance
     np.testing.assert_allclose(np.asarray(in_j.inertia) * g.J_FLYWHEEL, known.inertia, rtol=1e-6, atol=0)
     np.testing.assert_allclose(np.asarray(in_j.principal_moments) * g.J_FLYWHEEL, TRUE, rtol=1e-3)
+    # the CLI's JSON says which units
+    assert _fit_report(in_j)["inertia_units"] == "rotor inertia J"
+    assert _fit_report(known)["inertia_units"] == "kg m^2"
     # exports need J to give kg m²
     with pytest.raises(ValueError, match="units of the rotor's inertia J"):
         in_j.mjcf_inertial(0.1)
