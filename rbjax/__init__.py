@@ -34,7 +34,7 @@ from ._inertia_param import inertia_from_params, params_from_inertia, second_mom
 from ._simulate import simulate, step
 from ._dynamics import derivative
 from ._validate import StepSizeWarning
-from ._methods import Method, OrderWarning
+from ._methods import AbstractMethod, Method, OrderWarning
 from ._torque_free import torque_free  # the exact torque-free solution, ground truth for the integrators
 
 # quantities of a state or a trajectory
@@ -101,10 +101,12 @@ from ._version import __version__ as __version__
 
 
 def methods(state_type: type | None = None) -> dict[str, _methods.Method]:
-    """Registered integrators by name (optionally those supporting ``state_type``).
+    """rbjax's integrators by name (optionally those supporting ``state_type``): what a ``method=`` string names.
 
-    Each :class:`Method` records its order, what it conserves, its cost per
-    step relative to ``"euler"`` and, for the explicit methods, its measured
+    A method of one's own is a subclass of :class:`AbstractMethod`, passed as an
+    instance (``method=Midpoint()``); it is not listed here. Each :class:`Method`
+    records its order, what it conserves, its cost per step relative to ``"euler"``
+    and, for the explicit methods, its measured
     stability limit ``stable_dt_omega`` (``{state type: dt·|ω|}`` beyond which
     it diverges; e.g. ``rb.methods()["rk4"].stable_dt_omega``).
     """
@@ -139,6 +141,7 @@ __all__ = [
     "derivative",
     "StepSizeWarning",
     "OrderWarning",
+    "AbstractMethod",
     "Method",
     "torque_free",
     # quantities of a state or a trajectory

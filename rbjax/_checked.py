@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._math import index_tuple, quat_tolerance
-from ._methods import Method
+from ._methods import AbstractMethod
 from ._pytree import core_ndim_of
 from ._quantities import body_angular_velocity, kinetic_energy
 from ._state import MatrixState, State
@@ -210,7 +210,7 @@ def after_save(rec: dict, state: Any, step: Any, checks: Checks, steps: int, dt:
     return {**rec, "emax": jnp.maximum(emax, energy)}
 
 
-def _advice(method: Method, state_type: str, turn: float | None) -> str:
+def _advice(method: AbstractMethod, state_type: str, turn: float | None) -> str:
     """What to try: the method's rotation limit for ``state_type`` only where the rotation can be to blame.
 
     ``turn``: the failing body's ``dt·|ω|``, ``ω`` at the start or the last
@@ -252,7 +252,7 @@ class _Messages:
     hashable (equinox treats it as static) and never materialised.
     """
 
-    method: Method
+    method: AbstractMethod
     batch_shape: tuple[int, ...]
     steps: int
     step_offset: int
@@ -311,7 +311,7 @@ def raise_on_failure(
     rec: dict,
     checks: Checks,
     *,
-    method: Method,
+    method: AbstractMethod,
     batch_shape: tuple[int, ...],
     steps: int,
     step_offset: int = 0,

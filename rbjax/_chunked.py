@@ -21,7 +21,7 @@ from jaxtyping import Float
 from ._checked import Checks
 from ._chunk_dir import ChunkWriter, chunk_files, fingerprint
 from ._io import load
-from ._methods import DEFAULT_METHOD, Method, is_registered
+from ._methods import DEFAULT_METHOD, AbstractMethod, is_registered
 from ._simulate import run_simulation
 from ._state import ForceLike, Forces, StateT
 from ._typing import ArrayLike
@@ -51,7 +51,7 @@ def simulate_chunked(
     forces: ForceLike,
     dt: Float[ArrayLike, ""],
     steps: int,
-    method: str | Method | Callable[..., Any] = DEFAULT_METHOD,
+    method: str | AbstractMethod | Callable[..., Any] = DEFAULT_METHOD,
     *,
     save_every: int = 1,
     chunk_steps: int | None = None,

@@ -15,14 +15,14 @@ method's own (:attr:`rbjax._methods.Method.kernels`): ``"euler"`` and ``"rk4"``
 have them for every rigid kind (:mod:`rbjax._methods.specialised`),
 ``"splitting"`` for isotropic and axisymmetric bodies (the exact free rotor
 without a principal frame, :func:`rbjax._methods.splitting.free_rotor_of_kind`);
-another method gets one with :func:`register_kernel`, and otherwise runs its
+another method gets one with :meth:`rbjax.Method.with_kernel` (a user's method class
+declares its ``kernels``), and otherwise runs its
 general step, which still skips rotation for particles and torque for
 torque-free forces (``Forces.torque is None`` is structural).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from collections.abc import Callable
 from typing import Any
@@ -35,10 +35,10 @@ from jaxtyping import Float
 
 from . import _methods
 from ._body import Body
-from ._deprecated import renamed_keywords
+from ._deprecated import renamed_keywords, warn_deprecated
 from ._force_model import ForceModel, ForceSum
 from ._math import is_concrete
-from ._methods import DEFAULT_METHOD, KINDS, Method
+from ._methods import DEFAULT_METHOD, KINDS, AbstractMethod
 from ._pytree import pytree_dataclass, static_field
 from ._simulate import simulate as _simulate_fn
 from ._simulate import step as _step_fn
@@ -49,24 +49,25 @@ __all__ = ["Scene", "body_kind", "register_kernel"]
 
 
 def register_kernel(method: str, kind: str, state_type: type, step: Callable[..., Any]) -> None:
-    """Register a specialised batch step for ``(method, kind, state_type)``.
+    """Deprecated: use ``rb.methods()[method].with_kernel(kind, state_type, step)`` and pass the result as ``method=``.
 
-    ``step(state, force_fn, t, dt, kind, torque_free) -> state`` must give the
-    registered general method's result to round-off for every body of ``kind``
-    (see :mod:`rbjax._methods.specialised` for the algebra each kind allows). A scene
-    uses it instead of the general step of ``method``. States keep their usual
-    shapes ``(*B, ...)`` and world frame; ``t`` and ``dt`` are in seconds.
-    The registered method is replaced by one that carries the kernel (scenes
-    built afterwards use it); ``ValueError`` for an unknown method or kind.
+    Replaces the method that the string ``method`` names by one whose
+    :class:`rbjax.Scene` kernel for ``(kind, state_type)`` is ``step(state,
+    force_fn, t, dt, kind, torque_free) -> state`` (see
+    :meth:`rbjax.Method.with_kernel`; states ``(*B, ...)``, world frame, ``t`` and
+    ``dt`` in s): scenes built afterwards by that name use it. ``ValueError``
+    for an unknown method or kind. Gives a ``DeprecationWarning``: a global
+    replacement makes what a name means depend on what ran before.
     """
+    warn_deprecated(
+        f"rbjax.register_kernel is deprecated and will be removed in the next release; use "
+        f"rb.methods()[{method!r}].with_kernel(kind, state_type, step) and pass that method to Scene.build "
+        "(nothing global is replaced)",
+        stacklevel=2,
+    )
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
-    m = _methods.lookup(method)
-    key = (kind, state_type)
-    # a user's kernel is given batch-first states (rbjax's own lift all per-body work)
-    _methods.register(
-        dataclasses.replace(m, kernels={**m.kernels, key: step}, batch_first_kernels=m.batch_first_kernels | {key})
-    )
+    _methods.register(_methods.lookup(method).with_kernel(kind, state_type, step))
 
 
 def body_kind(body: Body) -> str:
@@ -116,12 +117,13 @@ class Scene:
             to :meth:`step` / :meth:`simulate` must carry bodies of this kind.
         forces: a :class:`ForceModel` (e.g. ``Gravity() + LinearDrag(0.1)``); its
             arrays are leaves, its composition is static.
-        method: integrator name, a ``Method`` from :func:`rbjax.methods`, or a hashable
+        method: integrator name, a method object (a ``Method`` from :func:`rbjax.methods`, an
+            instance of a user's :class:`rbjax.AbstractMethod` subclass), or a hashable
             batch step ``(state, force_fn, t, dt) -> state``, as in :func:`rbjax.simulate` (static);
             default ``"splitting"``, the house default (see :func:`rbjax.simulate`).
             Specialised kernels exist for ``"euler"`` and ``"rk4"`` (every rigid kind) and
-            ``"splitting"`` (isotropic, axisymmetric); other methods step through their
-            generic batch step.
+            ``"splitting"`` (isotropic, axisymmetric); other methods (a user's, unless it
+            declares ``kernels``) step through their generic batch step.
         kind: ``"particles"``, ``"isotropic"``, ``"axisymmetric"`` or ``"general"`` (static).
         torque_free: the forces never produce a torque (static).
 
@@ -130,7 +132,7 @@ class Scene:
 
     body: Body | None
     forces: ForceModel
-    method: str | Method | Callable[..., Any] = static_field(default=DEFAULT_METHOD)
+    method: str | AbstractMethod | Callable[..., Any] = static_field(default=DEFAULT_METHOD)
     kind: str = static_field(default="general")
     torque_free: bool = static_field(default=False)
 
@@ -139,7 +141,7 @@ class Scene:
         cls,
         state: AnyState,
         forces: ForceModel | None = None,
-        method: str | Method | Callable[..., Any] = DEFAULT_METHOD,
+        method: str | AbstractMethod | Callable[..., Any] = DEFAULT_METHOD,
         *,
         kind: str | None = None,
     ) -> Scene:
@@ -149,7 +151,7 @@ class Scene:
         general path, e.g. to compare; a more special kind than the bodies have
         raises ``ValueError``). Traces ``forces`` once on ``state`` to check
         its output shapes and learn whether it returns a torque. ``method`` is a
-        name, a ``Method`` from :func:`rbjax.methods` or a batch step, as in :func:`rbjax.simulate`
+        name, a method object or a batch step, as in :func:`rbjax.simulate`
         (``TypeError`` for anything else, ``ValueError`` for an unknown name or a state form it
         does not support).
         """
@@ -179,10 +181,10 @@ class Scene:
         return cls(body=body, forces=forces, method=method, kind=detected, torque_free=torque_free)
 
     @property
-    def kernel(self) -> Method:
+    def kernel(self) -> AbstractMethod:
         """The batch step ``(state, force_fn, t, dt) -> state`` that this scene compiles.
 
-        A ``Method``: the scene's method with its kernels for this scene's kind
+        A method object: the scene's method with its kernels for this scene's kind
         in place of its general steps (the same object for equal scenes, so a
         rerun reuses the compiled program); pass it as ``method=`` or call it.
         """

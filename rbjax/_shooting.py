@@ -37,7 +37,7 @@ from jaxtyping import Float
 from . import _methods
 from ._batching import batch_shape, in_axes_of
 from ._math import quat_conjugate, quat_log, quat_multiply
-from ._methods import DEFAULT_METHOD, Method
+from ._methods import DEFAULT_METHOD, AbstractMethod
 from ._pytree import replace
 from ._simulate import prepare_state, run_simulation, simulate
 from ._state import AnyState, ForceLike, Forces, State, split_constants
@@ -48,7 +48,7 @@ from ._validate import as_force_fn, check_dt, check_state, start_time, warn_turn
 __all__ = ["shoot", "defects", "simulate_truncated"]
 
 
-def _scan_segment(state: Any, force_fn: Callable, dts: Array, t0: Array, method: Method) -> Any:
+def _scan_segment(state: Any, force_fn: Callable, dts: Array, t0: Array, method: AbstractMethod) -> Any:
     """One segment: ``dts`` ``(n_save, save_every)`` per-step sizes; frames after each row.
 
     Returns the trajectory with a leading time axis of ``n_save + 1`` (initial
@@ -78,7 +78,7 @@ def shoot(
     forces: ForceLike,
     dt: Float[ArrayLike, ""] | Float[ArrayLike, "S steps"],
     steps: int,
-    method: str | Method | Callable[..., Any] = DEFAULT_METHOD,
+    method: str | AbstractMethod | Callable[..., Any] = DEFAULT_METHOD,
     *,
     save_every: int | None = None,
     t0: Float[ArrayLike, ""] | Float[ArrayLike, " S"] | None = None,
@@ -206,7 +206,7 @@ def simulate_truncated(
     forces: ForceLike,
     dt: Float[ArrayLike, ""],
     steps: int,
-    method: str | Method | Callable[..., Any] = DEFAULT_METHOD,
+    method: str | AbstractMethod | Callable[..., Any] = DEFAULT_METHOD,
     *,
     truncate_every: int,
     save_every: int = 1,

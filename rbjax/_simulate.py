@@ -28,7 +28,7 @@ from ._force_model import (
     with_per_body_terms,
 )
 from ._math import broadcasts_to
-from ._methods import DEFAULT_METHOD, Method, OrderWarning
+from ._methods import DEFAULT_METHOD, AbstractMethod, OrderWarning
 from ._pytree import replace
 from ._rotors import rotor_torque_shape
 from ._scan import check_checkpoint, checkpointed_scan, frames_as_outputs, frames_in_buffer
@@ -88,7 +88,7 @@ def step(
     state: StateT,
     forces: ForceLike,
     dt: Float[ArrayLike, ""],
-    method: str | Method | Callable[..., Any] = DEFAULT_METHOD,
+    method: str | AbstractMethod | Callable[..., Any] = DEFAULT_METHOD,
     *,
     t0: Float[ArrayLike, ""] | None = None,
 ) -> StateT:
@@ -101,7 +101,7 @@ def step(
             of mass), a callable ``(state, t) -> Forces`` evaluated by the method
             where it needs it, or ``None``.
         dt: step (s), > 0.
-        method: integrator name, ``Method`` or batch step callable (static), as in
+        method: integrator name, method object (:class:`rbjax.AbstractMethod`) or batch step callable (static), as in
             :func:`simulate`; see :func:`rbjax.methods`. Default ``"splitting"`` (second order, symplectic).
         t0: time (s) at the start of the step, passed to a callable ``forces``;
             default ``None``: ``state.time`` (as ``t0`` of :func:`simulate`).
@@ -149,7 +149,7 @@ def _scalar(x: Any) -> Any:
     return x if isinstance(x, jax.Array) else np.asarray(x)
 
 
-def _warn_below_order(method: Method, forces: ForceModel) -> None:
+def _warn_below_order(method: AbstractMethod, forces: ForceModel) -> None:
     """:class:`rbjax.OrderWarning` when ``method`` loses order under ``forces``' velocity-dependent laws."""
     low = method.order_with_velocity_forces
     if low is None or low >= method.order or reads_velocity(forces) is not True:
@@ -172,7 +172,7 @@ def simulate(
     forces: ForceLike,
     dt: Float[ArrayLike, ""],
     steps: int,
-    method: str | Method | Callable[..., Any] = DEFAULT_METHOD,
+    method: str | AbstractMethod | Callable[..., Any] = DEFAULT_METHOD,
     *,
     save_every: int = 1,
     t0: Float[ArrayLike, ""] | None = None,
@@ -197,9 +197,10 @@ def simulate(
             (``TypeError``/``ValueError``); a traced one (under a caller's ``jit``,
             ``grad`` or ``vmap``) only with ``checked``, at run time.
         steps: number of steps (static).
-        method: integrator name, or a ``Method`` from :func:`rbjax.methods` (the
-            same run: ``method=rb.methods()["rk4"]`` gives ``method="rk4"``'s bits),
-            or a hashable batch step function ``(state, force_fn, t, dt) -> state``
+        method: integrator name, or a method object: a ``Method`` from :func:`rbjax.methods` (the
+            same run: ``method=rb.methods()["rk4"]`` gives ``method="rk4"``'s bits) or an
+            instance of a user's :class:`rbjax.AbstractMethod` subclass (its own steps on every
+            path; ``native=True`` refuses it), or a hashable batch step function ``(state, force_fn, t, dt) -> state``
             such as a :class:`rbjax.Scene`'s kernel; static. Anything else raises
             ``TypeError``. Default ``"splitting"``: Strang splitting, second order and symplectic
             (energy error bounded, world ``L`` exact, exact for symmetric tops), at a
@@ -270,7 +271,9 @@ def simulate(
     )
 
 
-def _native_path(native: bool | None, state, forces, method: Method, *, series: bool, checks, checkpoint) -> bool:
+def _native_path(
+    native: bool | None, state, forces, method: AbstractMethod, *, series: bool, checks, checkpoint
+) -> bool:
     """Whether this run steps natively (see ``simulate``'s ``native``); ``ValueError`` for ``True`` that cannot."""
     if native is not None and not isinstance(native, bool):
         raise TypeError(f"simulate: native must be None, True or False, got {native!r}")

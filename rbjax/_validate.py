@@ -27,7 +27,7 @@ from jax import Array
 
 from . import _methods
 from ._math import broadcasts_to, index_tuple
-from ._methods import Method
+from ._methods import AbstractMethod
 from ._pytree import data_fields, is_rbjax_dataclass, new_unchecked, replace
 from ._quantities import body_angular_velocity
 from ._rotors import rotor_torque_shape
@@ -107,7 +107,7 @@ class StepSizeWarning(RuntimeWarning):
     """
 
 
-def turn_limits(method: Method | None, state_type: str) -> tuple[float, float]:
+def turn_limits(method: AbstractMethod | None, state_type: str) -> tuple[float, float]:
     """``(diverges, inaccurate)``: the ``dt·|ω|`` (rad per step) beyond which ``method`` cannot follow a ``state_type``.
 
     ``diverges``: where :attr:`Method.stable_dt_omega` saw it diverge, the grid
@@ -128,12 +128,12 @@ def turn_limits(method: Method | None, state_type: str) -> tuple[float, float]:
     return diverges, inaccurate
 
 
-def turn_threshold(method: Method | None, state_type: str) -> float:
+def turn_threshold(method: AbstractMethod | None, state_type: str) -> float:
     """The ``dt·|ω|`` (rad) beyond which :class:`StepSizeWarning` is given: ``π`` or below (:func:`turn_limits`)."""
     return min(math.pi, *turn_limits(method, state_type))
 
 
-def warn_turn_per_step(state: Any, dt: Any, fn: str, method: Method | None = None) -> None:
+def warn_turn_per_step(state: Any, dt: Any, fn: str, method: AbstractMethod | None = None) -> None:
     """:class:`StepSizeWarning` when a concrete start state turns some body too far in one step for ``method``.
 
     Too far: ``dt·|ω| > π`` (half a turn, for any method), or beyond where
@@ -147,7 +147,7 @@ def warn_turn_per_step(state: Any, dt: Any, fn: str, method: Method | None = Non
 
 
 def start_checks(
-    state: Any, dt: Any, t0: Any, fn: str, method: Method | None, *, time: bool = True, turn: bool = True
+    state: Any, dt: Any, t0: Any, fn: str, method: AbstractMethod | None, *, time: bool = True, turn: bool = True
 ) -> Any:
     """The run's start time and the checks of its start state, from one compiled reduction.
 
@@ -268,7 +268,7 @@ def _turn_per_step(state: Any, dt: Any) -> Array:
     return dt * jnp.linalg.norm(body_angular_velocity(state), axis=-1)
 
 
-def _turn_text(most: float, state: Any, dt: Any, fn: str, method: Method | None) -> str | None:
+def _turn_text(most: float, state: Any, dt: Any, fn: str, method: AbstractMethod | None) -> str | None:
     """The :class:`StepSizeWarning` for the largest turn per step ``most`` (rad), or ``None`` when
     it is within ``method``'s limits (:func:`turn_limits`); the body is found only then."""
     state_type = type(state).__name__
@@ -475,7 +475,7 @@ def is_time_series(forces: Forces, state: AnyState, steps: int) -> bool:
 
 def check_run(
     state, dt, steps, method, save_every, t0, fn: str, *, warn_step_size: bool = True
-) -> tuple[int, int, Method]:
+) -> tuple[int, int, AbstractMethod]:
     """``TypeError``/``ValueError`` for a bad argument of a run (``simulate``, ``simulate_chunked``).
 
     Returns ``(steps, save_every)`` as ints and the :class:`Method` that

@@ -143,7 +143,8 @@ def test_a_registered_users_kernel_is_used_and_sees_batch_first_states(monkeypat
         seen.append((state.position.shape, kind, torque_free))
         return rk8_step(state, force_fn, t, dt)
 
-    rb.register_kernel("rk8", "isotropic", rb.State, kernel)
+    with pytest.warns(DeprecationWarning, match="with_kernel"):  # the old spelling of Method.with_kernel
+        rb.register_kernel("rk8", "isotropic", rb.State, kernel)
     spheres = _state(rb.sphere(jnp.ones(N), 0.3))
     scene = rb.Scene.build(spheres, FORCES, "rk8")
     assert not scene.kernel.layout_agnostic
@@ -153,7 +154,7 @@ def test_a_registered_users_kernel_is_used_and_sees_batch_first_states(monkeypat
     np.testing.assert_allclose(got.orientation, want.orientation, rtol=0, atol=1e-13)
     # the plain method keeps its own, layout-agnostic steps
     assert rb.methods()["rk8"].layout_agnostic
-    with pytest.raises(ValueError, match="unknown method 'nope'"):
+    with pytest.raises(ValueError, match="unknown method 'nope'"), pytest.warns(DeprecationWarning):
         rb.register_kernel("nope", "isotropic", rb.State, kernel)
 
 

@@ -23,7 +23,7 @@ from .._math import (
 from .._pytree import replace
 from .._quantities import to_matrix_state, to_state
 from .._state import Forces, MatrixState, State
-from ._registry import StepFn
+from ._base import StepFn
 
 
 def kicked_velocity(s: State, f: Forces, h) -> Array:

@@ -1,171 +1,76 @@
-"""The registry of time-stepping methods: :class:`Method`, and ``register``/``get``/``available``.
+"""The table of rbjax's methods by name, and ``lookup``/``available``/``resolve``/``for_kind``.
 
-Each method module registers itself on import; this module imports none of them.
+The table is written out below, in one place: every method module defines its
+:class:`~rbjax._methods._base.Method` as a constant and registers nothing, so
+which methods exist and in which order does not depend on what was imported
+first. A ``method=`` string is a look-up here; a method object
+(:class:`~rbjax._methods._base.AbstractMethod`) is itself.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Callable
 from typing import Any
 
 from .._state import MatrixState, ParticleState, State
+from ._base import DEFAULT_METHOD, KINDS, AbstractMethod, KernelFn, Method, OrderWarning, StepFn
+from .composition import SPLITTING4, SPLITTING6, SPLITTING8
+from .euler import EULER
+from .implicit_gyroscopic import IMPLICIT_GYROSCOPIC
+from .implicit_midpoint import IMPLICIT_MIDPOINT
+from .rk4 import RK4
+from .rk4_body import RK4_BODY
+from .rk8 import RK8
+from .semi_implicit_euler import SEMI_IMPLICIT_EULER
+from .splitting import SPLITTING
 
-#: The integrator every public function uses when ``method`` is not given (``step``, ``simulate``,
-#: ``simulate_chunked``, ``Scene.build``, ``shoot``, ``simulate_truncated``): Strang splitting,
-#: second order, symplectic, world ``L`` exact, exact for symmetric tops. Its cost against Euler's
-#: is the registry's ``cost``; its accuracy on the README's body is in docs/integrators.md.
-DEFAULT_METHOD = "splitting"
+__all__ = [
+    "DEFAULT_METHOD",
+    "KINDS",
+    "AbstractMethod",
+    "KernelFn",
+    "Method",
+    "OrderWarning",
+    "StepFn",
+    "BUILTIN",
+    "available",
+    "check_rotors",
+    "for_kind",
+    "get",
+    "is_registered",
+    "lookup",
+    "native_step_is_own",
+    "register",
+    "resolve",
+]
 
-#: The body kinds a :class:`rbjax.Scene` specialises on, from the most special to the most general
-#: (see :mod:`rbjax._methods.specialised` for the algebra each allows).
-KINDS = ("particles", "isotropic", "axisymmetric", "general")
+#: rbjax's own methods by name, in the order :func:`rbjax.methods` lists them.
+BUILTIN: dict[str, Method] = {
+    m.name: m
+    for m in (
+        EULER,
+        IMPLICIT_GYROSCOPIC,
+        IMPLICIT_MIDPOINT,
+        RK4,
+        RK4_BODY,
+        RK8,
+        SEMI_IMPLICIT_EULER,
+        SPLITTING,
+        SPLITTING4,
+        SPLITTING6,
+        SPLITTING8,
+    )
+}
 
-#: A batch-level step ``(state, force_fn, t, dt) -> state``.
-StepFn = Callable[[Any, Callable[[Any, Any], Any], Any, Any], Any]
-#: A batch-level step specialised on a body kind: ``(state, force_fn, t, dt, kind, torque_free) -> state``.
-KernelFn = Callable[..., Any]
-
-
-class OrderWarning(UserWarning):
-    """A method runs below its order: its forces depend on velocities and it kicks with stale ones.
-
-    Given by :func:`rbjax.simulate` (and the runs built on it) when ``method`` has an
-    ``order_with_velocity_forces`` below its ``order`` (``"splitting"`` and its
-    compositions: first order) and ``forces`` declares a law that reads velocities or
-    angular velocities (:class:`rbjax.LinearDrag`, :class:`rbjax.QuadraticDrag`, a damped
-    :class:`rbjax.Spring`; :meth:`rbjax.ForceModel.depends_on_velocity`). The run is
-    correct to ``O(dt)``, not ``O(dt²)``: use ``"rk4"`` or ``"rk8"`` for accuracy, or
-    filter the warning where first order is enough.
-    """
-
-
-@dataclasses.dataclass(frozen=True, eq=False, repr=False)
-class Method:
-    """An integrator: its steps, the Scene kernels specialised from them, and what is known of it.
-
-    Calling it, ``method(state, force_fn, t, dt)``, takes one step of its step
-    for ``type(state)``: ``force_fn(state, t) -> Forces`` (world frame, N and
-    N m) sees the whole batch, ``t`` and ``dt`` are in s, and the state keeps
-    its type and shapes ``(*B, ...)``. Two Methods are equal only when they are
-    the same object (it is the compiled program's cache key).
-
-    Attributes:
-        name: the ``method=`` string.
-        order: global order of accuracy (0: not known, e.g. a user's own step).
-        steps: ``{state type: batch-level step function}``.
-        conserves: short statement of what it conserves (for docs and tests).
-        cost: cost per step relative to ``"euler"``, both on their JAX step
-            measured by ``benchmarks/integrator_cost.py`` (approximate: the ratios
-            move between machines; ``benchmarks/results/integrator_cost_*.md``). The
-            native kernels' rates are in docs/performance.md.
-        stable_dt_omega: for explicit methods, ``{state type name: limit}``: the
-            largest ``dt·|ω|`` (ω in rad/s, dt in s) at which 1000 torque-free
-            steps stayed finite with a unit quaternion / rotation matrix, measured
-            in float64 on four body shapes and six spin axes each by
-            ``benchmarks/stability_limits.py`` (grid ratio 1.33, so the true limit
-            is up to 33% higher). Beyond it the method diverges (NaN, inf or an
-            orientation off the rotation group); ``inf``: bounded up to 1000 (the
-            state form keeps ``|ω|`` bounded, though the energy still drifts).
-            ``None`` for methods that are stable at any step (``"splitting"`` and
-            its compositions, the implicit ones). Accuracy needs far smaller steps:
-            see the integrator table in the README.
-        failure_note: what a checked-mode failure means for this method, added
-            to the error message.
-        kernels: ``{(kind, state type): KernelFn}``: steps specialised on a
-            :class:`rbjax.Scene`'s body kind (one of :data:`KINDS`) and on its
-            forces returning no torque; each gives the general step's result to
-            round-off for every body of that kind. A scene uses the one of its
-            kind instead of ``steps`` (see :func:`for_kind`).
-        layout_agnostic: the steps and kernels lift all per-body work
-            (:func:`rbjax._batching.lift`) and are elementwise elsewhere, so
-            ``simulate`` may run them on its batch-last layout (see
-            :mod:`rbjax._methods`). ``False``: they are always given batch-first states.
-        batch_first_kernels: the keys of ``kernels`` that need batch-first
-            states although ``layout_agnostic`` is true (a user's kernel, added by
-            :func:`rbjax.register_kernel`).
-        native_code: the method's number in the native kernels
-            (``rbjax/_native/kernels.cc``: ``Method``), or ``None`` when it has none.
-        principal_frame: the steps turn about each body's principal axes
-            (:func:`rbjax._eigh3.principal_frame`): ``simulate`` computes the frame
-            once per call, before its loop (:func:`rbjax._body.prepare`), and the
-            steps read it from the body.
-        forces_at_step_start: the steps evaluate the forces once per step, at its
-            start state and time (``"euler"``, ``"semi_implicit_euler"``): a native
-            kernel can then take forces XLA evaluates, one call per step.
-        order_with_velocity_forces: the global order under forces that depend on
-            velocities (drag, a damper), where it is lower than ``order`` (the
-            splitting methods kick with the start velocities: first order, measured
-            in tests/test_force_protocol.py); ``None`` when it is ``order``.
-            :func:`rbjax.simulate` gives an :class:`rbjax.OrderWarning` for such a run.
-        rotors: the steps handle gyrostats (states with ``rotors``, :mod:`rbjax._rotors`):
-            the rotor momenta in the map from ``L`` to ``ω`` (or in Euler's equation)
-            and ``Forces.rotor_torque``. Every public run refuses a gyrostat state,
-            with ``ValueError`` naming the methods that do, for a method without.
-    """
-
-    name: str
-    order: int
-    steps: dict[type, StepFn]
-    conserves: str = ""
-    cost: float = 1.0
-    stable_dt_omega: dict[str, float] | None = None
-    failure_note: str = ""
-    kernels: dict[tuple[str, type], KernelFn] = dataclasses.field(default_factory=dict)
-    layout_agnostic: bool = True
-    batch_first_kernels: frozenset[tuple[str, type]] = frozenset()
-    native_code: int | None = None
-    principal_frame: bool = False
-    order_with_velocity_forces: int | None = None
-    forces_at_step_start: bool = False
-    rotors: bool = False
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.name, str) or not self.name:
-            raise TypeError(f"Method: name must be a non-empty str (the method= string), got {self.name!r}")
-        if isinstance(self.order, bool) or not isinstance(self.order, int) or self.order < 0:
-            raise TypeError(f"Method {self.name!r}: order must be an int >= 0 (0: not known), got {self.order!r}")
-        if not isinstance(self.steps, dict) or not self.steps:
-            raise TypeError(
-                f"Method {self.name!r}: steps must be a dict {{state type: batch step (state, force_fn, t, dt) -> "
-                f"state}}, e.g. {{rb.State: my_step}}; got {self.steps!r}"
-            )
-        for kind, fn in self.steps.items():
-            if not isinstance(kind, type) or not callable(fn):
-                raise TypeError(
-                    f"Method {self.name!r}: steps maps state types (rb.State, rb.MatrixState, rb.ParticleState) "
-                    f"to step callables; got {kind!r}: {fn!r}"
-                )
-        low = self.order_with_velocity_forces
-        if low is not None and (isinstance(low, bool) or not isinstance(low, int) or low < 0):
-            raise TypeError(
-                f"Method {self.name!r}: order_with_velocity_forces must be None or an int >= 0; got {low!r}"
-            )
-
-    def __repr__(self) -> str:
-        return f"Method({self.name!r}, order={self.order})"
-
-    def step(self, state_type: type) -> StepFn:
-        """The step function for ``state_type``; ``ValueError`` if the method has none."""
-        fn = self.steps.get(state_type)
-        if fn is None:
-            raise ValueError(
-                f"method {self.name!r} does not support {state_type.__name__}; it supports "
-                f"{sorted(t.__name__ for t in self.steps)}"
-            )
-        return fn
-
-    def __call__(self, state: Any, force_fn: Callable[[Any, Any], Any], t: Any, dt: Any) -> Any:
-        return self.step(type(state))(state, force_fn, t, dt)
+#: The methods a ``method=`` string names: :data:`BUILTIN`, and what the deprecated
+#: :func:`rbjax.register_kernel` put in their place.
+_REGISTRY: dict[str, Method] = dict(BUILTIN)
 
 
-_REGISTRY: dict[str, Method] = {}
-
-
-def check_rotors(method: Method, state: Any, where: str) -> None:
+def check_rotors(method: AbstractMethod, state: Any, where: str) -> None:
     """``ValueError`` naming ``method`` and the methods that support rotors, when ``state`` is a
-    gyrostat (has ``rotors``) and ``method`` does not handle them (:attr:`Method.rotors`)."""
+    gyrostat (has ``rotors``) and ``method`` does not handle them (:attr:`AbstractMethod.rotors`)."""
     if getattr(state, "rotors", None) is None or method.rotors:
         return
     names = ", ".join(repr(n) for n, m in _REGISTRY.items() if m.rotors)
@@ -182,6 +87,8 @@ def check_rotors(method: Method, state: Any, where: str) -> None:
 
 
 def register(method: Method) -> Method:
+    """Make ``method`` the one a ``method=`` string of its name looks up (only the deprecated
+    :func:`rbjax.register_kernel` does this; rbjax's own methods are the table :data:`BUILTIN`)."""
     _REGISTRY[method.name] = method
     return method
 
@@ -204,36 +111,61 @@ def available(state_type: type | None = None) -> dict[str, Method]:
     return {k: m for k, m in _REGISTRY.items() if state_type is None or state_type in m.steps}
 
 
-def is_registered(method: Method) -> bool:
+def is_registered(method: AbstractMethod) -> bool:
     """Whether ``method`` is the registry's method of its name (not a scene's or a user's variant)."""
     return _REGISTRY.get(method.name) is method
 
 
-def resolve(method: Any, where: str) -> Method:
-    """The :class:`Method` that ``method=`` names, for the public function ``where``.
+_BY_CODE = {m.native_code: m for m in BUILTIN.values() if m.native_code is not None}
 
-    A string is looked up (``ValueError`` for an unknown name); a Method is
-    itself; any other callable is a user's batch step ``(state, force_fn, t, dt)
-    -> state`` and becomes an anonymous Method (the same one for equal
-    callables, so a rerun reuses its compiled program) that runs batch-first.
-    Anything else, or an unhashable callable, raises ``TypeError``.
+
+def native_step_is_own(method: AbstractMethod) -> bool:
+    """Whether the native kernel numbered ``method.native_code`` computes ``method``'s own steps: it is a
+    :class:`Method` whose :class:`rbjax.State` step is that of rbjax's method of that number (the kernel
+    mirrors that step; any other step would be silently swapped for it)."""
+    own = None if method.native_code is None else _BY_CODE.get(method.native_code)
+    return (
+        own is not None
+        and type(method) is Method
+        and State in own.steps
+        and method.steps.get(State) is own.steps[State]
+    )
+
+
+def resolve(method: Any, where: str) -> AbstractMethod:
+    """The method object that ``method=`` names, for the public function ``where``.
+
+    A string is looked up (``ValueError`` for an unknown name); an
+    :class:`AbstractMethod` (a :class:`Method` or an instance of a user's
+    subclass) is itself; any other callable is a user's batch step ``(state,
+    force_fn, t, dt) -> state`` and becomes an anonymous Method (the same one for
+    equal callables, so a rerun reuses its compiled program) that runs
+    batch-first. A method class instead of an instance, anything else, or an
+    unhashable method raises ``TypeError``.
     """
     if isinstance(method, str):
         return lookup(method)
-    if isinstance(method, Method):
-        return method
-    if callable(method):
+    if isinstance(method, type) and issubclass(method, AbstractMethod):
+        raise TypeError(
+            f"{where}: method must be a method object, got the class {method.__qualname__}: pass an instance, "
+            f"method={method.__qualname__}()"
+        )
+    if isinstance(method, AbstractMethod) or callable(method):
         try:
+            if isinstance(method, AbstractMethod):
+                hash(method)
+                return method
             return _anonymous(method)
         except TypeError:  # unhashable: it could not be a static argument of the compiled run
             raise TypeError(
                 f"{where}: method must be hashable, as a static argument of the compiled run; got an unhashable "
-                f"{type(method).__name__}. Pass a method name such as 'rk4', a Method from rbjax.methods(), or a "
-                "step function defined once"
+                f"{type(method).__name__}. Pass a method name such as 'rk4', a Method from rbjax.methods(), a "
+                "method object whose attributes are hashable, or a step function defined once"
             ) from None
     raise TypeError(
         f"{where}: method must be a method name such as 'rk4' (see rbjax.methods()), a Method from "
-        f"rbjax.methods(), or a batch step callable (state, force_fn, t, dt) -> state; got {type(method).__name__}"
+        f"rbjax.methods(), an instance of an rbjax.AbstractMethod subclass, or a batch step callable "
+        f"(state, force_fn, t, dt) -> state; got {type(method).__name__}"
     )
 
 
@@ -252,13 +184,14 @@ def _anonymous(fn: StepFn) -> Method:
 
 
 @functools.cache
-def for_kind(method: Method, kind: str, torque_free: bool) -> Method:
+def for_kind(method: AbstractMethod, kind: str, torque_free: bool) -> AbstractMethod:
     """``method`` as a :class:`rbjax.Scene` of ``kind`` bodies runs it (the same object for the same arguments).
 
     Its kernels for ``kind`` replace its steps, called with ``kind`` and
     ``torque_free``; ``method`` itself when it has none for ``kind``. The
     result has no native kernel (a scene steps in JAX) and is batch-first when
-    a kernel it uses is.
+    a kernel it uses is. A user's method (an :class:`AbstractMethod` subclass)
+    with ``kernels`` becomes a :class:`Method` of its own steps and kernels.
     """
     own = {T: fn for (k, T), fn in method.kernels.items() if k == kind}
     if not own:
@@ -267,6 +200,22 @@ def for_kind(method: Method, kind: str, torque_free: bool) -> Method:
     def bind(fn: KernelFn) -> StepFn:
         return lambda state, force_fn, t, dt: fn(state, force_fn, t, dt, kind, torque_free)
 
+    if not isinstance(method, Method):
+        method = Method(
+            name=method.name,
+            order=method.order,
+            steps={T: method.step(T) for T in method.state_types},
+            conserves=method.conserves,
+            cost=method.cost,
+            stable_dt_omega=method.stable_dt_omega,
+            failure_note=method.failure_note,
+            kernels=dict(method.kernels),
+            layout_agnostic=method.layout_agnostic,
+            batch_first_kernels=method.batch_first_kernels,
+            principal_frame=method.principal_frame,
+            order_with_velocity_forces=method.order_with_velocity_forces,
+            forces_at_step_start=method.forces_at_step_start,
+        )
     return dataclasses.replace(
         method,
         steps={**method.steps, **{T: bind(fn) for T, fn in own.items()}},

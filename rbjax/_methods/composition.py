@@ -42,7 +42,7 @@ more than float64 can hold):
   ~8x more accurate than McLachlan's 15-stage ``s15odr8`` on the same test.
 
 Cost: ``s`` steps of ``"splitting"`` (each 2 force evaluations and 5
-sub-rotations). The base step is reused as registered, not re-derived, so
+sub-rotations). The base step is reused as it is (``SPLITTING``'s), not re-derived, so
 every state form it supports is supported, and improvements to the
 splitting kernel carry over.
 
@@ -61,9 +61,10 @@ import jax.numpy as jnp
 
 from .._pytree import replace
 from .._state import split_constants
-from ._registry import Method, StepFn, available, register
+from ._base import Method, StepFn
+from .splitting import SPLITTING
 
-__all__ = ["COEFFICIENTS", "compose", "palindrome"]
+__all__ = ["COEFFICIENTS", "compose", "composed", "palindrome", "SPLITTING4", "SPLITTING6", "SPLITTING8"]
 
 
 def palindrome(first_half: Sequence[str]) -> tuple[str, ...]:
@@ -149,25 +150,24 @@ def compose(base_step: StepFn, gammas: Sequence[float]) -> StepFn:
     return step
 
 
-def _register(name: str, base: str, order: int, cost: float) -> Method:
+def composed(name: str, base_method: Method, order: int, cost: float) -> Method:
+    """The composition ``name`` of :data:`COEFFICIENTS` built on ``base_method``'s steps (every state form
+    of the base), of order ``order`` and measured ``cost`` per step relative to ``"euler"``."""
     gammas = [float(g) for g in COEFFICIENTS[name]]
-    base_method = available()[base]
-    return register(
-        Method(
-            name=name,
-            order=order,
-            steps={T: compose(fn, gammas) for T, fn in base_method.steps.items()},
-            conserves=base_method.conserves.replace("bounded", f"bounded (O(dt^{order}))"),
-            order_with_velocity_forces=base_method.order_with_velocity_forces,
-            cost=cost,
-            principal_frame=base_method.principal_frame,
-            rotors=base_method.rotors,
-        )
+    return Method(
+        name=name,
+        order=order,
+        steps={T: compose(fn, gammas) for T, fn in base_method.steps.items()},
+        conserves=base_method.conserves.replace("bounded", f"bounded (O(dt^{order}))"),
+        order_with_velocity_forces=base_method.order_with_velocity_forces,
+        cost=cost,
+        principal_frame=base_method.principal_frame,
+        rotors=base_method.rotors,
     )
 
 
 # costs measured (benchmarks/results/integrator_cost_2026-12-03.md), not derived as sub-steps x
 # "splitting"'s: a sub-step of the composition's scan costs more than a plain step
-_register("splitting4", "splitting", 4, cost=13.9)
-_register("splitting6", "splitting", 6, cost=25.0)
-_register("splitting8", "splitting", 8, cost=46.9)
+SPLITTING4 = composed("splitting4", SPLITTING, 4, cost=13.9)
+SPLITTING6 = composed("splitting6", SPLITTING, 6, cost=25.0)
+SPLITTING8 = composed("splitting8", SPLITTING, 8, cost=46.9)

@@ -36,8 +36,8 @@ from .._pytree import replace
 from .._rotors import spin_momentum
 from .._state import Forces, MatrixState, ParticleState, State
 from . import specialised
+from ._base import Method
 from ._common import rotor_kick
-from ._registry import Method, register
 
 
 def _translate(x, v, m, f: Forces, dt):
@@ -88,19 +88,17 @@ def _batch(kernel):
     return step
 
 
-register(
-    Method(
-        name="euler",
-        order=1,
-        steps={State: _batch(euler_state), MatrixState: _batch(euler_matrix), ParticleState: _batch(euler_particles)},
-        conserves="torque-free: L exactly (L-form); nothing else — energy grows every step",
-        cost=1.0,
-        # benchmarks/results/stability_limits.json: the L-form keeps |L| and so |ω| bounded
-        stable_dt_omega={"State": math.inf, "MatrixState": 0.13, "ParticleState": math.inf},
-        kernels=specialised.kernels(specialised.euler),
-        native_code=0,
-        # its steps read the forces once, at the step's start state and time
-        forces_at_step_start=True,
-        rotors=True,
-    )
+EULER = Method(
+    name="euler",
+    order=1,
+    steps={State: _batch(euler_state), MatrixState: _batch(euler_matrix), ParticleState: _batch(euler_particles)},
+    conserves="torque-free: L exactly (L-form); nothing else — energy grows every step",
+    cost=1.0,
+    # benchmarks/results/stability_limits.json: the L-form keeps |L| and so |ω| bounded
+    stable_dt_omega={"State": math.inf, "MatrixState": 0.13, "ParticleState": math.inf},
+    kernels=specialised.kernels(specialised.euler),
+    native_code=0,
+    # its steps read the forces once, at the step's start state and time
+    forces_at_step_start=True,
+    rotors=True,
 )

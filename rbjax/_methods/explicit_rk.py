@@ -24,10 +24,10 @@ import jax.numpy as jnp
 from .._dynamics import derivative
 from .._pytree import replace
 from .._state import MatrixState, ParticleState, State
+from ._base import KernelFn, Method, StepFn
 from ._common import materialise, project, torque_varies
-from ._registry import KernelFn, Method, StepFn, register
 
-__all__ = ["CLASSICAL_RK4", "Tableau", "explicit_rk", "register_tableau", "tableau_step"]
+__all__ = ["CLASSICAL_RK4", "Tableau", "explicit_rk", "tableau_method", "tableau_step"]
 
 
 class Tableau(NamedTuple):
@@ -122,7 +122,7 @@ def explicit_rk(a: Sequence[Sequence[float]], b: Sequence[float], c: Sequence[fl
     return step
 
 
-def register_tableau(
+def tableau_method(
     name: str,
     order: int,
     a: Sequence[Sequence[float]],
@@ -133,8 +133,9 @@ def register_tableau(
     stable_dt_omega: dict[str, float] | None = None,
     kernels: dict[tuple[str, type], KernelFn] | None = None,
     native_code: int | None = None,
-) -> StepFn:
-    """Register ``name`` as the explicit Runge–Kutta method of tableau ``(a, b, c)``; returns its step.
+) -> Method:
+    """The explicit Runge–Kutta method ``name`` of tableau ``(a, b, c)`` (registered by nothing: see
+    :mod:`rbjax._methods._registry` for the table of methods).
 
     It supports ``State``, ``MatrixState`` and ``ParticleState`` and conserves
     nothing exactly (energy and ``|L|`` drift as ``O(dt^order)`` per unit time).
@@ -144,18 +145,15 @@ def register_tableau(
     (see :class:`Method`).
     """
     fn = explicit_rk(a, b, c)
-    register(
-        Method(
-            name=name,
-            order=order,
-            steps={State: fn, MatrixState: fn, ParticleState: fn},
-            conserves=f"nothing exactly; energy and |L| drift as O(dt^{order}) per unit time",
-            cost=cost,
-            stable_dt_omega=stable_dt_omega,
-            kernels=kernels or {},
-            native_code=native_code,
-            # derivative() carries the rotor terms and the rotor momenta's rates
-            rotors=True,
-        )
+    return Method(
+        name=name,
+        order=order,
+        steps={State: fn, MatrixState: fn, ParticleState: fn},
+        conserves=f"nothing exactly; energy and |L| drift as O(dt^{order}) per unit time",
+        cost=cost,
+        stable_dt_omega=stable_dt_omega,
+        kernels=kernels or {},
+        native_code=native_code,
+        # derivative() carries the rotor terms and the rotor momenta's rates
+        rotors=True,
     )
-    return fn

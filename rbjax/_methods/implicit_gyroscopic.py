@@ -33,8 +33,8 @@ from .._math import (
 )
 from .._pytree import replace
 from .._state import Forces, State
+from ._base import Method
 from ._common import batch, kicked_velocity, rigid_steps, solve3
-from ._registry import Method, register
 
 
 def implicit_gyroscopic_state(s: State, f: Forces, dt) -> State:
@@ -55,12 +55,10 @@ def implicit_gyroscopic_state(s: State, f: Forces, dt) -> State:
 
 implicit_gyroscopic = batch(implicit_gyroscopic_state)
 
-register(
-    Method(
-        name="implicit_gyroscopic",
-        order=1,
-        steps=rigid_steps(implicit_gyroscopic),
-        conserves="nothing; dissipates rotational energy and |L| (stable at large dt)",
-        cost=4.0,
-    )
+IMPLICIT_GYROSCOPIC = Method(
+    name="implicit_gyroscopic",
+    order=1,
+    steps=rigid_steps(implicit_gyroscopic),
+    conserves="nothing; dissipates rotational energy and |L| (stable at large dt)",
+    cost=4.0,
 )

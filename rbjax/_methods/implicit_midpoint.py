@@ -63,8 +63,8 @@ from .._math import (
 )
 from .._pytree import replace
 from .._state import State
+from ._base import Method
 from ._common import kick, rigid_steps, solve3
-from ._registry import Method, register
 
 # Newton iterations before the differentiated one. From Π_½ = Π₀ the residual
 # is squared each iteration once it is small. Measured (50 random axes per
@@ -194,19 +194,17 @@ def implicit_midpoint_state(state, force_fn, t, dt):
     return lift(kick)(s, force_fn(s, t + dt), dt / 2)
 
 
-register(
-    Method(
-        name="implicit_midpoint",
-        order=2,
-        steps=rigid_steps(implicit_midpoint_state),
-        conserves=(
-            "torque-free: L exactly; |L| and energy to Newton tolerance where the solve converges "
-            "(all tested bodies to dt·|ω| = 3, ~99% at 10-100); a failed solve gives NaN, never a wrong state"
-        ),
-        failure_note=(
-            "for implicit_midpoint a non-finite state means its Newton solve did not converge at this "
-            "dt·|ω| (even with the continuation fallback)"
-        ),
-        cost=34.1,
-    )
+IMPLICIT_MIDPOINT = Method(
+    name="implicit_midpoint",
+    order=2,
+    steps=rigid_steps(implicit_midpoint_state),
+    conserves=(
+        "torque-free: L exactly; |L| and energy to Newton tolerance where the solve converges "
+        "(all tested bodies to dt·|ω| = 3, ~99% at 10-100); a failed solve gives NaN, never a wrong state"
+    ),
+    failure_note=(
+        "for implicit_midpoint a non-finite state means its Newton solve did not converge at this "
+        "dt·|ω| (even with the continuation fallback)"
+    ),
+    cost=34.1,
 )

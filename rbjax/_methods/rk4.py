@@ -21,9 +21,9 @@ from __future__ import annotations
 import math
 
 from . import specialised
-from .explicit_rk import CLASSICAL_RK4, register_tableau
+from .explicit_rk import CLASSICAL_RK4, tableau_method
 
-rk4 = register_tableau(
+RK4 = tableau_method(
     "rk4",
     4,
     *CLASSICAL_RK4,

@@ -54,8 +54,8 @@ from .._math import (
 )
 from .._pytree import replace
 from .._state import Forces, State
+from ._base import Method
 from ._common import project, rigid_steps
-from ._registry import Method, register
 from .explicit_rk import CLASSICAL_RK4, combine
 
 __all__ = ["rk4_body"]
@@ -138,16 +138,14 @@ def rk4_body(state: State, force_fn, t, dt) -> State:
     return lift(_to_world)(project(combine(y0, dt, _B, ks)))
 
 
-register(
-    Method(
-        name="rk4_body",
-        order=4,
-        steps=rigid_steps(rk4_body),
-        conserves=(
-            "nothing exactly; the rates have the error of RK4 on Euler's equations (energy ~300x below "
-            "'rk4' on the T-handle); world L drifts at O(dt^4) where 'rk4' keeps it exact torque-free"
-        ),
-        cost=3.9,
-        native_code=4,
-    )
+RK4_BODY = Method(
+    name="rk4_body",
+    order=4,
+    steps=rigid_steps(rk4_body),
+    conserves=(
+        "nothing exactly; the rates have the error of RK4 on Euler's equations (energy ~300x below "
+        "'rk4' on the T-handle); world L drifts at O(dt^4) where 'rk4' keeps it exact torque-free"
+    ),
+    cost=3.9,
+    native_code=4,
 )

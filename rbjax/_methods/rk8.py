@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 
-from .explicit_rk import register_tableau
+from .explicit_rk import tableau_method
 
 __all__ = ["DOP853_A", "DOP853_B", "DOP853_C"]
 
@@ -135,7 +135,7 @@ DOP853_B: tuple[float, ...] = (
 
 
 # stability limits: benchmarks/results/stability_limits.json
-rk8 = register_tableau(
+RK8 = tableau_method(
     "rk8",
     8,
     DOP853_A,

@@ -40,8 +40,8 @@ from .._math import (
 )
 from .._pytree import replace
 from .._state import Forces, MatrixState, ParticleState, State
+from ._base import Method
 from ._common import batch, kick, via_state
-from ._registry import Method, register
 
 
 def semi_implicit_state(s: State, f: Forces, dt) -> State:
@@ -82,22 +82,20 @@ def _matrix_or_gyrostat(state, force_fn, t, dt):
     return (_matrix_step if state.rotors is None else _gyrostat_matrix_step)(state, force_fn, t, dt)
 
 
-register(
-    Method(
-        name="semi_implicit_euler",
-        order=1,
-        steps={
-            State: _state_step,
-            MatrixState: _matrix_or_gyrostat,
-            ParticleState: batch(semi_implicit_particles),
-        },
-        conserves="torque-free: L exactly, |L| in body axes; energy drifts O(dt) (particles: bounded)",
-        cost=1.9,
-        # benchmarks/results/stability_limits.json: finite up to dt·|ω| = 1000 in both forms
-        stable_dt_omega={"State": math.inf, "MatrixState": math.inf, "ParticleState": math.inf},
-        native_code=3,
-        # its steps read the forces once, at the step's start state and time
-        forces_at_step_start=True,
-        rotors=True,
-    )
+SEMI_IMPLICIT_EULER = Method(
+    name="semi_implicit_euler",
+    order=1,
+    steps={
+        State: _state_step,
+        MatrixState: _matrix_or_gyrostat,
+        ParticleState: batch(semi_implicit_particles),
+    },
+    conserves="torque-free: L exactly, |L| in body axes; energy drifts O(dt) (particles: bounded)",
+    cost=1.9,
+    # benchmarks/results/stability_limits.json: finite up to dt·|ω| = 1000 in both forms
+    stable_dt_omega={"State": math.inf, "MatrixState": math.inf, "ParticleState": math.inf},
+    native_code=3,
+    # its steps read the forces once, at the step's start state and time
+    forces_at_step_start=True,
+    rotors=True,
 )

@@ -34,8 +34,8 @@ from .._dynamics import matrix_rates, omega_world, rotation_rate
 from .._math import cross, dot3, over, pure_quat_multiply, quat_normalize_unchecked
 from .._pytree import replace
 from .._state import Forces, MatrixState, State
+from ._base import KernelFn
 from ._common import project
-from ._registry import KernelFn
 from .explicit_rk import CLASSICAL_RK4, combine, tableau_step
 
 __all__ = ["euler", "rk4", "kernels"]

@@ -95,8 +95,8 @@ from .._math import (
 from .._pytree import replace
 from .._rotors import spin_momentum
 from .._state import ParticleState, State
+from ._base import Method
 from ._common import degenerate_flow, kick, rigid_steps
-from ._registry import Method, register
 
 # (principal axis, fraction of h) of the symmetric composition H₃(h/2) H₁(h) H₃(h/2)
 _SEQUENCE = ((2, 0.5), (0, 1.0), (2, 0.5))
@@ -282,24 +282,22 @@ def _strang(kick_fn, drift_fn):
 
 splitting_state = _strang(kick, _drift)
 
-register(
-    Method(
-        name="splitting",
-        order=2,
-        steps={
-            **rigid_steps(splitting_state),
-            ParticleState: _strang(_kick_particles, _drift_particles),
-        },
-        conserves=(
-            "torque-free: L exactly, |L|, |q|; symplectic: energy error bounded, no drift in float64 "
-            "(float32: round-off drift ~1e-9 per step)"
-        ),
-        cost=2.3,
-        # spheres and cylinders turn without a principal frame (free_rotor_of_kind)
-        kernels={(kind, State): splitting_of_kind for kind in ("isotropic", "axisymmetric")},
-        native_code=2,
-        principal_frame=True,
-        order_with_velocity_forces=1,
-        rotors=True,
-    )
+SPLITTING = Method(
+    name="splitting",
+    order=2,
+    steps={
+        **rigid_steps(splitting_state),
+        ParticleState: _strang(_kick_particles, _drift_particles),
+    },
+    conserves=(
+        "torque-free: L exactly, |L|, |q|; symplectic: energy error bounded, no drift in float64 "
+        "(float32: round-off drift ~1e-9 per step)"
+    ),
+    cost=2.3,
+    # spheres and cylinders turn without a principal frame (free_rotor_of_kind)
+    kernels={(kind, State): splitting_of_kind for kind in ("isotropic", "axisymmetric")},
+    native_code=2,
+    principal_frame=True,
+    order_with_velocity_forces=1,
+    rotors=True,
 )

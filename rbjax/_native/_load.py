@@ -15,13 +15,13 @@ from pathlib import Path
 
 import jax
 
-from .._methods import available
+from .._methods import BUILTIN
 
 __all__ = ["METHODS", "TARGET", "ISA", "ISA_CAPS", "NativeStatus", "native_status"]
 
 # the methods with a kernel and their codes (block.h: Method), as each Method records its own
 METHODS = dict(
-    sorted(((m.name, m.native_code) for m in available().values() if m.native_code is not None), key=lambda p: p[1])
+    sorted(((m.name, m.native_code) for m in BUILTIN.values() if m.native_code is not None), key=lambda p: p[1])
 )
 TARGET = "rbjax_advance"
 ABI = 4  # kernels.cc: rbjax_native_abi, the version of the call's operands and attributes

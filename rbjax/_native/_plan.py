@@ -13,7 +13,7 @@ import jax.core
 import jax.numpy as jnp
 
 from .._force_model import ForceSum
-from .._methods import Method, available
+from .._methods import BUILTIN, AbstractMethod, Method, native_step_is_own
 from .._state import Forces, State
 from ._laws import NATIVE_TYPES
 from ._load import METHODS, native_status
@@ -32,7 +32,7 @@ NATIVE_LAWS = tuple(t.__name__ for t in NATIVE_TYPES if t is not Forces)
 # as a fused JAX step does: roughly measured (shared 2-core machine, 1e5 bodies, float32),
 # euler and semi_implicit_euler with a callable were no faster natively than on JAX, so
 # native=None keeps such runs on JAX and native=True takes this path.
-AT_STEP_START = tuple(m.name for m in available().values() if m.forces_at_step_start and m.native_code is not None)
+AT_STEP_START = tuple(m.name for m in BUILTIN.values() if m.forces_at_step_start and m.native_code is not None)
 
 
 def native_terms(forces: Any) -> tuple[Any, ...] | None:
@@ -44,7 +44,14 @@ def native_terms(forces: Any) -> tuple[Any, ...] | None:
 
 
 def native_plan(
-    state: Any, forces: Any, method: Method, *, series: bool, checked: bool, checkpoint: Any, default: bool = False
+    state: Any,
+    forces: Any,
+    method: AbstractMethod,
+    *,
+    series: bool,
+    checked: bool,
+    checkpoint: Any,
+    default: bool = False,
 ) -> str:
     """``""`` when this run can take the native kernels, else the reason it cannot (for messages).
 
@@ -58,7 +65,22 @@ def native_plan(
     if not status.available:
         return status.reason
     if method.native_code is None:
+        if not isinstance(method, Method):  # an instance of a user's AbstractMethod subclass
+            return (
+                f"method {method.name!r} ({type(method).__qualname__}) is a user's method and has no native kernel: "
+                f"the kernels compute rbjax's own methods only ({', '.join(METHODS)}), its __call__ runs on the "
+                "JAX path (native=False, or None)"
+            )
         return f"method {method.name!r} has no native kernel (those with one: {', '.join(METHODS)})"
+    if not native_step_is_own(method):
+        own = next((m.name for m in BUILTIN.values() if m.native_code == method.native_code), None)
+        if own is None:
+            return f"method {method.name!r} has native_code={method.native_code!r}, which no kernel has ({METHODS})"
+        return (
+            f"method {method.name!r} has native_code={method.native_code}, the kernel of rbjax's {own!r}, but "
+            f"steps of its own: the kernel would compute {own!r}'s formulas in their place; its steps run on the "
+            "JAX path (native=False, or None)"
+        )
     if type(state) is not State:
         return f"{type(state).__name__} has no native kernel (State has)"
     if state.rotors is not None:
