@@ -3,7 +3,8 @@ calibration over many synthetic throws.
 
 The device is issue 58's: 0.1 kg, principal moments 22, 76, 88 kg mm² turned against the IMU
 frame, a flywheel of J = 1.7e-6 kg m² about body -z running 170 → ~1300 → 210 rad/s within the
-0.5 s flight, body rates 8-33 rad/s at release (the rotor's spin-up turns them up to ~70).
+0.5 s flight (start, peak and end drawn per throw), body rates 8-33 rad/s at release (the
+rotor's spin-up turns them up to ~70).
 Truth: scipy DOP853 at rtol = atol = 1e-12 on the body-frame gyrostat equations
 (tests/_gyrostat_truth.py). Data: gyro only at 4 kHz (2,001 samples), white gyro noise, the
 rotor rate quantised in 5 rad/s steps; J given (absolute inertia).
@@ -45,10 +46,15 @@ import rbjax as rb  # noqa: E402
 TRUE = np.linalg.eigvalsh(g.I_DEVICE)
 
 
-def _data(rng, rate_hz, gyro_std=None, step=5.0):
+def _data(rng, rate_hz, gyro_std=None, step=5.0, smooth=0):
     t, _, w, W = g.random_throw(rng, rate_hz=rate_hz)
     s = rng.uniform(0.005, 0.05) if gyro_std is None else gyro_std
-    return t, w + rng.normal(0, s, w.shape), step * np.round(W / step) if step else W, s
+    W = step * np.round(W / step) if step else W
+    if smooth:  # an experiment: the quantised rate smoothed by the user (local quadratics)
+        from scipy.signal import savgol_filter
+
+        W = savgol_filter(W, smooth, 2)
+    return t, w + rng.normal(0, s, w.shape), W, s
 
 
 def _fit(t, w, W):
@@ -78,12 +84,12 @@ def timing(rate_hz: float, calls: int = 3) -> list[dict]:
     return rows
 
 
-def calibration(n: int, rate_hz: float, step: float) -> dict:
+def calibration(n: int, rate_hz: float, step: float, smooth: int = 0) -> dict:
     rng = np.random.default_rng(1)
     rel, z, trusted, iters = [], [], [], []
     t0 = time.perf_counter()
     for i in range(n):
-        t, w, W, _ = _data(rng, rate_hz, step=step)
+        t, w, W, _ = _data(rng, rate_hz, step=step, smooth=smooth)
         res = _fit(t, w, W)
         m, s = np.asarray(res.principal_moments), np.asarray(res.moment_std)
         rel.append(m / TRUE - 1)
@@ -97,6 +103,7 @@ def calibration(n: int, rate_hz: float, step: float) -> dict:
     return dict(
         throws=n,
         rotor_rate_step=step,
+        rotor_rate_smoothed=smooth,
         samples=int(round(0.5 * rate_hz)) + 1,
         median_abs_rel_error=float(np.median(np.abs(rel))),
         median_abs_rel_error_per_moment=np.median(np.abs(rel), 0).tolist(),
@@ -115,6 +122,9 @@ def main():
     ap.add_argument("--throws", type=int, default=200)
     ap.add_argument("--rate", type=float, default=4000.0, help="gyro sample rate (Hz)")
     ap.add_argument("--step", type=float, default=5.0, help="the rotor rate's quantisation step (rad/s; 0: none)")
+    ap.add_argument(
+        "--smooth", type=int, default=0, help="smooth the rotor rate with local quadratics over this many samples"
+    )
     ap.add_argument("--quick", action="store_true", help="5 throws at 1 kHz (a smoke run)")
     ap.add_argument("--out", default=None, help="JSON path; default results/fit_rotor.json (none with --quick)")
     ap.add_argument("--cache", default=None, metavar="DIR", help="jax's persistent compilation cache (as the CLI's)")
@@ -126,7 +136,7 @@ def main():
         args.throws, args.rate = 5, 1000.0
     out = dict(machine=machine(), timing=timing(args.rate))
     if args.throws:
-        out["calibration"] = calibration(args.throws, args.rate, args.step)
+        out["calibration"] = calibration(args.throws, args.rate, args.step, args.smooth)
         c = out["calibration"]
         print(
             f"{c['throws']} throws: median |error| {100 * c['median_abs_rel_error']:.3f}%, within 2σ "

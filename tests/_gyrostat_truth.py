@@ -66,8 +66,15 @@ def accelerations(times, w, I=I_DEVICE, J=J_FLYWHEEL, axis=AXIS, rate=rotor_rate
 
 
 def random_throw(rng, rate_hz=4000.0, duration=DURATION):
-    """A throw at body rates of 8-33 rad/s about a random direction: ``(times, q, w, Ω)``."""
+    """A throw at body rates of 8-33 rad/s about a random direction: ``(times, q, w, Ω)``.
+
+    The rotor's run-up varies too (start 150-190, peak 1200-1400, end 190-230 rad/s): with one
+    profile for all throws a quantised rate would err alike in every throw (the same steps at the
+    same times), a bias shared by the whole set instead of noise.
+    """
     times = np.arange(int(round(duration * rate_hz)) + 1) / rate_hz
     d = rng.normal(size=3)
     w0 = rng.uniform(8.0, 33.0) * d / np.linalg.norm(d)
-    return (times, *throw(times, w0))
+    start, peak, end = rng.uniform(150, 190), rng.uniform(1200, 1400), rng.uniform(190, 230)
+    rate = lambda t: rotor_rate(t, start=start, peak=peak, end=end, duration=duration)
+    return (times, *throw(times, w0, rate=rate))

@@ -176,13 +176,23 @@ def test_a_list_and_a_joint_fit_of_throws_with_a_rotor():
     throws = [g.random_throw(rng, rate_hz=2000.0) for _ in range(3)]
     times = [t for t, *_ in throws]
     rates = [w + rng.normal(0, 0.02, w.shape) for _, _, w, _ in throws]
-    rotor = [5.0 * np.round(W / 5.0) for *_, W in throws]
-    kw = dict(rotor_rates=rotor, rotor_axis=g.AXIS, rotor_inertia=g.J_FLYWHEEL)
+    kw = dict(rotor_rates=[W for *_, W in throws], rotor_axis=g.AXIS, rotor_inertia=g.J_FLYWHEEL)
     each = rb.fit_inertia(times, None, body_rates=rates, **kw)
     assert each.principal_moments.shape == (3, 3) and each.inertia_units == "kg m^2"
     z = (np.asarray(each.principal_moments) - TRUE) / np.asarray(each.moment_std)
-    assert np.all(np.abs(z) < 4), z
+    assert np.all(np.abs(z) < 3), z  # measured |z| <= 1.05
     joint = rb.fit_inertia(times, None, body_rates=rates, joint=True, **kw)
-    assert joint.principal_moments.shape == (3,) and bool(joint.converged), joint.diagnosis
+    assert joint.principal_moments.shape == (3,) and joint.inertia_units == "kg m^2"
+    assert bool(joint.converged), joint.diagnosis
     z = (np.asarray(joint.principal_moments) - TRUE) / np.asarray(joint.moment_std)
-    assert np.all(np.abs(z) < 3), z
+    assert np.all(np.abs(z) < 3), z  # measured |z| <= 1.27
+    # one body, three throws: more information than any one throw's (measured 0.19-0.38 of the median's)
+    np.testing.assert_array_less(np.asarray(joint.moment_std), np.min(np.asarray(each.moment_std), 0))
+    # the rate in 5 rad/s steps: still within 0.1%, but σ does not count the rounding (measured
+    # z = -3.0, -3.4, -4.0 on this joint fit; the throws alone -1.7 to 0.9): a known limitation
+    # (benchmarks/results/fit_rotor_2026-12-07.md), asserted here so that a fix shows
+    kw["rotor_rates"] = [5.0 * np.round(W / 5.0) for *_, W in throws]
+    joint = rb.fit_inertia(times, None, body_rates=rates, joint=True, **kw)
+    np.testing.assert_allclose(joint.principal_moments, TRUE, rtol=1e-3)
+    z = (np.asarray(joint.principal_moments) - TRUE) / np.asarray(joint.moment_std)
+    assert np.max(np.abs(z)) > 2.5, z
