@@ -129,9 +129,9 @@ def check_identifiability(MtM: np.ndarray, tol: float, torque_free: bool) -> Non
         + "], [".join(terms)
         + "]"
         + (
-            " (one of these is the overall scale, never identifiable without torques)"
+            " (one of these is the overall scale, never identifiable without torques or a rotor)"
             if torque_free
-            else " (one of these may be the overall scale, fixed only by the torques)"
+            else " (one of these may be the overall scale, fixed only by the torques or the rotor)"
         )
         + ". Record a tumble that excites all three axes (e.g. spin near, not on, a principal axis)."
     )
