@@ -19,7 +19,8 @@ twice: the second process's first call reads the program back instead of compili
 Calibration: per throw the gyro noise is drawn from 0.005-0.05 rad/s and the release rate from
 8-33 rad/s about a random direction; reported: the median relative error of the principal
 moments (goal ≤ 0.3%), the share of moments within 2σ (goal 95 ± 3%) and of trusted fits
-(``converged``). ``--step``: the rotor rate's quantisation (5 rad/s; 0: exact).
+(``converged``). ``--step``: the rotor rate's quantisation (5 rad/s; 0: exact); ``--white``: a
+white error of the same width instead; ``--smooth N``: the quantised rate smoothed (experiment).
 """
 
 from __future__ import annotations
@@ -46,10 +47,13 @@ import rbjax as rb  # noqa: E402
 TRUE = np.linalg.eigvalsh(g.I_DEVICE)
 
 
-def _data(rng, rate_hz, gyro_std=None, step=5.0, smooth=0):
+def _data(rng, rate_hz, gyro_std=None, step=5.0, smooth=0, white=False):
     t, _, w, W = g.random_throw(rng, rate_hz=rate_hz)
     s = rng.uniform(0.005, 0.05) if gyro_std is None else gyro_std
-    W = step * np.round(W / step) if step else W
+    if white:  # an error as large as the rounding's (uniform within ±step/2), independent per sample
+        W = W + rng.uniform(-0.5 * step, 0.5 * step, W.shape)
+    else:
+        W = step * np.round(W / step) if step else W
     if smooth:  # an experiment: the quantised rate smoothed by the user (local quadratics)
         from scipy.signal import savgol_filter
 
@@ -84,12 +88,12 @@ def timing(rate_hz: float, calls: int = 3) -> list[dict]:
     return rows
 
 
-def calibration(n: int, rate_hz: float, step: float, smooth: int = 0) -> dict:
+def calibration(n: int, rate_hz: float, step: float, smooth: int = 0, white: bool = False) -> dict:
     rng = np.random.default_rng(1)
     rel, z, trusted, iters = [], [], [], []
     t0 = time.perf_counter()
     for i in range(n):
-        t, w, W, _ = _data(rng, rate_hz, step=step, smooth=smooth)
+        t, w, W, _ = _data(rng, rate_hz, step=step, smooth=smooth, white=white)
         res = _fit(t, w, W)
         m, s = np.asarray(res.principal_moments), np.asarray(res.moment_std)
         rel.append(m / TRUE - 1)
@@ -104,6 +108,7 @@ def calibration(n: int, rate_hz: float, step: float, smooth: int = 0) -> dict:
         throws=n,
         rotor_rate_step=step,
         rotor_rate_smoothed=smooth,
+        rotor_rate_white_error=white,
         samples=int(round(0.5 * rate_hz)) + 1,
         median_abs_rel_error=float(np.median(np.abs(rel))),
         median_abs_rel_error_per_moment=np.median(np.abs(rel), 0).tolist(),
@@ -125,6 +130,9 @@ def main():
     ap.add_argument(
         "--smooth", type=int, default=0, help="smooth the rotor rate with local quadratics over this many samples"
     )
+    ap.add_argument(
+        "--white", action="store_true", help="instead of rounding, a white error uniform within ±step/2 per sample"
+    )
     ap.add_argument("--quick", action="store_true", help="5 throws at 1 kHz (a smoke run)")
     ap.add_argument("--out", default=None, help="JSON path; default results/fit_rotor.json (none with --quick)")
     ap.add_argument("--cache", default=None, metavar="DIR", help="jax's persistent compilation cache (as the CLI's)")
@@ -136,7 +144,7 @@ def main():
         args.throws, args.rate = 5, 1000.0
     out = dict(machine=machine(), timing=timing(args.rate))
     if args.throws:
-        out["calibration"] = calibration(args.throws, args.rate, args.step, args.smooth)
+        out["calibration"] = calibration(args.throws, args.rate, args.step, args.smooth, args.white)
         c = out["calibration"]
         print(
             f"{c['throws']} throws: median |error| {100 * c['median_abs_rel_error']:.3f}%, within 2σ "
