@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+import warnings
 from pathlib import Path
 
 from ._cli_common import CLIError, use_compile_cache
@@ -254,6 +255,7 @@ def _fit_throws(args: argparse.Namespace) -> int:
     import numpy as np
 
     from . import Recording, RecordingError, find_throws, fit_inertia
+    from .identification._throws import NoFlightWarning
 
     unsupported = [
         flag
@@ -280,13 +282,17 @@ def _fit_throws(args: argparse.Namespace) -> int:
     _check_scale(args, False, args.recording)
     found = {k: getattr(args, k) for k in ("threshold", "margin", "min_duration") if getattr(args, k) is not None}
     try:
-        windows = find_throws(rec, **found)
+        # find_throws says why it found no flight in a warning; the CLI says it as its error
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            windows = find_throws(rec, **found)
     except ValueError as e:
         raise CLIError(f"{args.recording}: {e}") from e
     if not windows:
+        why = next((w.message.reason for w in said if isinstance(w.message, NoFlightWarning)), "")
         raise CLIError(
-            f"{args.recording}: no free flight found (|a| below the threshold for at least the minimum duration); "
-            "check with rbjax.plot_throws, or lower --min-duration / raise --threshold"
+            f"{args.recording}: no free flight found ({why}); check with rbjax.plot_throws, or lower "
+            "--min-duration" + (" / raise --threshold" if rec.accelerations is not None else "")
         )
     throws = [dataclasses.replace(rec.window(t0, t1), accelerations=None) for t0, t1 in windows]
     if (args.mjcf is not None or args.urdf is not None) and args.separate and len(throws) > 1:

@@ -304,6 +304,21 @@ def test_find_throws_says_when_a_recording_has_no_flight():
         assert rb.find_throws(held) == []
 
 
+def test_the_cli_says_why_a_gyro_only_export_has_no_flight(tmp_path, capsys):
+    # the CLI's error gives find_throws' reason: a gyro-only export is judged by |ω|, not |a| (before:
+    # "|a| below the threshold ... raise --threshold", options of a sensor the export does not have)
+    rec = _gyro_flights([])
+    export = tmp_path / "held"
+    export.mkdir()
+    rows = [f"{t:.9E},{w[0]:.9E},{w[1]:.9E},{w[2]:.9E}" for t, w in zip(rec.times, rec.gyro, strict=True)]
+    header = '"Time (s)","Gyroscope x (rad/s)","Gyroscope y (rad/s)","Gyroscope z (rad/s)"'
+    (export / "Gyroscope rotation rate.csv").write_text("\n".join([header, *rows]) + "\n")
+    assert main(["fit", str(export)]) == 2
+    err = capsys.readouterr().err
+    assert "no free flight found (|ω| never exceeds rate_threshold = 3.0 rad/s" in err, err
+    assert "--threshold" not in err
+
+
 def test_a_glitch_in_flight_does_not_split_it():
     t = np.arange(200) * 0.01
     a = np.tile([0.0, 0.0, 9.81], (200, 1))

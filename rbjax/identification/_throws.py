@@ -152,13 +152,20 @@ def find_throws(
     return windows
 
 
+class NoFlightWarning(UserWarning):
+    """:func:`find_throws` found no free flight; ``reason`` says why (the CLI reports it as its error)."""
+
+    def __init__(self, message: str, reason: str):
+        super().__init__(message)
+        self.reason = reason
+
+
 def _no_flight(why: str, remedy: str) -> None:
-    warnings.warn(
+    message = (
         f"find_throws: no free flight in this recording: {why}. Check it with rbjax.plot_throws; if it holds "
-        f"a flight, {remedy}, or cut the window by hand with Recording.window(t0, t1)",
-        UserWarning,
-        stacklevel=3,
+        f"a flight, {remedy}, or cut the window by hand with Recording.window(t0, t1)"
     )
+    warnings.warn(NoFlightWarning(message, why), stacklevel=3)
 
 
 def _median3(x: np.ndarray) -> np.ndarray:
