@@ -18,13 +18,12 @@ from . import _checked, _methods, _native
 from ._batching import batch_last, batch_shape, lift, map_leaves, to_batch_first, to_batch_last
 from ._body import prepare
 from ._deprecated import renamed_keywords
+from ._force_fn import step_force_fn
 from ._force_model import (
     ForceModel,
     ForceSum,
-    PerBodyForces,
     check_force_model,
     reads_velocity,
-    split_per_body,
     with_per_body_terms,
 )
 from ._math import broadcasts_to
@@ -271,24 +270,6 @@ def simulate(
     )
 
 
-def _native_path(
-    native: bool | None, state, forces, method: AbstractMethod, *, series: bool, checks, checkpoint
-) -> bool:
-    """Whether this run steps natively (see ``simulate``'s ``native``); ``ValueError`` for ``True`` that cannot."""
-    if native is not None and not isinstance(native, bool):
-        raise TypeError(f"simulate: native must be None, True or False, got {native!r}")
-    if native is False:
-        return False
-    reason = _native.native_plan(
-        state, forces, method, series=series, checked=checks is not None, checkpoint=checkpoint, default=native is None
-    )
-    if native and reason:
-        raise ValueError(f"simulate(native=True): {reason}; pass native=None to fall back to JAX")
-    if reason and method.native_code is not None and type(state).__name__ == "State":
-        _native.say_once_unavailable()
-    return not reason
-
-
 def run_simulation(
     state,
     forces,
@@ -335,13 +316,13 @@ def run_simulation(
         if isinstance(forces, ForceModel):  # traced body indices and coefficients, at run time
             forces = forces._run_time_checked(state, "simulate")
     # a force callable (force_fn) is not a force law the kernel knows: it names one, so pass it on
-    native = _native_path(
+    native = _native.native_path(
         native,
         state,
         force_fn if force_fn is not None else forces,
         method,
         series=series,
-        checks=checks,
+        checked=checks is not None,
         checkpoint=checkpoint,
     )
     if not native and isinstance(forces, ForceModel):
@@ -427,45 +408,7 @@ def _simulate(
     # it checks the callable's output while tracing and casts it to the state's dtype
     user_fn = checked_force_fn(force_fn if force_fn is not None else as_force_fn(forces))
 
-    def soa_forces_of(fn):
-        def soa_forces(state, t):
-            # force callables and models are batch-level code written batch-first
-            with batch_last(False):
-                # the batch's one clock as a scalar time: it broadcasts, and a sharded batch needs
-                # no unsharded (N,) array beside its sharded fields
-                out = fn(replace(to_aos(split_constants(state)[0]), **{**consts, "time": t}), t)
-            return to_soa(out)
-
-        return soa_forces
-
-    def batch_first_forces(state, t):
-        return user_fn(replace(state, time=t), t)
-
-    # per-body laws: each body's law lifted inside the step, in the scan's layout, so XLA fuses
-    # it with the step; the other terms of a sum (springs, ...) through the batch-level path,
-    # which transposes the batch around every call
-    per_body, rest = split_per_body(forces) if soa and isinstance(forces, ForceModel) else ((), None)
-    per_body_forces = PerBodyForces(tuple(to_soa(term) for term in per_body))
-
-    # the steps' force function, chosen once; time-series forces give one per step, from its slice
-    if series:
-
-        def step_forces(f):
-            f = to_soa(f)
-            return lambda state, t: f
-
-    else:
-        if isinstance(forces, Forces):
-            const_forces = to_soa(forces)
-            fn = lambda state, t: const_forces
-        elif per_body and rest is None:
-            fn = per_body_forces
-        elif per_body and rest is not None:
-            rest_forces = soa_forces_of(checked_force_fn(rest))
-            fn = lambda state, t: per_body_forces(state, t) + rest_forces(state, t)
-        else:
-            fn = soa_forces_of(user_fn) if soa else batch_first_forces
-        step_forces = lambda f: fn
+    step_forces = step_force_fn(forces, user_fn, consts, series=series, soa=soa)
 
     # the checked-mode record rides in the carry; None (an empty pytree) when off
     def one(carry, k_and_f):
@@ -489,43 +432,25 @@ def _simulate(
         return dyn, rec
 
     if native:
-        # the steps between two saved frames in one kernel call (a force law the kernel does not know:
-        # XLA evaluates it at each step's start, one call per step); derivatives from these JAX steps
-        def reference(dyn, cs_soa, cs, frc, h, ts):
-            # frc: None, constant Forces, a force model, or a time series' chunk (save_every, *B, 3)
-            frc_fn = user_fn if force_fn is not None else checked_force_fn(as_force_fn(None if series else frc))
-
-            def one_step(d, t_and_f):  # batch-first, as the kernel's state
-                tt, f = t_and_f
-                if series:
-                    fn = lambda s, _: f
-                else:
-                    fn = lambda s, t: frc_fn(replace(split_constants(s)[0], **{**cs, "time": t}), t)
-                return split_constants(step_fn(replace(d, **cs_soa), fn, tt, h))[0], None
-
-            return jax.lax.scan(one_step, dyn, (ts, frc if series else None))[0]
-
-        def advance_native(carry, xs):
-            dyn, rec = carry
-            ks, fs = xs
-            ts = t0 + (k0 + ks).astype(dtype) * dt  # each step's start time, as advance_jax's steps see it
-            new = _native.advance(
-                method.native_code,
-                save_every,
-                reference,
-                series,
-                user_fn if force_fn is not None else None,
-                sharded,
-                dyn,
-                consts_soa,
-                consts,
-                fs if series else forces,
-                dt,
-                ts,
-            )
-            return new, rec
-
-    advance = advance_native if native else advance_jax
+        # the steps between two saved frames in one kernel call; derivatives from the JAX steps
+        assert method.native_code is not None  # native_path takes only a method with a kernel
+        advance = _native.frames_advance(
+            step_fn,
+            method.native_code,
+            save_every,
+            series,
+            force_fn,
+            user_fn,
+            sharded,
+            consts_soa,
+            consts,
+            forces,
+            dt,
+            t0,
+            k0,
+        )
+    else:
+        advance = advance_jax
 
     ks = jnp.arange(steps).reshape(n_out, save_every)
     rec0 = None if checks is None else _checked.init_record(state, checks)

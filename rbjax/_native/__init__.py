@@ -24,13 +24,27 @@ Derivatives come from the JAX step through a ``custom_jvp``, so ``grad`` and
 
 :func:`native_status` says whether the kernels were built and loaded, and why
 not; ``simulate(..., native=...)`` forces either path.
+
+Three parts: loading (:mod:`._load`: the library, its call version and
+instruction set), planning (:mod:`._plan`: whether a run takes the kernels,
+:func:`native_plan` and ``simulate``'s :func:`native_path`, and why not) and
+calling (:mod:`._call`: operands, the FFI call, its JVP, and
+:func:`frames_advance`, the steps between two saved frames of ``simulate``'s scan).
 """
 
 from __future__ import annotations
 
-from ._call import advance
+from ._call import advance, frames_advance
 from ._load import ISA, ISA_CAPS, METHODS, NativeStatus, native_status
-from ._plan import AT_STEP_START, NATIVE_LAWS, native_plan, native_terms, say_once_unavailable, sharded
+from ._plan import (
+    AT_STEP_START,
+    NATIVE_LAWS,
+    native_path,
+    native_plan,
+    native_terms,
+    say_once_unavailable,
+    sharded,
+)
 
 __all__ = [
     "ISA",
@@ -41,8 +55,10 @@ __all__ = [
     "AT_STEP_START",
     "NATIVE_LAWS",
     "native_plan",
+    "native_path",
     "native_terms",
     "sharded",
     "say_once_unavailable",
     "advance",
+    "frames_advance",
 ]

@@ -15,13 +15,13 @@ import numpy as np
 from jax.experimental.xla_metadata import set_xla_metadata
 
 from .._pytree import replace
-from .._state import Forces, State
-from .._validate import checked_force_fn
+from .._state import Forces, State, split_constants
+from .._validate import as_force_fn, checked_force_fn
 from ._laws import LAWS
 from ._load import METHODS, TARGET
 from ._plan import native_terms
 
-__all__ = ["advance"]
+__all__ = ["advance", "frames_advance"]
 
 
 def _parameters(forces: Any, batch: tuple[int, ...], dtype: Any) -> tuple[dict[str, jax.Array], int]:
@@ -201,3 +201,70 @@ def advance(
 @advance.defjvp
 def _advance_jvp(code, steps, reference, series, force_fn, sharded, primals, tangents):
     return jax.jvp(reference, primals, tangents)
+
+
+def frames_advance(
+    step_fn: Callable[..., Any],
+    code: int,
+    save_every: int,
+    series: bool,
+    force_fn: Callable[[Any, Any], Forces] | None,
+    user_fn: Callable[[Any, Any], Forces],
+    sharded: bool,
+    consts_soa: dict[str, Any],
+    consts: dict[str, Any],
+    forces: Any,
+    dt: jax.Array,
+    t0: jax.Array,
+    k0: jax.Array,
+) -> Callable[[Any, Any], Any]:
+    """``advance(carry, xs) -> carry``: the steps between two saved frames of ``simulate``'s scan in one
+    kernel call (see :func:`advance`), for the method numbered ``code`` whose JAX step ``step_fn`` is the
+    reference its derivatives come from.
+
+    ``carry`` is ``(dyn, record)`` (the stripped batch-first state, the checked-mode
+    record, passed on) and ``xs`` is ``(ks (save_every,), fs)``: the steps' numbers
+    from ``k0`` and, with ``series``, their forces ``(save_every, *B, 3)``. Step ``k``
+    starts at ``t0 + (k0 + k) dt`` (s), as the JAX path's steps do. ``force_fn`` is
+    the user's callable (``None`` for forces the kernel may know), ``user_fn`` its
+    checked form or that of ``forces``; ``consts_soa`` the constant fields with the
+    prepared body, ``consts`` the unprepared ones (the force models see those).
+    """
+    dtype = dt.dtype
+
+    # a force law the kernel does not know: XLA evaluates it at each step's start, one call per step
+    def reference(dyn, cs_soa, cs, frc, h, ts):
+        # frc: None, constant Forces, a force model, or a time series' chunk (save_every, *B, 3)
+        frc_fn = user_fn if force_fn is not None else checked_force_fn(as_force_fn(None if series else frc))
+
+        def one_step(d, t_and_f):  # batch-first, as the kernel's state
+            tt, f = t_and_f
+            if series:
+                fn = lambda s, _: f
+            else:
+                fn = lambda s, t: frc_fn(replace(split_constants(s)[0], **{**cs, "time": t}), t)
+            return split_constants(step_fn(replace(d, **cs_soa), fn, tt, h))[0], None
+
+        return jax.lax.scan(one_step, dyn, (ts, frc if series else None))[0]
+
+    def advance_native(carry, xs):
+        dyn, rec = carry
+        ks, fs = xs
+        ts = t0 + (k0 + ks).astype(dtype) * dt  # each step's start time, as the JAX steps see it
+        new = advance(
+            code,
+            save_every,
+            reference,
+            series,
+            user_fn if force_fn is not None else None,
+            sharded,
+            dyn,
+            consts_soa,
+            consts,
+            fs if series else forces,
+            dt,
+            ts,
+        )
+        return new, rec
+
+    return advance_native

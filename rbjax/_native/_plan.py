@@ -18,7 +18,15 @@ from .._state import Forces, State
 from ._laws import NATIVE_TYPES
 from ._load import METHODS, native_status
 
-__all__ = ["NATIVE_LAWS", "AT_STEP_START", "native_terms", "native_plan", "sharded", "say_once_unavailable"]
+__all__ = [
+    "NATIVE_LAWS",
+    "AT_STEP_START",
+    "native_terms",
+    "native_plan",
+    "native_path",
+    "sharded",
+    "say_once_unavailable",
+]
 
 # the force models the kernel computes itself, by name, for messages
 NATIVE_LAWS = tuple(t.__name__ for t in NATIVE_TYPES if t is not Forces)
@@ -109,6 +117,37 @@ def native_plan(
         if len(state.batch_shape) != 1:
             return f"a sharded batch of shape {state.batch_shape} (the kernel splits 1-D batches (N,))"
     return ""
+
+
+def native_path(
+    native: bool | None,
+    state: Any,
+    forces: Any,
+    method: AbstractMethod,
+    *,
+    series: bool,
+    checked: bool,
+    checkpoint: Any,
+) -> bool:
+    """Whether a run of :func:`rbjax.simulate` steps natively, for its argument ``native``.
+
+    ``None``: where :func:`native_plan` (with ``default``) finds no reason not to;
+    ``False``: never; ``True``: always, or ``ValueError`` saying why it cannot and
+    naming ``native``. ``TypeError`` for any other ``native``. A run that could take
+    the kernels but finds them unavailable gives one warning per process.
+    """
+    if native is not None and not isinstance(native, bool):
+        raise TypeError(f"simulate: native must be None, True or False, got {native!r}")
+    if native is False:
+        return False
+    reason = native_plan(
+        state, forces, method, series=series, checked=checked, checkpoint=checkpoint, default=native is None
+    )
+    if native and reason:
+        raise ValueError(f"simulate(native=True): {reason}; pass native=None to fall back to JAX")
+    if reason and method.native_code is not None and type(state).__name__ == "State":
+        say_once_unavailable()
+    return not reason
 
 
 def sharded(state: Any) -> bool:
