@@ -424,9 +424,7 @@ def test_checked_and_chunked_runs(tmp_path):
         assert jax.tree.structure(back) == jax.tree.structure(obj)
         assert all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(back), jax.tree.leaves(obj), strict=True))
     from_disk = rb.load(tmp_path / "run")
-    assert all(
-        np.array_equal(a, b) for a, b in zip(jax.tree.leaves(from_disk), jax.tree.leaves(chunked), strict=True)
-    )
+    assert all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(from_disk), jax.tree.leaves(chunked), strict=True))
     # a loaded gyrostat runs on as the saved one would: the same step, bitwise
     again = rb.simulate(rb.load(tmp_path / "state.npz"), torque_fn, 0.01, 20, "splitting")
     assert np.array_equal(again.rotor_momentum, plain.rotor_momentum)

@@ -26,7 +26,9 @@ def gyro_reading(rho: Array, w: Array) -> Array:
     return quat_rotate_inverse_unchecked(quat_exp(rho), w)
 
 
-def accelerometer_reading(I: Array, w: Array, r: Array, b: Array, h=None, h_rate=None) -> Array:
+def accelerometer_reading(
+    I: Array, w: Array, r: Array, b: Array, h: Array | None = None, h_rate: Array | None = None
+) -> Array:
     """Free-flight reading ``ω̇ × r + ω × (ω × r) + b`` ``(3,)`` (body frame, m/s²).
 
     ``ω̇ = -I⁻¹ (ω × I ω)``: the torque-free Euler equations with the model's
@@ -37,6 +39,6 @@ def accelerometer_reading(I: Array, w: Array, r: Array, b: Array, h=None, h_rate
     # closed-form inverse: a batched LAPACK solve here could deadlock beside another (see _solver.solve_small)
     if h is None:
         wd = -inverse_3x3(I) @ jnp.cross(w, I @ w)
-    else:
-        wd = -inverse_3x3(I) @ (jnp.cross(w, I @ w + h) + h_rate)
+    else:  # without h_rate, the rotors' momentum is constant
+        wd = -inverse_3x3(I) @ (jnp.cross(w, I @ w + h) + (0 if h_rate is None else h_rate))
     return jnp.cross(wd, r) + jnp.cross(w, jnp.cross(w, r)) + b
