@@ -585,10 +585,11 @@ def test_world_frame_gyro_is_detected():
     # (measured: moments [2e-6, 0.5, 0.5], residual ratio 1.9e4)
     res = rb.fit_inertia(T_FAST, q, body_rates=w_world, check_gyro_frame=False)
     # on the edge, and the residuals (0.5 rad, 0.77 rad/s against estimated noise levels of 2e-5 and
-    # 6e-5: ratio 1.9e4) fail the consistency test, which is what says this fit is junk; its σ
-    # (~3e-7, finite) is not to be believed, and converged says so
+    # 6e-5: ratio 1.9e4) fail the consistency test, which is what says this fit is junk; its
+    # linearised σ (~3e-7) is not to be believed: converged says so, and σ is inf, not ~0 (issue 57)
     assert bool(res.on_boundary) and not bool(res.converged) and not bool(res.model_consistent)
-    assert float(res.consistency_pvalue) < 1e-10 and np.all(np.isfinite(np.asarray(res.moment_std)))
+    assert float(res.consistency_pvalue) < 1e-10 and np.all(np.isinf(np.asarray(res.moment_std)))
+    assert res.diagnosis.startswith("on the edge of physical inertias (I1 + I2 = I3), σ undefined: misfit")
 
 
 def test_scalar_last_quaternions_are_named_as_such():

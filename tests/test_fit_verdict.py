@@ -139,6 +139,9 @@ def test_a_fit_on_the_edge_of_physical_inertias_is_not_trusted():
     assert edge.any()  # measured 3 of 8 draws
     assert not np.any(np.asarray(res.converged) & edge)
     assert not np.any(np.asarray(res.well_determined) & edge)
+    # never a near-zero σ on the edge (issue 57, item 6): no two-sided σ there, and the line says why
+    assert np.all(np.isinf(np.asarray(res.moment_std)[edge])) and np.all(np.isfinite(np.asarray(res.moment_std)[~edge]))
+    assert all(d.startswith("on the edge") == e for d, e in zip(res.diagnosis, edge, strict=True))
 
 
 def test_repr_shows_the_moments_verdict_and_diagnosis(fits):

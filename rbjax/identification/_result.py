@@ -35,7 +35,10 @@ class FitResult:
             plus what a significant cause (``cause_significant``) fitted alongside
             would add: its covariance and its shift of the estimate, squared
             (:mod:`rbjax.identification._diagnosis`). The same in
-            ``inertia_covariance`` and ``principal_axes_std``. ``moment_std_white``:
+            ``inertia_covariance`` and ``principal_axes_std``. ``inf`` for a fit
+            ``on_boundary``: pinned by the one-sided constraint ``I1 + I2 ≥ I3``,
+            it has no two-sided σ, and the linearised one along the edge can be
+            near zero (1e-4 on a real window that held the hand). ``moment_std_white``:
             (same units), from the linearised (Gauss–Newton) covariance with
             the segment joins as constraints and each sensor's residual
             variance per degree of freedom ``s²_k`` (the sandwich
@@ -91,7 +94,8 @@ class FitResult:
             about half the time, its noisy estimate being pushed back onto the
             edge. The linearised σ there does not describe the one-sided constraint
             (measured: σ of 1e-10 to 1e-5 on real gyro-only windows that include the
-            hand), so a fit on the edge is not trusted (``converged`` is False).
+            hand), so a fit on the edge is not trusted (``converged`` is False), its
+            ``moment_std`` is ``inf`` and its ``diagnosis`` starts with the edge.
         residual_ratio: RMS of the weighted data residuals per degree of
             freedom, ``sqrt(Σ r² / (n - p))`` (dimensionless, all sensors):
             ≈ 1 when the residuals are as large as the noise levels (given or
@@ -319,7 +323,8 @@ class FitResult:
         The size is the largest ``noise_scale`` (residual RMS per degree of
         freedom over that sensor's noise level), the length its
         ``correlation_length``, the cause the significant one of ``cause_share``
-        that explains most. A tuple of lines for a batch or list of fits.
+        that explains most; a fit ``on_boundary`` says so first. A tuple of lines
+        for a batch or list of fits.
         """
         scale, length, share, significant, structured, estimated, failed = (
             np.asarray(getattr(self, k))
@@ -333,14 +338,14 @@ class FitResult:
                 "failed",
             )
         )
-        if structured.ndim == 0:
-            return "failed" if bool(failed) else diagnosis(scale, length, share, significant, structured, estimated)
-        return tuple(
-            "failed"
-            if bool(failed[i])
-            else diagnosis(scale[i], length[i], share[i], significant[i], structured[i], estimated[i])
-            for i in range(structured.shape[0])
+        edge = np.asarray(self.on_boundary)
+        line = lambda *i: (  # noqa: E731
+            ("on the edge of physical inertias (I1 + I2 = I3), σ undefined: " if bool(edge[i]) else "")
+            + diagnosis(scale[i], length[i], share[i], significant[i], structured[i], estimated[i])
         )
+        if structured.ndim == 0:
+            return "failed" if bool(failed) else line()
+        return tuple("failed" if bool(failed[i]) else line(i) for i in range(structured.shape[0]))
 
     def __repr__(self) -> str:
         m, s = np.asarray(self.principal_moments), np.asarray(self.moment_std)
@@ -691,6 +696,8 @@ def summarise(
     # False for NaN/inf too; and on the edge of the consistent set, where the linearised σ does not
     # describe the one-sided constraint (real windows with the hand in them landed there with σ 1e-10)
     well_determined = jnp.all(std <= _SIGMA_MAX_REL * jnp.sum(moments)) & ~on_boundary
+    # pinned by the one-sided constraint: no two-sided σ (the one along the edge can read ~0)
+    std = jnp.where(on_boundary, jnp.inf, std)
     n_samples = jnp.sum(valid)
     corr_len = (
         jnp.full(3, jnp.nan, y.dtype)
