@@ -53,8 +53,8 @@ def monkeypatch_module():
 
 
 def test_notebooks_found():
-    # the four example notebooks exist (a glob typo would otherwise silently test nothing)
-    assert len(NOTEBOOKS) == 4, NOTEBOOKS
+    # the five example notebooks exist (a glob typo would otherwise silently test nothing)
+    assert len(NOTEBOOKS) == 5, NOTEBOOKS
 
 
 @pytest.mark.slow
