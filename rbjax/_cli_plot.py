@@ -67,7 +67,10 @@ def plot_throw_fits(path: str, throws, res, joint=None):
         if not bool(np.asarray(res.failed)[k]):
             I = np.asarray(res.inertia)[k]
             w0 = np.asarray(res.initial_angular_velocity)[k]
-            w = fitted_rates(I, w0, t, np.asarray(res.drag)[k]) + np.asarray(res.gyro_bias)[k]
+            per_axis = np.asarray(res.drag_per_axis)[k]
+            drag = per_axis if np.any(np.isfinite(per_axis)) else np.asarray(res.drag)[k]
+            scale = 1 + np.asarray(res.gyro_scale)[k]  # the reading (1 + s) ω + b
+            w = scale * fitted_rates(I, w0, t, drag) + np.asarray(res.gyro_bias)[k]
             for j, c in enumerate("xyz"):
                 ax.plot(t, w[:, j], "-", lw=1, color=f"C{j}", label=f"ω{c} fitted")
                 ax_r.plot(t, rec.gyro[:, j] - w[:, j], ".-", ms=2, lw=0.5, color=f"C{j}")
@@ -99,13 +102,25 @@ def fitted_rates(I, w0, t, drag, per_sample: int = 20):
     world frame, :func:`rbjax.simulate` with ``"rk4"`` at ``per_sample`` steps per
     mean sample interval, interpolated linearly onto ``t``. ``I`` and ``drag``
     are given relative to ``tr I`` (a gyro-only fit fixes no scale), so the body is ``I / tr I``.
+    ``drag``: ``(2,)`` ``(c1, c2)`` (``FitResult.drag``) or ``(2, 3)`` per body axis
+    (``FitResult.drag_per_axis``), which the isotropic force models take only when its three
+    columns are equal (``ValueError`` otherwise).
     """
     import numpy as np
 
     import rbjax as rb
 
+    drag = np.nan_to_num(np.asarray(drag, float))  # NaN: no drag was fitted
+    if drag.shape == (2, 3):  # FitResult.drag_per_axis: the same about every axis, or no force model has it
+        if np.any(drag != drag[:, :1]):
+            raise ValueError(
+                "the fitted drag differs between the body axes (fit_inertia(..., drag_axes=True)); "
+                "rb.LinearDrag and rb.QuadraticDrag are isotropic and cannot model it: plot a fit "
+                "without drag_axes, or simulate -(c1_a + c2_a|w|) w_a with your own force"
+            )
+        drag = drag[:, 0]
     state = rb.State.create(rb.Body(1.0, I / np.trace(I)), angular_velocity=w0)  # identity: body = world at t[0]
-    c1, c2 = np.nan_to_num(np.asarray(drag, float))  # NaN: no drag was fitted
+    c1, c2 = drag
     if c1 == 0 and c2 == 0:
         traj = rb.torque_free(state, t - t[0])
         return np.asarray(rb.body_angular_velocity(traj))

@@ -34,7 +34,7 @@ import numpy as np
 
 from ._verdict import rate_sensitivity
 
-__all__ = ["CAUSES", "cause_terms", "diagnosis"]
+__all__ = ["CAUSES", "cause_terms", "comparison", "diagnosis"]
 
 #: The candidate causes, in the order of ``FitResult.cause_share``.
 CAUSES = ("drag", "bias", "rotor", "scale")
@@ -60,7 +60,9 @@ def _pinv_psd(G):
 
 def cause_terms(seg, kept, r_kept, U_good, G, I, gyro_block, rows_shape, s2_gyro):
     """Per cause its share of the residual and whether it is in the model that σ allows for; those causes'
-    the covariance ``(f, f)`` to add to the functionals ``G`` describes (the selected causes').
+    the covariance ``(f, f)`` to add to the functionals ``G`` describes (the selected causes'); per cause
+    its score statistic ``rᵀ P r`` (``(len(CAUSES),)``, in the rows' units: the noise level's) and the
+    residual rows it would leave fitted linearly (``(len(CAUSES), rows)``).
 
     ``G (f, k)`` from :func:`._verdict.covariance`; ``s2_gyro``: the gyro residual variance per
     degree of freedom (units of its noise level squared).
@@ -101,7 +103,10 @@ def cause_terms(seg, kept, r_kept, U_good, G, I, gyro_block, rows_shape, s2_gyro
         return UX, P, b, b @ P @ b
 
     Xs = [rows(sens[c]) for c in CAUSES]
-    explained = jnp.stack([project(X)[3] for X in Xs])
+    projected = [project(X) for X in Xs]
+    explained = jnp.stack([pr[3] for pr in projected])
+    # the residual each cause, fitted linearly, would leave: r + X⊥ β̂ = r - X⊥ P b
+    after = jnp.stack([r_rows - (X - U_good @ UX) @ (P @ b) for X, (UX, P, b, _) in zip(Xs, projected, strict=True)])
     shares = explained / jnp.where(total > 0, total, 1)
     significant = explained > _CHI2_3 * s2_gyro
     # forward selection: the cause that explains most, then the one that adds most beyond it if that
@@ -125,7 +130,7 @@ def cause_terms(seg, kept, r_kept, U_good, G, I, gyro_block, rows_shape, s2_gyro
     H = G @ UX  # (f, c): the functionals' change per unit of the causes' parameters, through the fit
     shift = H @ P @ b  # -H β̂, β̂ = -P b
     extra = s2_gyro * H @ P @ H.T + shift[:, None] * shift[None, :]
-    return shares, used, extra
+    return shares, used, extra, explained, after
 
 
 def diagnosis(noise_scale, correlation_length, cause_share, significant, structured, noise_estimated) -> str:
@@ -153,3 +158,26 @@ def diagnosis(noise_scale, correlation_length, cause_share, significant, structu
         why = "; no candidate (drag, bias, rotor, scale) explains it"
     tail = "; too structured for σ to be trusted" if bool(structured) else ""
     return head + why + tail
+
+
+_PART_NAMES = dict(
+    drag="drag",
+    drag_axes="per-axis drag (over one coefficient for all axes)",
+    gyro_bias="the gyro bias",
+    gyro_scale="the gyro scale factor",
+)
+
+
+def comparison(parts, delta_bic, fitted) -> str:
+    """``"; drag is supported by the data (ΔBIC = 42)"`` for each fitted part (``fitted`` ``(len(parts),)``
+    bools) with a finite ``delta_bic``; ``""`` for none."""
+    out = []
+    for name, d, on in zip(parts, np.asarray(delta_bic, np.float64), np.asarray(fitted, bool), strict=True):
+        if on and np.isfinite(d):
+            verdict = "is supported by the data" if d > 0 else "is not supported by the data"
+            out.append(
+                f"{_PART_NAMES[name]} {verdict} (ΔBIC = {d:.0f})"
+                if abs(d) >= 10
+                else f"{_PART_NAMES[name]} {verdict} (ΔBIC = {d:.1f})"
+            )
+    return "".join("; " + o for o in out)

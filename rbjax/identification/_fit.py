@@ -67,6 +67,8 @@ def fit_inertia(
     loss_scale: float = 3.0,
     joint: bool = False,
     drag: str | None = None,
+    drag_axes: bool = False,
+    gyro_scale: bool = False,
     rotor_rates: Float[ArrayLike, "*N T *k"] | None = None,
     rotor_axis: Float[ArrayLike, "*k 3"] | None = None,
     rotor_inertia: float | Float[ArrayLike, " k"] | None = None,
@@ -229,7 +231,29 @@ def fit_inertia(
             shape is unidentifiable anyway). Without ``drag`` a real throw's loss
             of ``|L|`` (~15% in 1 s) makes the χ² test fail
             (``model_consistent = False``). Needs ``method="rk4"``; not with
-            ``accelerations`` (their model is torque-free).
+            ``accelerations`` (their model is torque-free). ``FitResult.delta_bic``
+            says whether the data support it (and the diagnosis ends with it).
+        drag_axes: with ``drag``, fit its coefficients per body axis instead of one
+            shared by all: ``τ_b,a = -c₁ₐ ω_a`` (``"linear"``, 3 coefficients) or
+            ``τ_b,a = -(c₁ₐ + c₂ₐ |ω|) ω_a`` (``"quadratic"``, 6), ``a = x, y, z`` of the
+            body frame (the gyro's), units and scale as ``drag``'s, each ``≥ 0`` through
+            the same map. A flag beside ``drag`` rather than more names for it: the law
+            (linear, quadratic) and its symmetry (isotropic, per axis) are separate
+            choices. Reported as ``FitResult.drag_per_axis`` ``(2, 3)`` with
+            ``drag_per_axis_std`` (``drag`` is then NaN); ``delta_bic`` compares it with
+            no drag and with one coefficient for all axes. The isotropic force models
+            (:class:`rbjax.LinearDrag`, :class:`rbjax.QuadraticDrag`) cannot represent
+            it: ``fit --plot`` refuses it in words. Works with lists and ``joint=True``.
+        gyro_scale: fit one scale error ``s`` common to the gyro's three axes (1
+            nuisance parameter, dimensionless): the predicted reading is
+            ``(1 + s) R_gᵀ ω + b`` (``R_g``, ``b`` where fitted). Needs ``body_rates``.
+            Identifiable from gyro-only torque-free data because the Euler equations
+            are quadratic in ``ω``: a rate scaled by ``1 + s`` is a motion running
+            ``1 + s`` times faster, which no inertia reproduces at the recorded
+            sample times (measured: σ(s) 0.1-0.6% on a 2 s tumble at 200 Hz, 0.01 rad/s
+            noise; docs/fitting.md). A scale per axis is not identifiable from
+            torque-free motion (it trades against the inertia's shape) and is not
+            offered. Reported as ``FitResult.gyro_scale`` with ``gyro_scale_std``.
         rotor_rates: a gyrostat (a body carrying spinning rotors, e.g. a thrown
             IMU with a flywheel): the rotors' measured rates ``Ω_k`` relative to
             the body (rad/s), at the recording's sample times: ``(T,)`` for one
@@ -340,6 +364,8 @@ def fit_inertia(
         loss=loss,
         loss_scale=loss_scale,
         drag=drag,
+        drag_axes=drag_axes,
+        gyro_scale=gyro_scale,
     )
     if not isinstance(joint, (bool, np.bool_)):
         raise TypeError(f"fit_inertia: joint must be True or False, got {type(joint).__name__}")

@@ -130,7 +130,8 @@ def _stage_torque(x, j, substeps, frame, drag, rotor, qs, Ls, inv, k, c):
 
     Known torques: linear over the interval, turned by ``qs`` if body-frame.
     Drag: ``τ_b = -(c₁ + c₂ |ω|) ω`` with ``ω = I⁻¹ (Rᵀ L - h)`` (body frame; ``h = rotor(c)``, the
-    rotors' momentum, or none), turned into the world.
+    rotors' momentum, or none), turned into the world; with six coefficients ``k`` per body axis,
+    ``τ_b,a = -(c₁ₐ + c₂ₐ |ω|) ω_a``.
     """
     tau = (0.0, 0.0, 0.0)
     if frame is not None:
@@ -143,8 +144,12 @@ def _stage_torque(x, j, substeps, frame, drag, rotor, qs, Ls, inv, k, c):
         # |ω| with the derivative 0 at ω = 0 (sqrt's is inf there, and inf·0 = NaN in the tangents):
         # the damping torque c₂|ω|ω is flat there (a segment that starts at rest)
         speed = jnp.where(s2 > 0, jnp.sqrt(jnp.where(s2 > 0, s2, 1)), 0)
-        damping = k[0] + k[1] * speed
-        tau_d = rotate_components(qs, tuple(-damping * wi for wi in w))
+        if len(k) == 2:  # the same about every axis
+            damping = k[0] + k[1] * speed
+            tau_b = tuple(-damping * wi for wi in w)
+        else:  # per body axis: (c1_x, c1_y, c1_z, c2_x, c2_y, c2_z)
+            tau_b = tuple(-(k[a] + k[3 + a] * speed) * w[a] for a in range(3))
+        tau_d = rotate_components(qs, tau_b)
         tau = tuple(a + b for a, b in zip(tau, tau_d, strict=True))
     return tau
 
@@ -236,7 +241,8 @@ def flow(
 
     ``drag``: add the body-frame damping torque ``τ_b = -(c₁ + c₂ |ω|) ω``
     (N m, ``ω`` in rad/s), ``args["drag"]`` ``(M, 2)`` the coefficients
-    ``(c₁, c₂)`` and ``args["ddrag"]`` ``(M, n, 2)`` their tangents.
+    ``(c₁, c₂)`` and ``args["ddrag"]`` ``(M, n, 2)`` their tangents; or ``(M, 6)``,
+    ``(c1_x, c1_y, c1_z, c2_x, c2_y, c2_z)``, for ``τ_b,a = -(c₁ₐ + c₂ₐ |ω|) ω_a`` per body axis.
 
     ``looped``: the RK4 stages as a loop of one stage (see :func:`_rk4`), for
     programs whose compile costs more than their run.

@@ -24,7 +24,9 @@ class Layout(NamedTuple):
     ``inertia``: θ of the log-Cholesky map, 6, or 5 without torques (the gauge
     ``log L00 = 0``); ``gyro_bias``: ``b`` (3, rad/s); ``gyro_rotation``: ``ρ``
     (3, rad); ``accelerometer``: lever arm ``r`` (3, m) then bias ``b_a`` (3, m/s²);
-    ``drag``: ``c₁`` [, ``c₂``] of the damping torque.
+    ``drag``: the damping torque's coefficients: 1 (``c₁``) or 2 (``c₁, c₂``) shared by the
+    body axes, 3 (``c₁ₐ`` per body axis) or 6 (``c₁ₐ`` then ``c₂ₐ``); ``gyro_scale``: the gyro's
+    common scale error ``s`` (1, dimensionless).
     """
 
     inertia: int
@@ -32,6 +34,12 @@ class Layout(NamedTuple):
     gyro_rotation: int = 0
     accelerometer: int = 0
     drag: int = 0
+    gyro_scale: int = 0
+
+    @property
+    def drag_axes(self) -> bool:
+        """Whether the drag coefficients are per body axis (3 or 6 of them)."""
+        return self.drag >= 3
 
     def span(self, name: str) -> slice:
         """The slice of ``y`` (or of a segment's ``x_s = (θ-block, p_s)``) that holds block ``name``."""

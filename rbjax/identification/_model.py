@@ -175,7 +175,7 @@ def _segments(X, seg, *, layout: Layout, scale_fixed, method, substeps, use_rate
         args = dict(q=r0[0], L=r0[1], inv=inv, dq=dr0[0], dL=dr0[1], dinv=dinv, dt=seg.dt, obs=obs, const=const)
         if frame is not None:
             args["tau"] = seg.tau if frame == "world" else seg.tau_b
-        if layout.drag:  # the coefficients (c₁, c₂) (S, 2) and their tangents (S, n, 2)
+        if layout.drag:  # the coefficients (c₁, c₂) (S, 2) and their tangents (S, n, 2); per axis 6
             coefficients = lambda x: _drag_model(x, scale_fixed, layout)
             k, dk = jax.vmap(lambda x: _pushforward(coefficients, x, basis))(X)
             args.update(drag=k, ddrag=dk)
@@ -216,6 +216,14 @@ def _segments(X, seg, *, layout: Layout, scale_fixed, method, substeps, use_rate
         r_w = g * (wg - w_meas)
         dr_w = g[:, None] * jnp.einsum("skij,snkj->snki", Fw, dw)
         dr_w = dr_w.at[:, at].add(jnp.moveaxis(g[..., None] * Fr, -1, 1))
+    if layout.gyro_scale:  # gyro = (1 + s) R_gᵀ ω (+ b): one factor on the reading before its bias
+        at = layout.span("gyro_scale")
+        g = weight[:, :, None] * seg.ww[:, None, None]  # (S, K+1, 1)
+        reading = r_w + g * w_meas  # g (R_gᵀ) ω: the weighted reading so far, without w_meas
+        s = X[:, at][:, None, :]  # (S, 1, 1)
+        r_w = r_w + s * reading
+        dr_w = (1 + s[:, None]) * dr_w  # s's own column was zero
+        dr_w = dr_w.at[:, at].add(reading[:, None])
     if layout.gyro_bias:  # gyro = ω + b (body frame, constant): b enters the rate rows linearly
         at = layout.span("gyro_bias")
         g = weight[:, :, None] * seg.ww[:, None, None]  # (S, K+1, 1)
@@ -421,7 +429,8 @@ def _nonnegative(p):
 
 def _drag_model(x, scale_fixed, layout: Layout):
     """The damping coefficients ``(c₁, c₂)`` the model integrates, from the parameters ``x`` (``y`` or
-    one segment's ``x_s``: the shared block first).
+    one segment's ``x_s``: the shared block first); per body axis (``layout.drag_axes``) the six
+    ``(c1_x, c1_y, c1_z, c2_x, c2_y, c2_z)`` of ``τ_b,a = -(c₁ₐ + c₂ₐ |ω|) ω_a``.
 
     ``c = tr I · (p + sqrt(p² + b²)) / 2`` of the free parameter ``p`` (:func:`_nonnegative`): never
     negative, so a fitted drag is one :class:`rbjax.QuadraticDrag` and :class:`rbjax.LinearDrag`
@@ -431,12 +440,14 @@ def _drag_model(x, scale_fixed, layout: Layout):
     flattens; the covariance is taken in ``c`` (:func:`drag_coefficients`' Jacobian), where it does not.
     """
     p = x[layout.span("drag")]
-    c = jnp.zeros(2, x.dtype).at[: layout.drag].set(_nonnegative(p))
+    # per body axis (layout.drag 3 or 6): (c1_x, c1_y, c1_z, c2_x, c2_y, c2_z), c₂ₐ = 0 for the linear law
+    c = jnp.zeros(6 if layout.drag_axes else 2, x.dtype).at[: layout.drag].set(_nonnegative(p))
     return jnp.trace(_inertia(x[: 6 if scale_fixed else 5], scale_fixed)) * c
 
 
 def drag_coefficients(y, scale_fixed, layout: Layout):
-    """The fitted drag coefficients (``layout``'s ``drag`` block of ``y``) padded to ``(c₁, c₂)``, in reported units.
+    """The fitted drag coefficients (``layout``'s ``drag`` block of ``y``) padded to ``(c₁, c₂)`` (per body
+    axis: to the six ``(c1_x, c1_y, c1_z, c2_x, c2_y, c2_z)``), in reported units.
 
     Without torques only ``I / tr I`` is identifiable and the damping torque
     scales with the inertia (``I ω̇ + ω × I ω = -(c₁ + c₂|ω|) ω`` is unchanged by

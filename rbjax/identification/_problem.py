@@ -168,6 +168,8 @@ def prepare(
     pad_intervals=None,
     drag=None,
     rotor_momentum=None,
+    drag_axes=False,
+    gyro_scale=False,
 ) -> Problem:
     """Validate recordings and pack them for :func:`rbjax.fit_inertia` (arguments as there).
 
@@ -241,7 +243,15 @@ def prepare(
         raise ValueError(
             f"fit_inertia: drag must be None, 'linear' or 'quadratic' (the body-frame damping model), got {drag!r}"
         )
-    n_drag = _DRAG_COEFFICIENTS[drag]
+    if not isinstance(drag_axes, (bool, np.bool_)):
+        raise TypeError(f"fit_inertia: drag_axes must be True or False, got {type(drag_axes).__name__}")
+    if drag_axes and drag is None:
+        raise ValueError(
+            "fit_inertia: drag_axes=True fits the drag= model's coefficients per body axis; give "
+            "drag='linear' or drag='quadratic' with it"
+        )
+    # per body axis: 3 coefficients c₁ₐ, or 6 (c₁ₐ, then c₂ₐ); the layout's size says which model
+    n_drag = _DRAG_COEFFICIENTS[drag] * (3 if drag_axes else 1)
     if n_drag and method not in ("rk4",):
         raise ValueError(f"fit_inertia: drag= is modelled with method='rk4' only, got method={method!r}")
     if n_drag and use_accel:
@@ -249,6 +259,10 @@ def prepare(
             "fit_inertia: accelerations= are modelled for free flight without torques (ω̇ from the "
             "torque-free Euler equations); omit drag= or accelerations="
         )
+    if not isinstance(gyro_scale, (bool, np.bool_)):
+        raise TypeError(f"fit_inertia: gyro_scale must be True or False, got {type(gyro_scale).__name__}")
+    if gyro_scale and not use_rates:
+        raise ValueError("fit_inertia: gyro_scale=True needs body_rates (there is no gyro to be scaled)")
     if gyro_bias and not use_rates:
         raise ValueError("fit_inertia: gyro_bias=True needs body_rates (there is no gyro to be biased)")
 
@@ -282,6 +296,7 @@ def prepare(
         gyro_rotation=3 * gyro_rotation,
         accelerometer=6 * use_accel,
         drag=n_drag,
+        gyro_scale=int(gyro_scale),
     )
     n_theta, n_params = layout.inertia, layout.size(S)
     n_data = 3 * T * (int(use_q) + int(use_rates) + int(use_accel))

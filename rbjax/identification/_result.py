@@ -10,7 +10,7 @@ from jaxtyping import Bool, Float, Int
 
 from .._math import quat_exp, quat_multiply
 from .._pytree import field, pytree_dataclass, static_field
-from ._diagnosis import CAUSES, cause_terms, diagnosis
+from ._diagnosis import CAUSES, cause_terms, comparison, diagnosis
 from ._layout import Layout
 from ._model import drag_coefficients, normalised_inertia, unpack
 from ._solver import after, solve_small
@@ -193,6 +193,29 @@ class FitResult:
             damping scales with it); absolute (N m s, N m s²) with torques.
         drag_std: ``(2,)`` their one-sigma uncertainty (same units and covariance
             as ``moment_std``); NaN for a coefficient not fitted.
+        drag_per_axis: ``(2, 3)`` with ``fit_inertia(..., drag=..., drag_axes=True)``: the
+            coefficients of the body-frame torque ``τ_b,a = -(c₁ₐ + c₂ₐ |ω|) ω_a`` per body axis
+            ``a``, rows ``(c₁, c₂)`` (row ``c₂`` 0 for ``"linear"``), columns ``x, y, z``; the
+            same units, map onto ``c ≥ 0`` and scale as ``drag`` (which is then NaN: no single
+            coefficient describes it). NaN otherwise.
+        drag_per_axis_std: ``(2, 3)`` their one-sigma uncertainty; NaN for one not fitted.
+        gyro_scale: with ``fit_inertia(..., gyro_scale=True)`` the gyro's common scale error
+            ``s`` (dimensionless): the reading is ``(1 + s) ω + b``; 0 otherwise.
+        gyro_scale_std: its one-sigma uncertainty; NaN when not fitted.
+        delta_bic: ``(4,)`` model comparison, per optional part of the model in the order
+            ``("drag", "drag_axes", "gyro_bias", "gyro_scale")`` (``MODEL_PARTS``): the BIC of the
+            model without the part minus that of the model with it, so ``> 0`` says the data
+            support the part (``> 6``: strongly), ``< 0`` that they do not. For a part that was
+            fitted, from the Wald statistic ``W = vᵀ C_v⁻¹ v`` of its ``k`` parameters ``v`` (``C_v``
+            their covariance, as ``drag_std``'s): ``ΔBIC = W / τ - k ln(n / τ)`` with ``n`` the data
+            rows and ``τ`` the residuals' largest ``correlation_length`` (``n / τ`` the effective
+            sample size: with correlated residuals a plain BIC over-supports extra parameters).
+            ``"drag"`` compares with no drag (all fitted coefficients zero), ``"drag_axes"`` (with
+            ``drag_axes=True``) per-axis coefficients with equal ones. For drag (per axis, linear,
+            ``k = 3``) and a gyro bias when not fitted, from the score (LM) test of adding them
+            (``cause_share``; to first order the likelihood-ratio statistic): what fitting them
+            would gain. NaN for a part neither fitted nor tested (``"drag_axes"`` without
+            ``drag_axes=True``, ``"gyro_scale"`` not fitted, anything without a gyro).
         failed: ``True`` for a recording of a batch or list that could not be
             fitted (its reason in ``member_errors``); its other fields are NaN
             (``False``, 0). Always ``False`` for a single recording, which raises instead.
@@ -292,6 +315,11 @@ class FitResult:
     failed: Bool[Array, "*N"] = field(core_ndim=0)
     drag: Float[Array, "*N 2"] = field(core_ndim=1, default=(float("nan"),) * 2)
     drag_std: Float[Array, "*N 2"] = field(core_ndim=1, default=(float("nan"),) * 2)
+    drag_per_axis: Float[Array, "*N 2 3"] = field(core_ndim=2, default=((float("nan"),) * 3,) * 2)
+    drag_per_axis_std: Float[Array, "*N 2 3"] = field(core_ndim=2, default=((float("nan"),) * 3,) * 2)
+    gyro_scale: Float[Array, "*N"] = field(core_ndim=0, default=0.0)
+    gyro_scale_std: Float[Array, "*N"] = field(core_ndim=0, default=float("nan"))
+    delta_bic: Float[Array, "*N 4"] = field(core_ndim=1, default=(float("nan"),) * 4)
     inertia_covariance: Float[Array, "*N 6 6"] = field(core_ndim=2, default=((float("nan"),) * 6,) * 6)
     principal_axes_std: Float[Array, "*N 3"] = field(core_ndim=1, default=(float("nan"),) * 3)
     moment_std_white: Float[Array, "*N 3"] = field(core_ndim=1, default=(float("nan"),) * 3)
@@ -323,8 +351,10 @@ class FitResult:
         The size is the largest ``noise_scale`` (residual RMS per degree of
         freedom over that sensor's noise level), the length its
         ``correlation_length``, the cause the significant one of ``cause_share``
-        that explains most; a fit ``on_boundary`` says so first. A tuple of lines
-        for a batch or list of fits.
+        that explains most; a fit ``on_boundary`` says so first; each optional part that was
+        fitted (drag, per-axis drag, gyro bias, gyro scale) closes it with its ``delta_bic``:
+        ``"drag is supported by the data (ΔBIC = 42)"`` or ``"... is not supported ... (ΔBIC = -5.2)"``.
+        A tuple of lines for a batch or list of fits.
         """
         scale, length, share, significant, structured, estimated, failed = (
             np.asarray(getattr(self, k))
@@ -339,9 +369,22 @@ class FitResult:
             )
         )
         edge = np.asarray(self.on_boundary)
+        # the parts fitted (MODEL_PARTS' order): their ΔBIC closes the line
+        fitted = np.stack(
+            [
+                np.any(np.isfinite(np.asarray(self.drag)), -1)
+                | np.any(np.isfinite(np.asarray(self.drag_per_axis)), (-2, -1)),
+                np.any(np.isfinite(np.asarray(self.drag_per_axis)), (-2, -1)),
+                np.any(np.isfinite(np.asarray(self.gyro_bias_std)), -1),
+                np.isfinite(np.asarray(self.gyro_scale_std)),
+            ],
+            -1,
+        )
+        delta_bic = np.asarray(self.delta_bic)
         line = lambda *i: (  # noqa: E731
             ("on the edge of physical inertias (I1 + I2 = I3), σ undefined: " if bool(edge[i]) else "")
             + diagnosis(scale[i], length[i], share[i], significant[i], structured[i], estimated[i])
+            + comparison(MODEL_PARTS, delta_bic[i], fitted[i])
         )
         if structured.ndim == 0:
             return "failed" if bool(failed) else line()
@@ -511,6 +554,48 @@ def _axis_rotations(V: Array, moments: Array) -> Array:
     return jnp.stack(rows)
 
 
+#: The optional parts of the model that ``FitResult.delta_bic`` compares, in its order.
+MODEL_PARTS = ("drag", "drag_axes", "gyro_bias", "gyro_scale")
+
+
+def _delta_bic(y, C, layout: Layout, n_c: int, n_F: int, c_drag, corr_len, n_rows):
+    """``(4,)`` ΔBIC of each fitted optional part (:data:`MODEL_PARTS`), NaN for one not fitted.
+
+    ``ΔBIC = W / τ - k ln(n / τ)``: ``W = vᵀ C_v⁻¹ v`` the Wald statistic of the part's ``k``
+    parameters ``v`` against the model without it (``v = 0``; for ``drag_axes`` the per-axis
+    coefficients against equal ones, ``v`` their differences), ``C_v`` their block of the fit's
+    covariance ``C`` (rows as :func:`summarise`'s ``F``: 12 of the inertia, then the parameters after
+    it, then ``n_c`` drag coefficients); ``n`` the data rows and ``τ ≥ 1`` the residuals' longest
+    correlation length (samples): ``n / τ`` is the effective sample size, and ``W / τ`` undoes the
+    white-noise variance's optimism for a slowly varying column.
+    """
+    tau = jnp.maximum(jnp.nanmax(corr_len), 1.0)
+    penalty = jnp.log(n_rows / tau)
+    n_I = layout.inertia
+
+    def score(v, rows, R=None):
+        Cv = C[rows][:, rows]
+        if R is not None:
+            v, Cv = R @ v, R @ Cv @ R.T
+        W = v @ jnp.linalg.pinv(Cv) @ v
+        return W / tau - v.shape[0] * penalty
+
+    out = jnp.full(len(MODEL_PARTS), jnp.nan, y.dtype)
+    if layout.drag:
+        rows = n_F - n_c + np.arange(layout.drag)
+        c = c_drag(y)[: layout.drag]
+        out = out.at[0].set(score(c, rows))
+        if layout.drag_axes:  # against the same coefficient about every axis: c_x - c_y, c_y - c_z per law
+            R3 = np.array([[1.0, -1.0, 0.0], [0.0, 1.0, -1.0]])
+            R = R3 if layout.drag == 3 else np.kron(np.eye(2), R3)
+            out = out.at[1].set(score(c, rows, jnp.asarray(R, y.dtype)))
+    for k, name in ((2, "gyro_bias"), (3, "gyro_scale")):
+        if getattr(layout, name):
+            at = layout.span(name)
+            out = out.at[k].set(score(y[at], 12 + np.arange(at.start, at.stop) - n_I))
+    return out
+
+
 def consistency(stats: dict) -> np.ndarray:
     """The consistency test's p-value ``(*N,)`` (NumPy) from :func:`summarise`'s per-sensor statistics.
 
@@ -587,7 +672,8 @@ def summarise(
     c_of = lambda th: normalised_inertia(jnp.concatenate([th, y[n_I:]]), scale_fixed).reshape(-1)[pick]
     dc_dth = jax.jacfwd(c_of)(y[:n_I])  # (n_I, n_I)
     c_drag = lambda yy: drag_coefficients(yy, scale_fixed, layout)
-    G_drag = jax.jacfwd(c_drag)(y)  # (2, p), in θ
+    G_drag = jax.jacfwd(c_drag)(y)  # (2, p), in θ; (6, p) per body axis
+    n_c = G_drag.shape[0]
     # A (., p) of derivatives in θ -> in c: A's inertia columns times (∂c/∂θ)⁻¹, one solve for J and G_drag
     JG = after(V, jnp.concatenate([J, G_drag]))
     JG_c = solve_small(dc_dth.T, JG[:, :n_I].T).T
@@ -608,7 +694,7 @@ def summarise(
     E = jax.jacfwd(lambda c: inertia_of_c(c).reshape(-1)[jnp.array([0, 4, 8, 1, 2, 5])])(I.reshape(-1)[pick])
     F_I = jnp.concatenate([G_c, E, _axis_rotations(V, moments) @ E])  # (12, n_I)
     # rows: the moments (3), the inertia's entries (6), the axes' rotations (3), then every other
-    # parameter (p - n_I) and the drag coefficients (2)
+    # parameter (p - n_I) and the drag coefficients (n_c: 2, or 6 per body axis)
     F = jnp.concatenate(
         [
             jnp.concatenate([F_I, jnp.zeros((12, p - n_I), y.dtype)], 1),
@@ -625,7 +711,8 @@ def summarise(
     if use_rates:
         gyro = int(use_orientations)
         I0 = normalised_inertia(y, scale_fixed)
-        shares, significant, extra = cause_terms(seg, kept, r_kept, U_good, G12, I0, gyro, rows_shape, s2_k[gyro])
+        terms = cause_terms(seg, kept, r_kept, U_good, G12, I0, gyro, rows_shape, s2_k[gyro])
+        shares, significant, extra, explained, left_by = terms
         C12 = C12 + extra
     else:
         shares = jnp.full(len(CAUSES), jnp.nan, y.dtype)
@@ -634,9 +721,9 @@ def summarise(
     others = jnp.arange(F.shape[0]) >= 12
     C = jnp.where(regular | (others[:, None] & others), C, jnp.nan)
     var = jnp.diagonal(C)
-    var_c, var_drag = jnp.where(jnp.isnan(var[:3]), jnp.inf, var[:3]), var[-2:]
+    var_c, var_drag = jnp.where(jnp.isnan(var[:3]), jnp.inf, var[:3]), var[-n_c:]
     std = jnp.sqrt(var_c)
-    param_std = jnp.concatenate([jnp.full(n_I, jnp.nan, y.dtype), jnp.sqrt(var[12:-2])])
+    param_std = jnp.concatenate([jnp.full(n_I, jnp.nan, y.dtype), jnp.sqrt(var[12:-n_c])])
     inertia_cov = C[3:9, 3:9]
     # about axis i, the pair (j, k) of the other two: where their moments are equal within
     # _EQUAL_MOMENTS_Z σ of their difference, the axes in that plane are not determined (the
@@ -655,8 +742,20 @@ def summarise(
     seg_q_std = jnp.where(seg.delta_free[:, None] > 0, P_std[:, :3], jnp.nan)
     nan2 = jnp.full(2, jnp.nan, y.dtype)
     drag = layout.drag
-    drag_value = c_drag(y) if drag else nan2
-    drag_std = jnp.where(jnp.arange(2) < drag, jnp.sqrt(var_drag), jnp.nan) if drag else nan2
+    nan23 = jnp.full((2, 3), jnp.nan, y.dtype)
+    drag_axes = drag_axes_std = nan23
+    if layout.drag_axes:  # per body axis: rows (c₁, c₂), columns x, y, z; `drag` stays NaN
+        drag_value = drag_std = nan2
+        drag_axes = c_drag(y).reshape(2, 3)
+        drag_axes_std = jnp.where(jnp.arange(6) < drag, jnp.sqrt(var_drag), jnp.nan).reshape(2, 3)
+    else:
+        drag_value = c_drag(y) if drag else nan2
+        drag_std = jnp.where(jnp.arange(2) < drag, jnp.sqrt(var_drag), jnp.nan) if drag else nan2
+    if layout.gyro_scale:
+        at = layout.span("gyro_scale")
+        g_scale, g_scale_std = y[at][0], param_std[at][0]
+    else:
+        g_scale, g_scale_std = jnp.zeros((), y.dtype), jnp.full((), jnp.nan, y.dtype)
     if use_accel:
         at = layout.span("accelerometer")
         (lever, a_bias), (lever_std, a_bias_std) = jnp.split(y[at], 2), jnp.split(param_std[at], 2)
@@ -704,6 +803,17 @@ def summarise(
         .at[jnp.array(present)]
         .set(jnp.stack([correlation_length(r_kept[:, b], kept[:, b]) for b in range(n_blocks)]))
     )
+    delta_bic = _delta_bic(y, C, layout, n_c, F.shape[0], c_drag, corr_len, n_eff)
+    for part, cause, fitted in ((0, "drag", layout.drag), (2, "bias", layout.gyro_bias)):
+        if use_rates and not fitted:
+            # not fitted: the score (LM) test of adding it, the LR statistic to first order, in units of
+            # the noise level (the rows'), and the effective sample size of the residual it would leave:
+            # the misfit's own correlation is what the part explains, not the noise's
+            c = CAUSES.index(cause)
+            left = left_by[c].reshape(rows_shape)
+            tau_c = [correlation_length(left[:, b], kept[:, b]) for b in range(n_blocks)]
+            tau = jnp.maximum(jnp.max(jnp.stack(tau_c)), 1.0)
+            delta_bic = delta_bic.at[part].set(explained[c] / tau - 3 * jnp.log(n_eff / tau))
     noise_std = data["noise_std"]
     noise_scale = jnp.full(3, jnp.nan, y.dtype).at[jnp.array(present)].set(jnp.sqrt(s2_k))
     misfit_structured = structured(corr_len, noise_scale, n_samples)
@@ -748,5 +858,10 @@ def summarise(
         noise_scale=noise_scale,
         drag=drag_value,
         drag_std=drag_std,
+        drag_per_axis=drag_axes,
+        drag_per_axis_std=drag_axes_std,
+        gyro_scale=g_scale,
+        gyro_scale_std=g_scale_std,
+        delta_bic=delta_bic,
         segment_start=dict(q=seg_q, q_std=seg_q_std, w=P[:, 3:], w_std=P_std[:, 3:]),
     )

@@ -392,6 +392,8 @@ def pack(t, arrays, options, **fixed):
         acceleration_std=None if options["acceleration_std"] is None else float(options["acceleration_std"]),
         pad_intervals=fixed.get("pad_intervals"),
         drag=options["drag"],
+        drag_axes=options.get("drag_axes", False),
+        gyro_scale=options.get("gyro_scale", False),
         rotor_momentum=arrays.get("rotor_momentum"),
     )
 
