@@ -601,7 +601,7 @@ function of the schedule.
 """),
     md(
         SIZES_NOTE.format(
-            how="Here: 1,000 satellites, 48 rk4 steps per slew, 200 Adam iterations. A finer schedule "
+            how="Here: 1,000 satellites, 32 rk4 steps per slew, 200 Adam iterations. A finer schedule "
             "(`SEGMENTS`) or more satellites (`n`) costs proportionally more."
         )
     ),
@@ -617,7 +617,7 @@ import rbjax as rb
 
 %matplotlib inline
 # float32 (JAX's default): the target is 1e-3 rad, four orders above float32's round-off over
-# 48 steps, and float32 runs the optimisation about 1.7x faster than float64 on this CPU
+# 32 steps, and float32 runs the optimisation about 1.5x faster than float64 on this CPU
 dtype = np.float32
 """),
     code("""
@@ -667,8 +667,8 @@ satellite `i`: smooth, blind to the quaternion's sign, and a sum of independent 
 satellite's parameters get their own satellite's gradient.
 """),
     code("""
-T, SEGMENTS, PER_SEGMENT = 15.0, 8, 3       # s; 8 free segments per half; rk4 steps per segment
-steps = 2 * SEGMENTS * PER_SEGMENT            # 48
+T, SEGMENTS, PER_SEGMENT = 15.0, 8, 2       # s; 8 free segments per half; rk4 steps per segment
+steps = 2 * SEGMENTS * PER_SEGMENT            # 32
 dt = T / steps                                # s
 tau_max = 0.08                                # N m, each wheel
 
