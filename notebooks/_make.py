@@ -617,7 +617,7 @@ import rbjax as rb
 
 %matplotlib inline
 # float32 (JAX's default): the target is 1e-3 rad, four orders above float32's round-off over
-# 32 steps, and float32 runs the optimisation about 1.5x faster than float64 on this CPU
+# 32 steps, and float32 runs the optimisation faster than float64 (docs/slews.md has both times)
 dtype = np.float32
 """),
     code("""
@@ -757,7 +757,7 @@ fine = slew(u, refine=8)
 theta_fine = np.asarray(rb.quat_angle(fine.orientation[-1], q_goal))
 assert theta_fine.max() < 1e-3, theta_fine.max()
 # 2. rest to rest: h(T) = 0 by construction, so the final body rate is float32 round-off of the
-#    wheel momenta (peak ~0.6 N m s); 1e-5 rad/s is far below the slew's peak rate (~0.2 rad/s)
+#    wheel momenta; 1e-5 rad/s is four orders below the slews' peak rates (and the body did turn)
 w = np.asarray(rb.body_angular_velocity(traj))
 assert np.abs(w_end).max() < 1e-5 and np.abs(w).max() > 0.05, (np.abs(w_end).max(), np.abs(w).max())
 #    and the wheels have stopped with the body: the kinetic energy is back to round-off
