@@ -67,9 +67,10 @@ def plot_throw_fits(path: str, throws, res, joint=None):
         if not bool(np.asarray(res.failed)[k]):
             I = np.asarray(res.inertia)[k]
             w0 = np.asarray(res.initial_angular_velocity)[k]
-            per_axis = np.asarray(res.drag_per_axis)[k]
+            # a result saved before per-axis drag and the gyro scale existed has neither
+            per_axis = np.asarray(getattr(res, "drag_per_axis", np.full((len(throws), 2, 3), np.nan)))[k]
             drag = per_axis if np.any(np.isfinite(per_axis)) else np.asarray(res.drag)[k]
-            scale = 1 + np.asarray(res.gyro_scale)[k]  # the reading (1 + s) ω + b
+            scale = 1 + np.asarray(getattr(res, "gyro_scale", np.zeros(len(throws))))[k]  # reading (1 + s) ω + b
             w = scale * fitted_rates(I, w0, t, drag) + np.asarray(res.gyro_bias)[k]
             for j, c in enumerate("xyz"):
                 ax.plot(t, w[:, j], "-", lw=1, color=f"C{j}", label=f"ω{c} fitted")

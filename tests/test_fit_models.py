@@ -108,7 +108,9 @@ def test_delta_bic_against_refits():
 def test_common_gyro_scale_is_recovered():
     # a 1% scale error on all three axes, gyro only: the Euler equations are quadratic in ω, so a
     # scaled rate is a faster motion, which no inertia reproduces at the sample times. Measured
-    # s = 0.96% ± 0.16% on this tumble; 3σ, and σ below 0.5% so that 1% is resolved
+    # s = 1.45% ± 0.16% on this draw (2.9σ: the same noise draw reads +0.44% on unscaled data; the
+    # calibration over random tumbles is the slow test below); 3σ, and σ below 0.5% so that 1% is
+    # resolved
     res = _fit(scale=0.01, gyro_scale=True)
     s, sd = float(res.gyro_scale), float(res.gyro_scale_std)
     assert abs(s - 0.01) < 3 * sd and sd < 0.005, (s, sd)
@@ -120,13 +122,23 @@ def test_common_gyro_scale_is_recovered():
 
 
 @pytest.mark.slow
-def test_gyro_scale_on_unscaled_data_is_zero_within_sigma_and_not_strongly_supported():
-    # this draw lands at 2.8σ (ΔBIC = +0.7: W ≈ 7.8 against ln n = 7.1); over 24 random tumbles
-    # measured 96% within 2σ, all within 3σ, and ΔBIC -7.1 to -1.5 on the 12 unscaled ones. A ΔBIC
-    # below 6 (not "strong" evidence) holds for draws up to 3.6σ
-    res = _fit(gyro_scale=True)
-    assert abs(float(res.gyro_scale)) < 3 * float(res.gyro_scale_std)
-    assert float(np.asarray(res.delta_bic)[SCALE]) < 6
+def test_gyro_scale_sigma_is_calibrated_over_random_tumbles():
+    # 24 random bodies and spins (fit_verdict's generator), half with a 1% scale error: measured
+    # 23 of 24 within 2σ (a calibrated σ: 95% ± 4.5%, 1 sd), all within 3σ; σ spans 0.12% to 31%
+    # (median ~1%): a common scale is identifiable, but a tumble resolves 1% only where its nutation
+    # is strong. ΔBIC on the 12 unscaled: -7.1 to -1.5 (never supported)
+    rng = np.random.default_rng(11)
+    gyro, truth = [], np.tile([0.0, 0.01], 12)
+    for s in truth:
+        I = random_body(rng)
+        d = rng.normal(size=3)
+        w0 = d / np.linalg.norm(d) * rng.uniform(3, 8)
+        gyro.append((1 + s) * gyrostat(I, w0, T) + rng.normal(0, SW, (T.size, 3)))
+    res = rb.fit_inertia(T, None, body_rates=np.stack(gyro), gyro_scale=True)
+    ok = ~np.asarray(res.failed)
+    z = np.abs(np.asarray(res.gyro_scale) - truth) / np.asarray(res.gyro_scale_std)
+    assert ok.sum() >= 22 and np.mean(z[ok] < 2) >= 0.85 and np.all(z[ok] < 3.5), z
+    assert np.all(np.asarray(res.delta_bic)[ok & (truth == 0), SCALE] < 6)
 
 
 @pytest.mark.slow
@@ -198,3 +210,20 @@ def test_a_per_axis_drag_never_reaches_an_isotropic_force_model():
         fitted_rates(I, w0, t, np.array([[0.02, 0.0, 0.05], [0.0, 0.0, 0.0]]))
     same = fitted_rates(I, w0, t, np.array([[0.02] * 3, [0.0] * 3]))
     np.testing.assert_array_equal(same, fitted_rates(I, w0, t, np.array([0.02, 0.0])))
+
+
+@pytest.mark.slow
+def test_drag_auto_picks_no_drag_on_drag_free_data():
+    res = rb.fit_inertia(T, None, body_rates=_gyro(), drag="auto")
+    assert np.all(np.isnan(np.asarray(res.drag))) and np.all(np.isnan(np.asarray(res.drag_per_axis)))
+
+
+@pytest.mark.slow
+def test_drag_auto_picks_per_axis_linear_drag_on_anisotropic_linear_drag():
+    # candidates: none, linear, quadratic, and per axis linear (3) and quadratic (6): the truth's
+    # law, per axis, has the smallest BIC (the quadratic terms' 3 more parameters gain ~nothing)
+    res = rb.fit_inertia(T, None, body_rates=_gyro(ANISO), drag="auto", drag_axes=True)
+    c = np.asarray(res.drag_per_axis)
+    assert np.all(np.isfinite(c[0])) and np.all(c[1] == 0), c
+    lists = rb.fit_inertia([T, T[:301]], None, body_rates=[_gyro(ANISO), _gyro(ANISO, seed=1)[:301]], drag="auto")
+    assert np.all(np.isfinite(np.asarray(lists.drag)))  # one isotropic law for both recordings

@@ -23,6 +23,7 @@ differentiated data), which also gives the identifiability check
 
 from __future__ import annotations
 
+import inspect
 from typing import Any
 
 import numpy as np
@@ -233,6 +234,10 @@ def fit_inertia(
             (``model_consistent = False``). Needs ``method="rk4"``; not with
             ``accelerations`` (their model is torque-free). ``FitResult.delta_bic``
             says whether the data support it (and the diagnosis ends with it).
+            ``"auto"``: fit without drag and with each law and keep the fit of
+            the smallest BIC (the ``delta_bic`` statistic: ``_auto_drag``), with
+            ``drag_axes=True`` the per-axis forms among them; one model for all the
+            recordings of a batch or list. Three to five fits' time.
         drag_axes: with ``drag``, fit its coefficients per body axis instead of one
             shared by all: ``τ_b,a = -c₁ₐ ω_a`` (``"linear"``, 3 coefficients) or
             ``τ_b,a = -(c₁ₐ + c₂ₐ |ω|) ω_a`` (``"quadratic"``, 6), ``a = x, y, z`` of the
@@ -243,7 +248,8 @@ def fit_inertia(
             ``drag_per_axis_std`` (``drag`` is then NaN); ``delta_bic`` compares it with
             no drag and with one coefficient for all axes. The isotropic force models
             (:class:`rbjax.LinearDrag`, :class:`rbjax.QuadraticDrag`) cannot represent
-            it: ``fit --plot`` refuses it in words. Works with lists and ``joint=True``.
+            it, and the plotting model of ``python -m rbjax fit --plot`` refuses one whose
+            axes differ, in words. Works with lists and ``joint=True``.
         gyro_scale: fit one scale error ``s`` common to the gyro's three axes (1
             nuisance parameter, dimensionless): the predicted reading is
             ``(1 + s) R_gᵀ ω + b`` (``R_g``, ``b`` where fitted). Needs ``body_rates``.
@@ -316,6 +322,9 @@ def fit_inertia(
             or too little excitation (naming the unidentifiable directions), or
             ``body_rates`` that look world-frame (``check_gyro_frame``).
     """
+    if isinstance(drag, str) and drag == "auto":
+        call = dict(locals())
+        return _auto_drag({k: v for k, v in call.items() if k in _ARGUMENTS})
     arrays = {
         "orientations": orientations,
         "body_rates": body_rates,
@@ -386,6 +395,41 @@ def fit_inertia(
         if members is None:  # one recording, or a batch-wide problem: the message stands
             raise
         return _with_units(fit_members(members, options), inertia_units)
+
+
+# fit_inertia's arguments, for drag="auto"'s refits
+_ARGUMENTS = tuple(inspect.signature(fit_inertia).parameters)
+
+
+def _auto_drag(call: dict) -> FitResult:
+    """``fit_inertia(..., drag="auto")``: the fit, among no drag, ``"linear"`` and ``"quadratic"`` (with
+    ``drag_axes=True`` also their per-axis forms), of the smallest BIC.
+
+    ``BIC_m = χ²_m / (s² τ) + k_m ln(n / τ)``: ``χ²_m`` the candidate's whitened sum of squares (every
+    candidate's rows are whitened by the same noise levels, estimated from the data or given),
+    ``k_m`` its drag coefficients, ``s²`` (residual variance per degree of freedom), ``τ`` (largest
+    correlation length, ≥ 1) and ``n`` (data rows) of the largest candidate: the likelihood ratio
+    in that fit's variance over the effective sample size, as ``FitResult.delta_bic``. For a batch
+    or list, one model for all its recordings: the sum of their BICs (those fitted in every candidate).
+    """
+    axes = call.pop("drag_axes")
+    if not isinstance(axes, (bool, np.bool_)):
+        raise TypeError(f"fit_inertia: drag_axes must be True or False, got {type(axes).__name__}")
+    laws = [(None, False), ("linear", False), ("quadratic", False)]
+    laws += [("linear", True), ("quadratic", True)] if axes else []
+    sizes = [0, 1, 2, 3, 6][: len(laws)]
+    fits = [fit_inertia(**{**call, "drag": law, "drag_axes": bool(per_axis)}) for law, per_axis in laws]
+    big = fits[-1]
+    chi2 = np.stack([np.asarray(f.chi2, np.float64) for f in fits])  # (m, *N)
+    s2 = np.asarray(big.chi2, np.float64) / np.asarray(big.dof, np.float64)
+    tau = np.maximum(np.nan_to_num(np.nanmax(np.asarray(big.correlation_length, np.float64), -1), nan=1.0), 1.0)
+    n = np.asarray(big.dof, np.float64) + sizes[-1]
+    bic = chi2 / (s2 * tau) + np.asarray(sizes, np.float64).reshape((-1,) + (1,) * s2.ndim) * np.log(n / tau)
+    bic = bic.reshape(len(fits), -1)
+    usable = np.all(np.isfinite(bic), 0)
+    if not np.any(usable):
+        return big
+    return fits[int(np.argmin(bic[:, usable].sum(1)))]
 
 
 def _with_units(res: FitResult, inertia_units: str) -> FitResult:
