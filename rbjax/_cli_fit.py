@@ -126,7 +126,11 @@ def run_fit(args: argparse.Namespace) -> int:
         rec.pop("quaternions", None)
     for flag, key, what in (
         (args.accelerometer, "accelerations", "--accelerometer"),
-        (args.gyro_bias or args.gyro_rotation or args.gyro_only, "gyro", "--gyro-bias/--gyro-rotation/--gyro-only"),
+        (
+            args.gyro_bias or args.gyro_rotation or args.gyro_only or args.gyro_scale,
+            "gyro",
+            "--gyro-bias/--gyro-rotation/--gyro-only/--gyro-scale",
+        ),
     ):
         if flag and key not in rec:
             raise CLIError(f"{args.recording}: {what} needs the {key} columns in the recording")
@@ -134,7 +138,7 @@ def run_fit(args: argparse.Namespace) -> int:
     if ignored:
         print(f"note: ignoring columns {', '.join(ignored)}", file=sys.stderr)
     kwargs = {kw: getattr(args, dest) for dest, kw in FIT_OPTIONS.items() if getattr(args, dest) is not None}
-    kwargs.update({k: True for k in ("gyro_bias", "gyro_rotation") if getattr(args, k)})
+    kwargs.update({k: True for k in ("gyro_bias", "gyro_rotation", "gyro_scale") if getattr(args, k)})
     if args.accelerometer:
         kwargs["accelerations"] = rec["accelerations"]
     try:
@@ -171,6 +175,8 @@ def run_fit(args: argparse.Namespace) -> int:
     if "drag" in out:
         values = zip(out["drag"], out["drag_std"], strict=True)
         print("drag (c1, c2; relative to tr I without torques): " + ", ".join(f"{v: .4e} ± {s:.1e}" for v, s in values))
+    if "gyro_scale" in out:
+        print(f"gyro scale error s (reading (1 + s) w): {out['gyro_scale']: .4e} ± {out['gyro_scale_std']:.1e}")
     if "gyro_rotation" in out:
         print("gyro to body rotation [w, x, y, z]: " + ", ".join(f"{v: .6f}" for v in out["gyro_rotation"]))
     if out.get("outliers"):
@@ -301,8 +307,7 @@ def _fit_throws(args: argparse.Namespace) -> int:
             "one by one; drop --separate for their joint fit"
         )
     kwargs = {kw: getattr(args, dest) for dest, kw in FIT_OPTIONS.items() if getattr(args, dest) is not None}
-    if args.gyro_bias:
-        kwargs["gyro_bias"] = True
+    kwargs.update({k: True for k in ("gyro_bias", "gyro_scale") if getattr(args, k)})
     try:
         res = fit_inertia(throws, **kwargs)
     except (ValueError, TypeError) as e:
@@ -492,6 +497,8 @@ def _fit_report(res) -> dict:
     """The JSON-ready fields of a FitResult (plain floats, lists and bools)."""
     import numpy as np
 
+    from .identification._result import MODEL_PARTS
+
     # inertia_units: "kg m^2", "rotor inertia J" (a rotor of unknown J) or "trace-normalised"
     out: dict = {
         "scale_fixed": bool(res.scale_fixed),
@@ -531,6 +538,12 @@ def _fit_report(res) -> dict:
             out[k], out[k + "_std"] = np.asarray(getattr(res, k)).tolist(), np.asarray(std).tolist()
     if np.any(np.isfinite(np.asarray(res.drag))):  # NaN unless drag= was given
         out["drag"], out["drag_std"] = np.asarray(res.drag).tolist(), np.asarray(res.drag_std).tolist()
+    if np.isfinite(float(res.gyro_scale_std)):  # NaN unless gyro_scale=True
+        out["gyro_scale"], out["gyro_scale_std"] = float(res.gyro_scale), float(res.gyro_scale_std)
+    # ΔBIC of each optional part fitted (or score-tested): > 0 the data support it
+    out["delta_bic"] = {
+        k: float(v) for k, v in zip(MODEL_PARTS, np.asarray(res.delta_bic).tolist(), strict=True) if np.isfinite(v)
+    }
     if np.all(np.isfinite(np.asarray(res.gyro_rotation_std))):  # NaN unless gyro_rotation=True
         out["gyro_rotation"] = np.asarray(res.gyro_rotation).tolist()
         out["gyro_rotation_std_rad"] = np.asarray(res.gyro_rotation_std).tolist()
@@ -617,9 +630,13 @@ def add_fit_parser(sub, common: argparse.ArgumentParser) -> None:
     sensors.add_argument("--gyro-only", action="store_true", help="ignore the quaternion columns: fit body rates alone")
     sensors.add_argument(
         "--drag",
-        choices=["linear", "quadratic"],
+        choices=["linear", "quadratic", "auto"],
         default=None,
-        help="fit a body-frame air-drag torque -(c1 + c2|w|) w (default: none)",
+        help="fit a body-frame air-drag torque -(c1 + c2|w|) w; auto: none, linear or quadratic, "
+        "whichever has the smallest BIC (default: none)",
+    )
+    sensors.add_argument(
+        "--gyro-scale", action="store_true", help="fit a scale error s common to the gyro's axes: (1 + s) w"
     )
     sensors.add_argument("--gyro-bias", action="store_true", help="fit a constant gyro bias (rad/s)")
     sensors.add_argument(

@@ -227,3 +227,17 @@ def test_drag_auto_picks_per_axis_linear_drag_on_anisotropic_linear_drag():
     assert np.all(np.isfinite(c[0])) and np.all(c[1] == 0), c
     lists = rb.fit_inertia([T, T[:301]], None, body_rates=[_gyro(ANISO), _gyro(ANISO, seed=1)[:301]], drag="auto")
     assert np.all(np.isfinite(np.asarray(lists.drag)))  # one isotropic law for both recordings
+
+
+@pytest.mark.slow
+def test_command_line_drag_auto_and_gyro_scale(tmp_path, capsys):
+    import json
+
+    from rbjax._cli import main
+
+    path, out = tmp_path / "rec.csv", tmp_path / "fit.json"
+    np.savetxt(path, np.column_stack([T, _gyro(ANISO)]), delimiter=",", header="t,gx,gy,gz", comments="")
+    assert main(["fit", str(path), "--out", str(out), "--drag", "auto", "--gyro-scale"]) in (0, 1, 3)
+    res = json.loads(out.read_text())
+    assert res["drag"][0] > 0 and res["delta_bic"]["drag"] > 0, res  # an isotropic law: drag_axes is not a flag
+    assert "gyro_scale" in res and "gyro scale error s" in capsys.readouterr().out

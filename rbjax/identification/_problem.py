@@ -241,8 +241,8 @@ def prepare(
             )
     if drag not in _DRAG_COEFFICIENTS:
         raise ValueError(
-            f"fit_inertia: drag must be None, 'linear', 'quadratic' (the body-frame damping model) or 'auto' (the one "
-            f"the data support best), got {drag!r}"
+            f"fit_inertia: drag must be None, 'linear' or 'quadratic' (the body-frame damping model), or 'auto' (the "
+            f"one the data support best), got {drag!r}"
         )
     if not isinstance(drag_axes, (bool, np.bool_)):
         raise TypeError(f"fit_inertia: drag_axes must be True or False, got {type(drag_axes).__name__}")
