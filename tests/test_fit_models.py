@@ -241,3 +241,34 @@ def test_command_line_drag_auto_and_gyro_scale(tmp_path, capsys):
     res = json.loads(out.read_text())
     assert res["drag"][0] > 0 and res["delta_bic"]["drag"] > 0, res  # an isotropic law: drag_axes is not a flag
     assert "gyro_scale" in res and "gyro scale error s" in capsys.readouterr().out
+
+
+def test_model_jacobian_of_the_new_parts_matches_finite_differences():
+    # the solver's hand-assembled Jacobian (flow tangents, the gyro scale's column and its (1 + s)
+    # on the rate rows, the per-axis drag's six coefficients) against central differences of the
+    # residuals, with orientations, a gyro bias and a gyro rotation beside them, three segments
+    # and padding, off the optimum. h = 1e-6 in float64: truncation ~1e-12, rounding ~1e-10 of
+    # the residuals' scale over h, so 1e-6 of the largest entry
+    from rbjax.identification import _model, _problem
+
+    jax.config.update("jax_enable_x64", True)
+    t = np.cumsum(np.r_[0.0, np.random.default_rng(3).uniform(0.01, 0.03, 61)])  # 62 samples
+    w, q = gyrostat(_body(), W0, t, drag=lambda w: -0.05 * w, with_q=True)
+    prob = _problem.prepare(
+        t, q, 1.01 * w, None, initial_inertia=None, method="rk4", segments=3, substeps=None,
+        orientation_std=1e-3, rate_std=1e-2, continuity_weight=1000.0, excitation_tol=1e-3,
+        gyro_bias=True, gyro_rotation=True, drag="quadratic", drag_axes=True, gyro_scale=True,
+    )  # fmt: skip
+    layout = prob.static["layout"]
+    assert layout.drag == 6 and layout.gyro_scale == 1
+    model = jax.jit(lambda y, d: _model.model_residuals(y, d, **prob.static))
+    data = jax.tree.map(lambda a: a[0], prob.data)
+    assert data["seg"].mask.min() == 0  # padding exercised
+    rng = np.random.default_rng(4)
+    y = prob.y0[0] + rng.normal(0, 0.05, prob.y0.shape[1])
+    y[layout.span("drag")] = rng.uniform(0.005, 0.03, 6)  # coefficients above the map's bend
+    y[layout.span("gyro_scale")] = 0.02
+    r, J = model(y, data)
+    h = 1e-6
+    fd = np.stack([(model(y + h * e, data)[0] - model(y - h * e, data)[0]) / (2 * h) for e in np.eye(y.size)], 1)
+    np.testing.assert_allclose(J, fd, rtol=0, atol=1e-6 * np.abs(fd).max())
