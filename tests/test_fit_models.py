@@ -159,7 +159,7 @@ def test_per_axis_quadratic_drag_never_negative_and_joint():
 
 def _scale_study(I, mode):
     """Relative singular values of the whitened Jacobian of gyro-only readings in (I / tr I (5), ω₀ (3),
-    scale (1 common, or 3 per axis)), central differences through DOP853."""
+    scale (1 common, or 3 per axis)), central differences through DOP853; and the scales' linearised σ."""
     from scipy.integrate import solve_ivp
 
     def readings(p):
@@ -174,8 +174,9 @@ def _scale_study(I, mode):
     p0 = np.concatenate([[I[0, 0], I[1, 1], I[0, 1], I[0, 2], I[1, 2]], W0, np.zeros(1 if mode == "common" else 3)])
     h = 1e-6
     cols = [(readings(p0 + h * e) - readings(p0 - h * e)).ravel() / (2 * h * SW) for e in np.eye(p0.size)]
-    sv = np.linalg.svd(np.stack(cols, 1), compute_uv=False)
-    return sv / sv[0]
+    J = np.stack(cols, 1)
+    sv = np.linalg.svd(J, compute_uv=False)
+    return sv / sv[0], np.sqrt(np.diag(np.linalg.pinv(J.T @ J)))[8:]
 
 
 def test_a_per_axis_gyro_scale_is_not_identifiable_from_torque_free_motion():
@@ -183,8 +184,17 @@ def test_a_per_axis_gyro_scale_is_not_identifiable_from_torque_free_motion():
     # absorbs all but one combination: on a body whose principal axes are the gyro's, two singular
     # values at rounding level (measured 5.6e-12, 2.5e-12), against 2.6e-4 for the common scale
     box = np.diag([1.0, 2.0, 2.6])
-    assert _scale_study(box, "axes")[-2] < 1e-9
-    assert _scale_study(box, "common")[-1] > 1e-5
+    assert _scale_study(box, "axes")[0][-2] < 1e-9
+    assert _scale_study(box, "common")[0][-1] > 1e-5
+
+
+@pytest.mark.slow
+def test_per_axis_gyro_scales_of_an_oblique_body_are_too_uncertain_to_see():
+    # with principal axes oblique to the gyro's the per-axis scales are determined only in principle:
+    # σ 6.5-7.9% each (measured), so a 1% error is unseen; the common scale's σ is 0.56% there
+    oblique = random_body(np.random.default_rng(1))
+    assert np.all(_scale_study(oblique, "axes")[1] > 0.03)
+    assert _scale_study(oblique, "common")[1][0] < 0.01
 
 
 def test_new_options_are_checked_in_words():
