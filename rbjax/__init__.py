@@ -68,6 +68,7 @@ from ._shooting import defects, shoot, simulate_truncated
 # fitting inertia
 from ._recording import RecordingError
 from .identification import FitResult, Recording, find_throws, fit_inertia, fit_inertia_linear, plot_throws
+from ._calibration import DeviceCalibration, ObjectInertia, calibrate_device, object_inertia
 
 # long runs: saving and loading, chunked runs, checked mode, the native kernels
 from ._io import load, read_metadata, save
@@ -188,6 +189,10 @@ __all__ = [
     "fit_inertia",
     "fit_inertia_linear",
     "plot_throws",
+    "DeviceCalibration",
+    "ObjectInertia",
+    "calibrate_device",
+    "object_inertia",
     # long runs
     "load",
     "read_metadata",

@@ -78,3 +78,29 @@ def random_throw(rng, rate_hz=4000.0, duration=DURATION):
     start, peak, end = rng.uniform(150, 190), rng.uniform(1200, 1400), rng.uniform(190, 230)
     rate = lambda t: rotor_rate(t, start=start, peak=peak, end=end, duration=duration)
     return (times, *throw(times, w0, rate=rate))
+
+
+# Calibration (issue 58, item 5): the device's mass and centre of mass, a proof body and an object.
+# Positions are relative to the IMU's accelerometer, in the IMU frame (m); the device's centre of mass
+# is where accelerations()'s default lever arm puts the IMU: lever = -centre of mass.
+DEVICE_MASS = 0.1  # kg
+DEVICE_COM = np.array([-0.01, 0.004, -0.002])
+PROOF_MASS = 0.2  # kg: a brass cylinder 2 cm across, 8 cm long, on a jig below the IMU, its axis along x
+PROOF_INERTIA = np.diag([0.5 * 0.2 * 0.01**2, 0.2 * (3 * 0.01**2 + 0.08**2) / 12, 0.2 * (3 * 0.01**2 + 0.08**2) / 12])
+PROOF_POSITION = np.array([0.0, 0.0, -0.025])
+OBJECT_MASS = 0.6  # kg: a 8 x 5 x 3 cm block, turned against the IMU's axes
+_BLOCK = np.diag([0.05**2 + 0.03**2, 0.08**2 + 0.03**2, 0.08**2 + 0.05**2]) * OBJECT_MASS / 12
+_TURN_BLOCK = Rotation.from_rotvec([0.4, 0.1, -0.3]).as_matrix()
+OBJECT_INERTIA = _TURN_BLOCK @ _BLOCK @ _TURN_BLOCK.T
+OBJECT_POSITION = np.array([0.005, -0.01, -0.03])
+
+
+def combine(I1, m1, c1, I2, m2, c2):
+    """Two rigid bodies as one (Steiner, in NumPy): its inertia about its centre of mass, mass, centre of mass."""
+
+    def steiner(m, d):
+        return m * (d @ d * np.eye(3) - np.outer(d, d))
+
+    M = m1 + m2
+    c = (m1 * np.asarray(c1) + m2 * np.asarray(c2)) / M
+    return np.asarray(I1) + steiner(m1, c1 - c) + np.asarray(I2) + steiner(m2, c2 - c), M, c
