@@ -142,7 +142,7 @@ class DeviceCalibration:
         inertia: ``(3, 3)`` the device's inertia about its own centre of mass, IMU (body) frame
             (kg m², the flywheel included as a rigid mass: what :func:`rbjax.fit_inertia` fits).
         inertia_covariance: ``(6, 6)`` covariance of its entries ``(I_xx, I_yy, I_zz, I_xy, I_xz,
-            I_yz)`` ((kg m²)², as :attr:`rbjax.FitResult.inertia_covariance`).
+            I_yz)`` ((kg m²)², as :class:`rbjax.FitResult`'s ``inertia_covariance``).
         inertia_std: ``(3, 3)`` one-sigma uncertainty of each entry of ``inertia`` (kg m²).
         principal_moments: ``(3,)`` ascending eigenvalues of ``inertia`` (kg m²).
         moment_std: ``(3,)`` their one-sigma uncertainty (kg m², first order).
