@@ -123,6 +123,10 @@ def test_noisy_throws_cover_the_truth_within_3_sigma(seed):
     assert 1e-5 < float(dev.rotor_inertia_std) / g.J_FLYWHEEL < 2e-4
     assert np.all(np.asarray(res.moment_std) / np.asarray(res.principal_moments) < 3e-3)
     assert float(dev.consistency_pvalue) > 1e-3
+    # a jig 1 cm off along x: the proof no longer adds what its numbers say, and the test says so
+    (alone, proof, _) = fits
+    off = rb.calibrate_device(alone, proof, **KNOWN, proof_position=g.PROOF_POSITION + [0.01, 0.0, 0.0])
+    assert float(off.consistency_pvalue) < 1e-3, float(off.consistency_chi2)
 
 
 def test_object_fitted_in_kg_m2_with_the_calibrated_j_agrees():
