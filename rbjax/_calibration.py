@@ -26,6 +26,7 @@ from jax import Array
 from jaxtyping import ArrayLike, Float
 
 from ._body import parallel_axis
+from ._math import is_concrete
 from ._pytree import field, pytree_dataclass
 from .identification._result import FitResult
 from .identification._tails import chi2_sf
@@ -132,6 +133,13 @@ def _array(fn: str, name: str, x: Any, shape: tuple[int, ...], what: str) -> np.
     return a
 
 
+def _pm(value: Any, std: Any, digits: int = 4) -> str:
+    """``"[a ± sa, b ± sb, ...]"`` (or ``"a ± sa"``) of concrete arrays."""
+    v, e = np.atleast_1d(np.asarray(value)), np.atleast_1d(np.asarray(std))
+    parts = [f"{a:.{digits}g} ± {b:.2g}" for a, b in zip(v.ravel(), e.ravel(), strict=True)]
+    return parts[0] if np.ndim(value) == 0 else "[" + ", ".join(parts) + "]"
+
+
 @pytree_dataclass
 class DeviceCalibration:
     """The calibrated device (:func:`calibrate_device`): its flywheel's ``J``, inertia and centre of mass.
@@ -179,6 +187,16 @@ class DeviceCalibration:
     consistency_chi2: Float[Array, ""] = field()
     consistency_pvalue: Float[Array, ""] = field()
 
+    def __repr__(self) -> str:
+        if np.ndim(self.inertia) != 2 or not is_concrete(self.inertia):
+            return f"DeviceCalibration(inertia={getattr(self.inertia, 'shape', '?')}, ...)"
+        return (
+            f"DeviceCalibration(rotor_inertia={_pm(self.rotor_inertia, self.rotor_inertia_std)} kg m^2, "
+            f"principal_moments={_pm(self.principal_moments, self.moment_std)} kg m^2, "
+            f"centre_of_mass={_pm(self.centre_of_mass, self.centre_of_mass_std, 3)} m, "
+            f"consistency_pvalue={float(self.consistency_pvalue):.2g})"
+        )
+
 
 @pytree_dataclass
 class ObjectInertia:
@@ -209,6 +227,14 @@ class ObjectInertia:
     centre_of_mass_std: Float[Array, " 3"] = field(core_ndim=1)
     mass: Float[Array, ""] = field()
 
+    def __repr__(self) -> str:
+        if np.ndim(self.inertia) != 2 or not is_concrete(self.inertia):
+            return f"ObjectInertia(inertia={getattr(self.inertia, 'shape', '?')}, ...)"
+        return (
+            f"ObjectInertia(principal_moments={_pm(self.principal_moments, self.moment_std)} kg m^2, "
+            f"centre_of_mass={_pm(self.centre_of_mass, self.centre_of_mass_std, 3)} m, mass={float(self.mass):.4g} kg)"
+        )
+
 
 def calibrate_device(
     alone: FitResult,
@@ -225,7 +251,9 @@ def calibrate_device(
     ``alone`` and ``with_proof`` are :func:`rbjax.fit_inertia` results of throws of the device
     alone and with a proof body of known mass and inertia fixed to it, both fitted with the
     flywheel's rates and axis but without ``rotor_inertia`` (``inertia_units == "rotor inertia
-    J"``): ``A = I_d / J`` and ``B = I_c / J``. Everything is in the IMU (body) frame, positions
+    J"``): ``A = I_d / J`` and ``B = I_c / J``. Several throws of each, fitted together
+    (``fit_inertia(..., joint=True)``: one inertia, one lever arm), make each fit and so ``J`` tighter.
+    Everything is in the IMU (body) frame, positions
     relative to the IMU's accelerometer (m). With the device's centre of mass ``c_d`` (mass
     ``m_d``), the proof's ``p`` (mass ``m_p``, inertia ``I_p`` about its own centre of mass) and
     the combination's ``c = (m_d c_d + m_p p) / (m_d + m_p)``, Steiner's theorem

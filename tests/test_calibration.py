@@ -71,6 +71,8 @@ def test_noise_free_throws_give_j_the_device_and_the_object(clean):
     np.testing.assert_allclose(res.principal_moments, np.linalg.eigvalsh(g.OBJECT_INERTIA), rtol=3e-6)
     np.testing.assert_allclose(res.centre_of_mass, g.OBJECT_POSITION, atol=1e-8)
     assert float(res.mass) == g.OBJECT_MASS
+    assert repr(dev).startswith("DeviceCalibration(rotor_inertia=1.7e-06 ± ") and "consistency_pvalue=" in repr(dev)
+    assert repr(res).startswith("ObjectInertia(principal_moments=[0.00017 ± ") and "mass=0.6 kg" in repr(res)
 
 
 def test_without_lever_arms_the_positions_are_given(clean):
