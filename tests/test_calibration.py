@@ -194,9 +194,11 @@ def test_bad_inputs_are_refused_in_words(clean):
 
 @pytest.mark.slow
 def test_sigma_is_calibrated_over_20_seeds():
-    # measured (2026-12-07): see the report; the assertion leaves room for 20 seeds' scatter
+    # measured 2026-12-07 (seeds 100-119, 13 numbers each: J, the device's moments and centre of mass,
+    # the object's moments and centre of mass): 96.2% within 2σ overall, 90-100% per number, all within
+    # 3σ (max |z| 2.8); the assertion leaves room for 20 seeds' scatter (a binomial 95% of 260 is 91.7-97.5%)
     zs = np.array([_z(_throws(seed))[2] for seed in range(100, 120)])
     share = np.mean(np.abs(zs) < 2, axis=0)
-    print("share within 2σ per quantity:", np.round(share, 2), "all:", float(np.mean(np.abs(zs) < 2)))
+    print("share within 2σ:", np.round(share, 2), "all:", float(np.mean(np.abs(zs) < 2)), "max |z|:", np.abs(zs).max())
     assert float(np.mean(np.abs(zs) < 2)) > 0.88
     assert np.all(share >= 0.75), share
