@@ -214,7 +214,8 @@ class FitResult:
             ``drag_axes=True``) per-axis coefficients with equal ones. For drag (per axis, linear,
             ``k = 3``) and a gyro bias when not fitted, from the score (LM) test of adding them
             (``cause_share``; to first order the likelihood-ratio statistic): what fitting them
-            would gain. NaN for a part neither fitted nor tested (``"drag_axes"`` without
+            would gain, in the residual variance of the model with it (``s²``, as the Wald
+            statistic's). NaN for a part neither fitted nor tested (``"drag_axes"`` without
             ``drag_axes=True``, ``"gyro_scale"`` not fitted, anything without a gyro).
         failed: ``True`` for a recording of a batch or list that could not be
             fitted (its reason in ``member_errors``); its other fields are NaN
@@ -806,14 +807,19 @@ def summarise(
     delta_bic = _delta_bic(y, C, layout, n_c, F.shape[0], c_drag, corr_len, n_eff)
     for part, cause, fitted in ((0, "drag", layout.drag), (2, "bias", layout.gyro_bias)):
         if use_rates and not fitted:
-            # not fitted: the score (LM) test of adding it, the LR statistic to first order, in units of
-            # the noise level (the rows'), and the effective sample size of the residual it would leave:
-            # the misfit's own correlation is what the part explains, not the noise's
+            # not fitted: the score (LM) test of adding it, the LR statistic to first order, in the
+            # residual variance of the gyro rows with it fitted (the full model's, as the Wald statistic
+            # of a fitted part; in noise units a misfit far above the noise made any cause "supported"),
+            # and the effective sample size of the residual it would leave: the misfit's own
+            # correlation is what the part explains, not the noise's
             c = CAUSES.index(cause)
+            g = int(use_orientations)
+            s2_alt = (chi2_k[g] - explained[c]) / (dof_k[g] - 3)
+            s2_alt = jnp.maximum(s2_alt, jnp.finfo(y.dtype).tiny)
             left = left_by[c].reshape(rows_shape)
             tau_c = [correlation_length(left[:, b], kept[:, b]) for b in range(n_blocks)]
             tau = jnp.maximum(jnp.max(jnp.stack(tau_c)), 1.0)
-            delta_bic = delta_bic.at[part].set(explained[c] / tau - 3 * jnp.log(n_eff / tau))
+            delta_bic = delta_bic.at[part].set(explained[c] / (s2_alt * tau) - 3 * jnp.log(n_eff / tau))
     noise_std = data["noise_std"]
     noise_scale = jnp.full(3, jnp.nan, y.dtype).at[jnp.array(present)].set(jnp.sqrt(s2_k))
     misfit_structured = structured(corr_len, noise_scale, n_samples)
