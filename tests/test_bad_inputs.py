@@ -277,6 +277,14 @@ SLOTS: list[Slot] = [
         ("wrong_type", "non_finite", "non_positive"),
     ),
     Slot("plot_throws", "recording", lambda v: rb.plot_throws(v, []), ("wrong_type",)),
+    # ---- calibration (its numeric arguments need fits: tests/test_calibration.py refuses them)
+    Slot(
+        "calibrate_device",
+        "alone",
+        lambda v: rb.calibrate_device(v, v, device_mass=0.1, proof_mass=0.2, proof_inertia=np.eye(3)),
+        ("wrong_type",),
+    ),
+    Slot("object_inertia", "device", lambda v: rb.object_inertia(None, v, object_mass=1.0), ("wrong_type",)),
 ]
 
 # Names not called above, with the reason.
@@ -328,6 +336,8 @@ EXCUSED: dict[str, str] = {
     "CustomForce": "wraps a user's callable: its output is checked as a force callable's (slot simulate(forces()))",
     "ExternalForce": "wraps user callables of t; checked like a force callable when simulated",
     "FitResult": "a result container returned by fit_inertia, not built by users",
+    "DeviceCalibration": "a result container returned by calibrate_device, not built by users",
+    "ObjectInertia": "a result container returned by object_inertia, not built by users",
     "fit_inertia": "validated by tests/test_fit.py (its own argument checks); too slow to compile per example",
     "fit_inertia_linear": "validated by tests/test_fit.py",
     "Scene": "validated by tests/test_scene.py (kind/method checks); each example would compile a kernel",
