@@ -220,10 +220,13 @@ def _segments(X, seg, *, layout: Layout, scale_fixed, method, substeps, use_rate
         at = layout.span("gyro_scale")
         g = weight[:, :, None] * seg.ww[:, None, None]  # (S, K+1, 1)
         reading = r_w + g * w_meas  # g (R_gᵀ) ω: the weighted reading so far, without w_meas
-        s = X[:, at][:, None, :]  # (S, 1, 1)
-        r_w = r_w + s * reading
-        dr_w = (1 + s[:, None]) * dr_w  # s's own column was zero
-        dr_w = dr_w.at[:, at].add(reading[:, None])
+        # the parameter is u = log(1 + s): the factor stays positive whatever step the solver tries
+        # (a factor ≤ 0, a gyro reading against the rotation, is never physical)
+        u = X[:, at][:, None, :]  # (S, 1, 1)
+        factor = jnp.exp(u)
+        r_w = r_w + jnp.expm1(u) * reading
+        dr_w = factor[:, None] * dr_w  # u's own column was zero
+        dr_w = dr_w.at[:, at].add((factor * reading)[:, None])
     if layout.gyro_bias:  # gyro = ω + b (body frame, constant): b enters the rate rows linearly
         at = layout.span("gyro_bias")
         g = weight[:, :, None] * seg.ww[:, None, None]  # (S, K+1, 1)

@@ -200,8 +200,10 @@ class FitResult:
             coefficient describes it). NaN otherwise.
         drag_per_axis_std: ``(2, 3)`` their one-sigma uncertainty; NaN for one not fitted.
         gyro_scale: with ``fit_inertia(..., gyro_scale=True)`` the gyro's common scale error
-            ``s`` (dimensionless): the reading is ``(1 + s) ω + b``; 0 otherwise.
-        gyro_scale_std: its one-sigma uncertainty; NaN when not fitted.
+            ``s`` (dimensionless): the reading is ``(1 + s) ω + b``; 0 otherwise. Fitted
+            as ``log(1 + s)``, so ``s > -1`` always.
+        gyro_scale_std: its one-sigma uncertainty (first order, ``(1 + s) σ(log(1 + s))``);
+            NaN when not fitted.
         delta_bic: ``(4,)`` model comparison, per optional part of the model in the order
             ``("drag", "drag_axes", "gyro_bias", "gyro_scale")`` (``MODEL_PARTS``): the BIC of the
             model without the part minus that of the model with it, so ``> 0`` says the data
@@ -754,7 +756,8 @@ def summarise(
         drag_std = jnp.where(jnp.arange(2) < drag, jnp.sqrt(var_drag), jnp.nan) if drag else nan2
     if layout.gyro_scale:
         at = layout.span("gyro_scale")
-        g_scale, g_scale_std = y[at][0], param_std[at][0]
+        u = y[at][0]  # log(1 + s) (_model.py): s > -1 by construction, σ(s) = (1 + s) σ(u) to first order
+        g_scale, g_scale_std = jnp.expm1(u), jnp.exp(u) * param_std[at][0]
     else:
         g_scale, g_scale_std = jnp.zeros((), y.dtype), jnp.full((), jnp.nan, y.dtype)
     if use_accel:
