@@ -16,6 +16,7 @@ The exit status tells a script whether what it asked for converged (:func:`exit_
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
 import warnings
@@ -92,9 +93,31 @@ def _check_outputs(args: argparse.Namespace) -> None:
             raise CLIError(f"--{flag} {value}: not writable; choose a path you may write")
 
 
-def run_fit(args: argparse.Namespace) -> int:
-    import json
+def json_text(obj: object) -> str:
+    """``obj`` as standard JSON for ``--out``: arrays as lists, every non-finite number as ``null``.
 
+    A fit's report holds ``inf`` (σ on the edge of physical inertias) and NaN (a part not
+    fitted, a σ undefined); Python's ``json`` would write them as ``Infinity``/``NaN``, which
+    are not JSON, and strict readers (JavaScript's ``JSON.parse``, Go, jq) refuse the file.
+    """
+
+    def clean(v: object) -> object:
+        if isinstance(v, dict):
+            return {k: clean(x) for k, x in v.items()}  # pyright: ignore[reportUnknownVariableType]
+        if isinstance(v, (list, tuple)):
+            return [clean(x) for x in v]  # pyright: ignore[reportUnknownVariableType]
+        if hasattr(v, "__array__") and not isinstance(v, (bool, int, float)):
+            import numpy as np
+
+            return clean(np.asarray(v).tolist())
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        return v
+
+    return json.dumps(clean(obj), indent=1, allow_nan=False)
+
+
+def run_fit(args: argparse.Namespace) -> int:
     _check_outputs(args)
     import jax
 
@@ -190,7 +213,7 @@ def run_fit(args: argparse.Namespace) -> int:
     )
     print(f"diagnosis: {out['diagnosis']}")
     if args.out:
-        Path(args.out).write_text(json.dumps(out, indent=1))
+        Path(args.out).write_text(json_text(out))
         print(f"saved: {args.out}")
     _write_inertial(args, res)
     return exit_status([out["converged"]])
@@ -256,7 +279,6 @@ def _is_phyphox(path: Path) -> bool:
 def _fit_throws(args: argparse.Namespace) -> int:
     """``fit`` of a phyphox export: find the throws, fit the gyro of each (one ragged call), report."""
     import dataclasses
-    import json
 
     import numpy as np
 
@@ -360,7 +382,7 @@ def _fit_throws(args: argparse.Namespace) -> int:
         plot_throw_fits(args.plot, throws, res, joint)
         print(f"plot: {args.plot}")
     if args.out:
-        Path(args.out).write_text(json.dumps(report, indent=1, default=lambda v: np.asarray(v).tolist()))
+        Path(args.out).write_text(json_text(report))
         print(f"saved: {args.out}")
     if args.mjcf is not None or args.urdf is not None:
         if joint is not None:

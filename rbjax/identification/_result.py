@@ -818,7 +818,10 @@ def summarise(
             c = CAUSES.index(cause)
             g = int(use_orientations)
             s2_alt = (chi2_k[g] - explained[c]) / (dof_k[g] - 3)
-            s2_alt = jnp.maximum(s2_alt, jnp.finfo(y.dtype).tiny)
+            # never below the noise (1: the rows are in units of the estimated noise level): a
+            # residual at the noise floor holds nothing a part could explain, and below it (data
+            # without noise) the ratio of two round-off sums read ΔBIC = 4e301
+            s2_alt = jnp.maximum(s2_alt, 1.0)
             left = left_by[c].reshape(rows_shape)
             tau_c = [correlation_length(left[:, b], kept[:, b]) for b in range(n_blocks)]
             tau = jnp.maximum(jnp.max(jnp.stack(tau_c)), 1.0)
