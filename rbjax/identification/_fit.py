@@ -344,6 +344,21 @@ def fit_inertia(
             )
         times, data = to_fit_arguments(times)
         arrays = {k: data[k] for k in arrays}
+        if data["rotor_rates"] is not None:
+            if rotor_rates is not None:
+                raise TypeError(
+                    "fit_inertia: the Recording carries rotor_rates; do not also pass rotor_rates= "
+                    "(dataclasses.replace(rec, rotor_rates=...) changes them)"
+                )
+            if rotor_axis is None:
+                # a ValueError, not the TypeError of a missing keyword: the data ask for it
+                raise ValueError(
+                    "fit_inertia: the Recording carries rotor_rates, so rotor_axis is needed: the rotor's spin "
+                    "axis in the body (gyro) frame, e.g. rotor_axis=[0, 0, -1] (and rotor_inertia=J in kg m² for "
+                    "an inertia in kg m²); a fit that ignores the rotor's momentum is wrong, but "
+                    "dataclasses.replace(rec, rotor_rates=None) drops it"
+                )
+            rotor_rates = data["rotor_rates"]
     _refuse_empty(times)
     main = arrays["orientations"] if arrays["orientations"] is not None else arrays["body_rates"]
     h = rotor_arrays(times, main, rotor_rates, rotor_axis, rotor_inertia)

@@ -1,11 +1,13 @@
 """Recording: one recorded motion (times and sensor arrays), checked once, and its readers.
 
-Two file formats are read: rbjax's own CSV/NPZ table (:mod:`rbjax._recording`,
+Three file formats are read: rbjax's own CSV/NPZ table (:mod:`rbjax._recording`,
 the format of ``python -m rbjax fit``) and the CSV export of the phyphox app
 (a directory or ``.zip`` of CSV files, or one CSV). phyphox writes each
 sensor with its own time column (gyroscope and accelerometer are sampled on
 different clocks); :meth:`Recording.from_phyphox` keeps the gyro's times and
-interpolates the accelerometer onto them.
+interpolates the accelerometer onto them. The third is the CSV that Betaflight's
+``blackbox_decode`` writes from a flight controller's log (:meth:`Recording.from_blackbox`,
+:mod:`rbjax._blackbox`).
 """
 
 from __future__ import annotations
@@ -31,6 +33,26 @@ _TIME = re.compile(r"^time\s*\((?P<unit>[^)]*)\)$")
 _AXIS = re.compile(r"^(?P<what>gyroscope|acceleration)\s+(?P<axis>[xyz])\s*\((?P<unit>[^)]*)\)$")
 _UNITS = {"gyroscope": ("rad/s",), "acceleration": ("m/s^2", "m/s²", "m/s2")}
 _GROUP = {"gyroscope": "gyro", "acceleration": "accelerations"}
+
+
+def _rotor_rates(value: object, t: np.ndarray) -> np.ndarray:
+    """``Recording.rotor_rates`` checked: ``(T,)`` or ``(T, k)``, real, finite, as float64."""
+    a = _real_array("rotor_rates", value)
+    T = t.shape[0]
+    if not (a.shape == (T,) or (a.ndim == 2 and a.shape[0] == T and a.shape[1] >= 1)):
+        raise ValueError(
+            f"Recording: rotor_rates must have shape (T,) = ({T},) for one rotor or (T, k) = ({T}, k) for k rotors "
+            f"(rad/s relative to the body, at the sample times), got {a.shape}: resample the rotor's rate onto "
+            "the times (np.interp)"
+        )
+    finite = np.isfinite(a) if a.ndim == 1 else np.all(np.isfinite(a), axis=1)
+    if not np.all(finite):
+        i = int(np.flatnonzero(~finite)[0])
+        raise ValueError(
+            f"Recording: rotor_rates has a non-finite value at sample {i} (t = {t[i]:g} s): "
+            "interpolate over the gap (np.interp on the valid samples) or cut the recording"
+        )
+    return a
 
 
 def _real_array(name: str, value: object) -> np.ndarray:
@@ -60,6 +82,10 @@ class Recording:
             body frame, magnitude 9.81, when held still), or ``None``.
         torques: ``(T, 3)`` known torques about the centre of mass, world frame (N m), or ``None``.
         body_torques: ``(T, 3)`` known torques, body frame (N m), or ``None``.
+        rotor_rates: ``(T,)`` (one rotor) or ``(T, k)`` (``k`` rotors) the rates ``Ω`` of
+            rotors the body carries (a flywheel), relative to the body (rad/s), or ``None``.
+            :func:`rbjax.fit_inertia` needs their ``rotor_axis=`` (and ``rotor_inertia=``
+            for kg m²) with such a recording.
         source: where the data came from (a path), for messages; ``""`` if made in memory.
 
     Every array is converted to float64 and checked at construction
@@ -75,6 +101,7 @@ class Recording:
     torques: np.ndarray | None = None
     body_torques: np.ndarray | None = None
     source: str = ""
+    rotor_rates: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         t = _real_array("times", self.times)
@@ -115,6 +142,8 @@ class Recording:
                     "drop or interpolate that sample"
                 )
             object.__setattr__(self, name, a)
+        if self.rotor_rates is not None:
+            object.__setattr__(self, "rotor_rates", _rotor_rates(self.rotor_rates, t))
 
     def __len__(self) -> int:
         return int(self.times.shape[0])
@@ -135,7 +164,7 @@ class Recording:
                 f"Recording.window: [{t0:g}, {t1:g}] s holds {np.count_nonzero(keep)} sample(s) of a recording "
                 f"spanning [{self.times[0]:g}, {self.times[-1]:g}] s; choose a window with at least 2 samples"
             )
-        parts = {k: None if getattr(self, k) is None else getattr(self, k)[keep] for k in _WIDTHS}
+        parts = {k: None if getattr(self, k) is None else getattr(self, k)[keep] for k in (*_WIDTHS, "rotor_rates")}
         return Recording(self.times[keep], **parts, source=self.source)
 
     @classmethod
@@ -160,6 +189,94 @@ class Recording:
                 body_torques=rec.get("body_torques"),
                 source=str(path),
             )
+        except ValueError as e:
+            raise RecordingError(f"{path}: {e}") from None
+
+    @classmethod
+    def from_blackbox(
+        cls,
+        path,
+        *,
+        gyro_scale: float | None = None,
+        acc_1g: float | None = None,
+        motor_poles: int = 14,
+        axes=None,
+        rotor: int | str | None = 0,
+        rotor_sign: float = 1.0,
+    ) -> Recording:
+        """Read the CSV that ``blackbox_decode`` writes from a Betaflight or INDIflight flight log.
+
+        A thrown inertia-measurement device (a flight controller with one motor driving a
+        flywheel) logs its gyro, accelerometer and the motor's speed; this gives them in SI
+        units, with the flywheel's rate as ``rotor_rates`` for :func:`rbjax.fit_inertia`
+        (``rotor_axis=``, ``rotor_inertia=``) or ``python -m rbjax fit LOG.csv --rotor-axis ...``.
+
+        Columns, found by name in the header (case-insensitive; quoted or not; ``", "``
+        between them, as ``blackbox_decode`` writes), with what Betaflight logs in them
+        (its ``src/main/blackbox/blackbox.c``; betaflight/blackbox-tools' decoder):
+
+        - ``time (us)`` (or ``time``): the flight controller's clock in µs (``time (ms)``,
+          ``time (s)`` also read). ``times`` start at 0 at the first line.
+        - ``gyroADC[0..2]`` (needed): raw, in whole deg/s (Betaflight logs the filtered gyro,
+          rounded, with ``gyro_scale`` 1.0 in the log's header); ``gyro_scale`` deg/s per
+          count, default 1.0 (0.1 with ``blackbox_high_resolution = ON``). Columns decoded
+          with ``--unit-rotation`` say their unit (``gyroADC[0] (deg/s)``, ``(rad/s)``)
+          and are read in it (then leave ``gyro_scale`` out).
+        - ``accSmooth[0..2]`` (optional): raw counts, ``acc_1g`` counts per g, default
+          2048 (the ±16 g range of MPU6000, ICM426xx, BMI270; the log's header line
+          ``H acc_1G:`` says yours); g = 9.80665 m/s², as the decoder takes it. The
+          specific force (``+1 g`` up when held still), as :attr:`accelerations` wants.
+          ``(g)`` and ``(m/s/s)`` columns are read in their unit.
+        - ``eRPM[k]`` (optional; ``erpm[k]`` too): motor ``k``'s DShot telemetry in units
+          of 100 electrical rpm, so the motor's rate relative to the body (its stator) is
+          ``Ω = eRPM[k] · 100 / (motor_poles / 2) · 2π/60`` rad/s, in steps of
+          ``100 / (motor_poles / 2)`` rpm (1.50 rad/s for 14 poles).
+
+        Args:
+            path: the ``.csv`` file (one log: ``blackbox_decode`` writes ``LOG.01.csv``,
+                ``LOG.02.csv``, ... for the logs of one flight-controller file).
+            gyro_scale: deg/s per count of raw ``gyroADC`` columns (default 1.0, Betaflight).
+            acc_1g: accelerometer counts per g of raw ``accSmooth`` columns (default 2048).
+            motor_poles: the motor's magnet poles (Betaflight's ``motor_poles``, default 14).
+            axes: ``(3, 3)`` rotation from the board's (logged) axes to the body frame the
+                fit uses, ``body = axes @ board``, applied to the gyro and the accelerometer;
+                default the identity. A signed permutation, e.g. ``[[0, 1, 0], [1, 0, 0],
+                [0, 0, -1]]``; det must be +1. Give ``rotor_axis`` in the body frame.
+            rotor: which motor drives the flywheel: ``k`` reads ``eRPM[k]`` (default 0); a
+                column name reads that column, in rad/s unless it is an ``eRPM[k]`` column
+                (INDIflight's ``omega[k]``, in rad/s); ``None`` reads no rotor. With no eRPM
+                column in the file the default reads none (``rotor_rates`` is ``None``).
+            rotor_sign: DShot telemetry is a speed, not a direction (``eRPM`` is logged
+                unsigned), so ``rotor_rates = rotor_sign · Ω ≥ 0`` for ``+1``, the default:
+                give :func:`rbjax.fit_inertia` the ``rotor_axis`` about which the rotor turns
+                right-handedly (along its angular velocity). ``-1`` flips the rates instead.
+
+        Returns:
+            A :class:`Recording` with ``times`` (s), ``gyro`` (rad/s), ``accelerations``
+            (m/s², or ``None``), ``rotor_rates`` ``(T,)`` (rad/s, or ``None``), ``source``.
+
+        Raises:
+            RecordingError: (a ``ValueError``) naming the file, the line and the remedy: no
+                such file; no ``time`` or ``gyroADC`` columns; a partial axis group; the
+                asked-for rotor column absent; a cell that is not a number; a cut-off line;
+                time that repeats or goes back (two logs in one file, or the 32-bit µs clock
+                wrapped after 71.6 min: decode each log to its own file, or cut it); another unit.
+            ValueError: a ``gyro_scale``/``acc_1g`` given for columns with a unit, or bad
+                arguments (``axes`` not a rotation, odd ``motor_poles``, ``rotor_sign`` not ±1).
+        """
+        from .._blackbox import read_blackbox
+
+        data = read_blackbox(
+            Path(path),
+            gyro_scale=gyro_scale,
+            acc_1g=acc_1g,
+            motor_poles=motor_poles,
+            axes=axes,
+            rotor=rotor,
+            rotor_sign=rotor_sign,
+        )
+        try:
+            return cls(**data, source=str(path))
         except ValueError as e:
             raise RecordingError(f"{path}: {e}") from None
 
@@ -377,4 +494,5 @@ _FIT_KEYWORDS = {
     "torques": "torques",
     "body_torques": "body_torques",
     "accelerations": "accelerations",
+    "rotor_rates": "rotor_rates",
 }
