@@ -125,8 +125,31 @@ def run_fit(args: argparse.Namespace) -> int:
     if getattr(args, "compile_cache", False):
         use_compile_cache()
     from . import fit_inertia
+    from ._blackbox import is_blackbox_csv
     from ._recording import RecordingError, read_recording, time_unit_hint
 
+    # before phyphox's test: a log decoded with --unit-frame-time s has a "time (s)" column too
+    if is_blackbox_csv(Path(args.recording)):
+        return _fit_blackbox(args)
+    blackbox_only = [
+        flag
+        for flag, dest in (
+            ("--rotor-axis", "rotor_axis"),
+            ("--rotor-inertia", "rotor_inertia"),
+            ("--rotor-motor", "rotor_motor"),
+            ("--motor-poles", "motor_poles"),
+            ("--gyro-scale-log", "gyro_scale_log"),
+            ("--acc-1g", "acc_1g"),
+            ("--board-axes", "board_axes"),
+            ("--no-rotor", "no_rotor"),
+        )
+        if getattr(args, dest, None) not in (None, False)
+    ]
+    if blackbox_only:
+        raise CLIError(
+            f"{', '.join(blackbox_only)} appl(ies) to blackbox logs (blackbox_decode's CSV, with 'time (us)' and "
+            f"'gyroADC[0]' columns), not to {args.recording}"
+        )
     if _is_phyphox(Path(args.recording)):
         return _fit_throws(args)
     for flag in ("threshold", "margin", "min_duration", "plot"):
@@ -276,15 +299,8 @@ def _is_phyphox(path: Path) -> bool:
         return "time (s)" in f.readline().lower()
 
 
-def _fit_throws(args: argparse.Namespace) -> int:
-    """``fit`` of a phyphox export: find the throws, fit the gyro of each (one ragged call), report."""
-    import dataclasses
-
-    import numpy as np
-
-    from . import Recording, RecordingError, find_throws, fit_inertia
-    from .identification._throws import NoFlightWarning
-
+def _refuse_unsupported(args: argparse.Namespace, what: str) -> None:
+    """``CLIError`` for the recording-file options that a file of throws (fitted from the gyro) has no use for."""
     unsupported = [
         flag
         for flag, on in (
@@ -298,9 +314,16 @@ def _fit_throws(args: argparse.Namespace) -> int:
     ]
     if unsupported:
         raise CLIError(
-            f"{args.recording}: {', '.join(unsupported)} do(es) not apply to a phyphox export "
+            f"{args.recording}: {', '.join(unsupported)} do(es) not apply to {what} "
             "(times in s; each throw is fitted from the gyroscope alone)"
         )
+
+
+def _fit_throws(args: argparse.Namespace) -> int:
+    """``fit`` of a phyphox export: find the throws, fit the gyro of each (one ragged call), report."""
+    from . import Recording, RecordingError
+
+    _refuse_unsupported(args, "a phyphox export")
     try:
         rec = Recording.from_phyphox(args.recording)
     except RecordingError as e:
@@ -308,6 +331,21 @@ def _fit_throws(args: argparse.Namespace) -> int:
     if rec.gyro is None:
         raise CLIError(f"{args.recording}: no gyroscope columns; record 'Gyroscope rotation rate' with phyphox")
     _check_scale(args, False, args.recording)
+    return _fit_windows(args, rec, {})
+
+
+def _fit_windows(args: argparse.Namespace, rec, rotor: dict) -> int:
+    """Find the throws of ``rec``, fit the gyro (and rotor) of each (one ragged call) and the joint fit, report.
+
+    ``rotor``: fit_inertia's ``rotor_axis``/``rotor_inertia`` for a recording with ``rotor_rates``, else ``{}``.
+    """
+    import dataclasses
+
+    import numpy as np
+
+    from . import find_throws, fit_inertia
+    from .identification._throws import NoFlightWarning
+
     found = {k: getattr(args, k) for k in ("threshold", "margin", "min_duration") if getattr(args, k) is not None}
     try:
         # find_throws says why it found no flight in a warning; the CLI says it as its error
@@ -330,6 +368,7 @@ def _fit_throws(args: argparse.Namespace) -> int:
         )
     kwargs = {kw: getattr(args, dest) for dest, kw in FIT_OPTIONS.items() if getattr(args, dest) is not None}
     kwargs.update({k: True for k in ("gyro_bias", "gyro_scale") if getattr(args, k)})
+    kwargs.update(rotor)
     try:
         res = fit_inertia(throws, **kwargs)
     except (ValueError, TypeError) as e:
@@ -341,7 +380,11 @@ def _fit_throws(args: argparse.Namespace) -> int:
         except (ValueError, TypeError) as e:
             raise CLIError(str(e)) from e
     report = _throws_report(res, windows, [len(r) for r in throws], joint)
-    print(f"{args.recording}: {len(windows)} throw(s); principal moments as I_k / tr I (ascending), gyro-only fits")
+    absolute = _absolute_moments(report, res, joint) if rotor else None
+    print(
+        f"{args.recording}: {len(windows)} throw(s); principal moments as I_k / tr I (ascending), "
+        + ("gyro and rotor fits" if rotor else "gyro-only fits")
+    )
     for k, row in enumerate(report["throws"]):
         head = f"throw {k + 1}: t = {row['t0']:.3f}-{row['t1']:.3f} s ({row['samples']} samples): "
         if row["failed"]:
@@ -349,6 +392,11 @@ def _fit_throws(args: argparse.Namespace) -> int:
             continue
         moments, ratios = _pm_list(row["moments"], row["moment_std"]), _pm_list(row["ratios"], row["ratio_std"])
         print(head + f"I/trI = {moments}; I1/I3, I2/I3 = {ratios}")
+        if absolute is not None:
+            print(
+                f"    principal moments ({absolute}): "
+                + _pm_list(row["principal_moments"], row["principal_moment_std"])
+            )
         print(
             f"    converged (trust) {row['converged']} (white-noise chi2 p-value {row['pvalue']:.3g}, "
             f"gyro rms {row['rate_rms']:.3g} rad/s, {row['iterations']} iterations)"
@@ -363,6 +411,11 @@ def _fit_throws(args: argparse.Namespace) -> int:
     if comb is not None and comb.get("joint"):
         m, rat = _pm_list(comb["moments"], comb["moment_std"]), _pm_list(comb["ratios"], comb["ratio_std"])
         print(f"combined: one inertia fitted to {comb['throws']} throw(s) jointly: I/trI = {m}; I1/I3, I2/I3 = {rat}")
+        if absolute is not None:
+            print(
+                f"    principal moments ({absolute}): "
+                + _pm_list(comb["principal_moments"], comb["principal_moment_std"])
+            )
         print(
             f"    joint fit converged (trust): {comb['converged']} (white-noise chi2 p-value "
             f"{comb['pvalue']:.3g}, gyro rms "
@@ -393,6 +446,78 @@ def _fit_throws(args: argparse.Namespace) -> int:
             _write_inertial(args, jax.tree.map(lambda a: a[0], res))
     converged = np.asarray(res.converged) & ~np.asarray(res.failed)
     return exit_status(converged.tolist(), None if joint is None else bool(joint.converged))
+
+
+def _absolute_moments(report: dict, res, joint) -> str:
+    """Add each throw's (and the joint fit's) principal moments and inertia in the fit's own units to ``report``
+    (a rotor fixes the scale: kg m² with ``--rotor-inertia``, else units of J); return those units in words."""
+    import numpy as np
+
+    units = str(res.inertia_units[0] if np.ndim(res.inertia_units) else res.inertia_units)
+    report["inertia_units"] = units
+    for k, row in enumerate(report["throws"]):
+        row.update(
+            principal_moments=np.asarray(res.principal_moments)[k].tolist(),
+            principal_moment_std=np.asarray(res.moment_std)[k].tolist(),
+            inertia=np.asarray(res.inertia)[k].tolist(),
+        )
+    if joint is not None and report["combined"] is not None:
+        report["combined"].update(
+            principal_moments=np.asarray(joint.principal_moments).tolist(),
+            principal_moment_std=np.asarray(joint.moment_std).tolist(),
+            inertia=np.asarray(joint.inertia).tolist(),
+        )
+    return {"kg m^2": "kg m²", "rotor inertia J": "units of the rotor's inertia J"}.get(units, units)
+
+
+def _fit_blackbox(args: argparse.Namespace) -> int:
+    """``fit`` of a blackbox log (``blackbox_decode``'s CSV): find the throws, fit each with the flywheel, report."""
+    from . import Recording, RecordingError
+
+    _refuse_unsupported(args, "a blackbox log")
+    motor = 0 if args.rotor_motor is None else args.rotor_motor
+    if args.no_rotor and (args.rotor_axis is not None or args.rotor_inertia is not None):
+        raise CLIError("--no-rotor fits without the rotor; leave --rotor-axis/--rotor-inertia out")
+    if args.rotor_inertia is not None and args.rotor_axis is None:
+        raise CLIError("--rotor-inertia needs --rotor-axis AX,AY,AZ (the flywheel's spin axis, body frame)")
+    try:
+        rec = Recording.from_blackbox(
+            args.recording,
+            gyro_scale=args.gyro_scale_log,
+            acc_1g=args.acc_1g,
+            motor_poles=14 if args.motor_poles is None else args.motor_poles,
+            axes=args.board_axes,
+            rotor=None if args.no_rotor else motor,
+        )
+    except (RecordingError, ValueError, TypeError) as e:
+        raise CLIError(str(e)) from e
+    rotor: dict = {}
+    if rec.rotor_rates is not None:
+        if args.rotor_axis is None:
+            raise CLIError(
+                f"{args.recording}: the log has the flywheel's rate (eRPM[{motor}]); its momentum changes "
+                "the motion, so the fit needs --rotor-axis AX,AY,AZ (its spin axis in the body frame, along its "
+                "angular velocity) and --rotor-inertia J (kg m², for an inertia in kg m²); --no-rotor fits "
+                "without it (not trusted while the flywheel spins)"
+            )
+        if args.plot:
+            # plot_throw_fits simulates the fitted body without a flywheel: its curves would not be the fit's
+            raise CLIError("--plot does not draw fits with a rotor yet; leave it out (the JSON of --out holds the fit)")
+        rotor = {"rotor_axis": args.rotor_axis}
+        if args.rotor_inertia is not None:
+            rotor["rotor_inertia"] = args.rotor_inertia
+    elif args.rotor_axis is not None:
+        raise CLIError(
+            f"{args.recording}: --rotor-axis given, but the log has no eRPM[{motor}] column; log the "
+            "motor's RPM (bidirectional DShot, blackbox field 'RPM'), pick the motor with --rotor-motor K, or "
+            "leave --rotor-axis out"
+        )
+    if args.mjcf is not None or args.urdf is not None:
+        if rotor and "rotor_inertia" not in rotor:
+            raise CLIError(f"{args.recording}: --mjcf/--urdf need the inertia in kg m²: pass --rotor-inertia J (kg m²)")
+        if not rotor:
+            _check_scale(args, False, args.recording)
+    return _fit_windows(args, rec, rotor)
 
 
 def _normalised(res):
@@ -597,6 +722,21 @@ def _throws_default(name: str) -> float:
     return inspect.signature(find_throws).parameters[name].default
 
 
+def _floats(n: int):
+    """An argparse type: ``n`` comma-separated numbers, as a list (3 x 3 row by row for 9)."""
+
+    def parse(text: str):
+        try:
+            values = [float(v) for v in text.split(",")]
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {n} comma-separated numbers, got {text!r}") from None
+        if len(values) != n or not all(math.isfinite(v) for v in values):
+            raise argparse.ArgumentTypeError(f"expected {n} finite comma-separated numbers, got {text!r}")
+        return values if n != 9 else [values[0:3], values[3:6], values[6:9]]
+
+    return parse
+
+
 def add_fit_parser(sub, common: argparse.ArgumentParser) -> None:
     """Add the ``fit`` subcommand to ``sub`` (the subparsers of ``python -m rbjax``)."""
     fit = sub.add_parser(
@@ -609,9 +749,9 @@ def add_fit_parser(sub, common: argparse.ArgumentParser) -> None:
     )
     fit.add_argument(
         "recording",
-        help="a .csv or .npz recording (see above), or a phyphox export (a directory or .zip of CSVs, "
-        "or one CSV with 'Time (s)' columns): its throws are found and each is fitted from the gyroscope "
-        "(exit status: see the end)",
+        help="a .csv or .npz recording (see above), a phyphox export (a directory or .zip of CSVs, "
+        "or one CSV with 'Time (s)' columns) or a blackbox log (blackbox_decode's CSV): its throws are found "
+        "and each is fitted from the gyroscope (exit status: see the end)",
     )
     fit.add_argument("--out", default=None, help="write the result as JSON to this path")
     export = fit.add_argument_group("the fitted inertia for a simulator (MuJoCo, URDF)")
@@ -697,6 +837,53 @@ def add_fit_parser(sub, common: argparse.ArgumentParser) -> None:
         help="combine the throws as the median of separate fits (default: one joint fit of all throws)",
     )
     throws.add_argument("--plot", default=None, metavar="PNG", help="write measured against fitted rates per throw")
+    bb = fit.add_argument_group(
+        "blackbox logs: a thrown device's flight controller with a flywheel (blackbox_decode's CSV, header "
+        "'time (us)', 'gyroADC[0]', ..., 'accSmooth[0]', ..., 'eRPM[0]'; see rbjax.Recording.from_blackbox); "
+        "its throws are found and each is fitted from the gyro with the flywheel's momentum"
+    )
+    bb.add_argument(
+        "--rotor-axis",
+        type=_floats(3),
+        default=None,
+        metavar="AX,AY,AZ",
+        help="the flywheel's spin axis, body frame, unit vector along its angular velocity (needed with eRPM)",
+    )
+    bb.add_argument(
+        "--rotor-inertia",
+        type=float,
+        default=None,
+        metavar="J",
+        help="the flywheel's axial inertia (kg m²): the inertia comes out in kg m² (without: in units of J)",
+    )
+    bb.add_argument(
+        "--rotor-motor", type=int, default=None, metavar="K", help="the flywheel's motor, eRPM[K] (default 0)"
+    )
+    bb.add_argument("--motor-poles", type=int, default=None, metavar="N", help="the motor's magnet poles (default 14)")
+    bb.add_argument(
+        "--gyro-scale-log",
+        type=float,
+        default=None,
+        metavar="DEG_S",
+        help="deg/s per count of raw gyroADC columns (default 1; 0.1 with blackbox_high_resolution)",
+    )
+    bb.add_argument(
+        "--acc-1g",
+        type=float,
+        default=None,
+        metavar="COUNTS",
+        help="accSmooth counts per g (the log's acc_1G; default 2048)",
+    )
+    bb.add_argument(
+        "--board-axes",
+        type=_floats(9),
+        default=None,
+        metavar="R11,...,R33",
+        help="rotation from the board's axes to the body frame, row by row: body = R board (default identity)",
+    )
+    bb.add_argument(
+        "--no-rotor", action="store_true", help="fit a log with eRPM without the flywheel (not trusted while it spins)"
+    )
     robust = fit.add_argument_group("robust fitting")
     robust.add_argument("--loss", choices=["squared", "huber", "cauchy"], default=None, help="default squared")
     robust.add_argument("--loss-scale", type=float, default=None, metavar="SIGMAS", help="where the robust loss bends")
