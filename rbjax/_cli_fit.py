@@ -1,8 +1,14 @@
-"""``python -m rbjax fit``: an inertia fitted to a recording file, or to the throws of a phyphox export.
+"""``python -m rbjax fit``: an inertia fitted to a recording file, or to the throws of a phyphox export or blackbox log.
+
+A blackbox log is the CSV that ``blackbox_decode`` writes from a Betaflight/INDIflight
+flight controller's log (:meth:`rbjax.Recording.from_blackbox`): a thrown device with a
+flywheel. Its throws are found (from ``accSmooth``) and fitted like a phyphox export's, with
+the flywheel's momentum (``--rotor-axis``, and ``--rotor-inertia`` for kg m²); a log with
+the flywheel's eRPM and no ``--rotor-axis`` is refused (``--no-rotor`` fits without it).
 
 The exit status tells a script whether what it asked for converged (:func:`exit_status`):
 
-- 0: all of it: the recording's fit; of a phyphox export, every throw's own fit and,
+- 0: all of it: the recording's fit; of a phyphox export or blackbox log, every throw's own fit and,
   with two or more throws and no ``--separate``, the joint fit.
 - 1: nothing usable: the recording's (or the only throw's) fit did not converge; the
   joint fit did not (whatever the throws' own fits did: the joint one is the answer
@@ -29,8 +35,8 @@ __all__ = ["EXIT_STATUS_HELP", "FIT_OPTIONS", "add_fit_parser", "exit_status", "
 
 EXIT_STATUS_HELP = """\
 exit status:
-  0  everything asked for converged: the recording's fit; of a phyphox export, every
-     throw's own fit and (two or more throws, without --separate) the joint fit
+  0  everything asked for converged: the recording's fit; of a phyphox export (or a
+     blackbox log), every throw's own fit and (two or more throws, without --separate) the joint fit
   1  nothing usable converged: the recording's or the only throw's fit; the joint fit
      (whatever the throws' own fits did); with --separate, no throw's fit
   2  an error: bad arguments, an unreadable recording, an output path that cannot be written
