@@ -269,6 +269,13 @@ SLOTS: list[Slot] = [
         ("wrong_type", "non_finite", "complex", "wrong_shape"),
         (4, 3),
     ),
+    Slot(
+        "Recording",
+        "rotor_rates",
+        lambda v: rb.Recording(times=np.arange(4) / 100, gyro=np.zeros((4, 3)), rotor_rates=v),
+        ("wrong_type", "non_finite", "complex", "wrong_shape"),
+        (4,),
+    ),
     Slot("find_throws", "recording", lambda v: rb.find_throws(v), ("wrong_type",)),
     Slot(
         "find_throws",
