@@ -12,7 +12,7 @@ def verdict(res, k: int | None = None) -> str:
 
     The reasons are ``FitResult.converged``'s parts: the solver's tolerances not met, a moment's σ
     beyond 0.1 tr I (``well_determined``), the fit on the edge of physical inertias
-    (``on_boundary``), a misfit too slow for σ (``misfit_structured``); then
+    (``on_boundary``); then
     ``FitResult.diagnosis`` (the misfit against the noise, its correlation length, its likely cause).
     """
     import numpy as np
@@ -34,8 +34,6 @@ def verdict(res, k: int | None = None) -> str:
         why.append("moments not determined (σ > 0.1 tr I)")
     if bool(get("on_boundary")):
         why.append("on the edge of physical inertias (I1 + I2 = I3)")
-    if bool(get("misfit_structured")):
-        why.append("misfit too slow for σ")
     return "NOT trusted: " + ("; ".join(why) or "see the diagnostics") + f" ({p}); {diagnosis}"
 
 

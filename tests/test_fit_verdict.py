@@ -13,6 +13,7 @@ import os
 import sys
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -21,7 +22,12 @@ import rbjax as rb
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks"))
 from fit_verdict import CASES, make  # noqa: E402
 
-from rbjax.identification._verdict import andrews_window, bartlett_meat, correlation_length  # noqa: E402
+from rbjax.identification._verdict import (  # noqa: E402
+    andrews_window,
+    bartlett_meat,
+    correlation_length,
+    fixed_b_factor,
+)
 
 FITS = 24
 
@@ -109,14 +115,45 @@ def test_a_scale_error_is_named(fits):
     assert len(named) >= FITS // 2, res.diagnosis
 
 
-def test_a_slow_misfit_is_not_trusted(fits):
-    # anisotropic drag at ~15%/s: the residual is correlated over ~180 of 401 samples, beyond what the
-    # HAC window or a linearised cause describes: such fits are flagged, not trusted
+def test_a_slow_misfit_is_reported_and_its_sigma_covers_the_truth(fits):
+    # anisotropic drag at ~15%/s: the residual is correlated over ~180 of 401 samples, so the HAC window
+    # is a sizeable share of the record and σ is widened by the fixed-b factor. Before 2026-12-08 such
+    # fits were refused outright (2% trusted of 200); now a fit is trusted when its widened σ still
+    # determines the moments (measured 20 of 60), and those σ cover the truth (60 of 60 within 2σ)
     res, truth = fits("aniso_drag")
     structured = np.asarray(res.misfit_structured)
     assert structured.mean() >= 0.75
-    assert not np.any(np.asarray(res.converged) & structured)
-    assert all("too structured" in d for d, s in zip(res.diagnosis, structured, strict=True) if s)
+    assert all("σ widened" in d for d, s in zip(res.diagnosis, structured, strict=True) if s)
+    trusted = np.asarray(res.converged)
+    assert trusted.sum() >= 3, res.diagnosis
+    # ≥ 3 trusted fits, ≥ 9 moments: the bar of 95% within 3σ, one miss allowed at this size
+    z = _z(res, truth)
+    assert np.mean(z[trusted] < 3) >= 0.88, np.sort(z[trusted].max(1))
+    # and the σ of every fit, trusted or not, covers the truth (measured 100% within 3σ at 60 fits)
+    assert np.mean(z < 3) >= 0.93, np.mean(z < 3)
+    # the widening is the fixed-b factor of each fit's window: σ ≥ factor × the HAC σ it widens, so at
+    # least factor × the white σ (the HAC σ is never below it)
+    factor = fixed_b_factor(np.asarray(res.hac_window), 401)
+    assert np.all(factor[structured] > 1.1), factor  # measured 1.17-1.34 (windows of 60-88 samples)
+    assert np.all(np.asarray(res.moment_std) >= (factor[:, None] - 1e-9) * np.asarray(res.moment_std_white))
+
+
+@pytest.mark.parametrize("b", [0.25, 0.5, 1.0])
+def test_fixed_b_factor_matches_a_simulation_of_the_hac_t_statistic(b):
+    # an independent check of Kiefer & Vogelsang's cubic on rbjax's own Bartlett sum: the location model
+    # y_t = μ + e_t, e iid N(0, 1), T = 200, window m = b T; |t| = √T |ē| / sqrt(meat / T · T/(T-1)).
+    # Its 95% quantile over 6000 draws, over 1.96, is the factor; the quantile's Monte Carlo spread
+    # there is ~1.5% (b = 1: heavier tails), and finite T shifts it by ~1.5% (4.73 at T = 400 against
+    # the limit's 4.81): 5% holds both with room
+    rng = np.random.default_rng(11)
+    T, R = 200, 6000
+    e = rng.standard_normal((R, T))
+    mean = e.mean(1)
+    m = int(round(b * T))
+    meat = jax.vmap(lambda z: bartlett_meat(z[:, None], m)[0, 0])(jnp.asarray(e - mean[:, None]))
+    t = np.sqrt(T) * np.abs(mean) / np.sqrt(np.asarray(meat) / (T - 1))
+    simulated = np.quantile(t, 0.95) / 1.96
+    np.testing.assert_allclose(float(fixed_b_factor(m, T)), simulated, rtol=0.05)
 
 
 def test_a_fit_on_the_edge_of_physical_inertias_is_not_trusted():

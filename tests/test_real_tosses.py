@@ -8,19 +8,26 @@ ascending ``I1/I3, I2/I3 = 0.194, 0.810``; the real phone (camera, battery) is a
 percent off, the same for every toss.
 
 What must hold on real data, whatever the windows: a fit the verdict trusts is
-near the box values within its σ (no trusted wrong answer), and a fit on the edge
-of physical inertias (a flat-body ratio 0 : 1, where the windows that include
-the hand land) is neither trusted nor reported as well determined. The gyro-only
-windows now leave the hand and the impacts out (issue 57, item 6): the long
-flights of the phone land near the box and near each other. That most throws
-are trusted is still an expected failure below: the phone's gyro misfit is
-correlated over a quarter or more of a 0.8 s flight, which the verdict flags.
+near what the other trusted flights of the same object say, within its σ (no
+trusted wrong answer), and a fit on the edge of physical inertias (a flat-body
+ratio 0 : 1, where the windows that include the hand land) is neither trusted nor
+reported as well determined. The gyro-only windows leave the hand and the
+impacts out (issue 57, item 6): the long flights of the phone land near the box
+and near each other. Their gyro misfit is correlated over a quarter to a half of
+each 0.8 s flight; σ allows for that (HAC with the fixed-b widening), and the
+verdict trusts every window whose moments the data determine (issue 57's goal:
+≥ 90% of them; 12 of 12 on 2026-12-08, 6 of 12 before, when a slow misfit was
+refused outright).
 
 Six of the exports (12-22-44 and after) show a different motion: ``ω`` turns in
 the body's x-y plane with ``ω_z`` near 0, which a torque-free phone cannot do
-(``I_z ω̇_z = (I_x - I_y) ω_x ω_y``); their fits give ``I_x ≈ I_y ≈ I_z / 2``,
-consistently across exports. Whatever was tossed there is not the box, so the
-tests below hold the box to the windows near it and never to those.
+(``I_z ω̇_z = (I_x - I_y) ω_x ω_y``) but a flat body with ``I_x ≈ I_y ≈ I_z / 2``
+does. Their fits say just that, consistently across exports (0.48-0.52 :
+0.52-0.54, the in-plane axes undetermined), and the data reject the box: started
+from the box's inertia, the fit ends on the edge or at its step limit with 5-30x
+the misfit (measured 2026-12-08 on five of them). Whatever was tossed there is not
+the box, so the tests hold the first seven exports to the box and the six others
+to each other.
 """
 
 from __future__ import annotations
@@ -39,6 +46,8 @@ DATA = Path(os.environ.get("RBJAX_PHONE_TOSSES", _ROOT.parent / "shared" / "data
 BOX = np.array([0.194, 0.810])  # ascending I1/I3, I2/I3 of the uniform box (README)
 # the real phone is "a few percent" off the box: 0.05 in a ratio is the band beyond the fit's own 3σ
 BAND = 0.05
+# the exports of the phone alone; the six later ones show another body (module docstring)
+BOX_EXPORTS = ("12-13-01", "12-13-51", "12-15-15", "12-16-50", "12-17-27", "12-18-19", "12-19-58")
 
 pytestmark = [
     pytest.mark.skipif(
@@ -73,16 +82,29 @@ def _ratios(res):
     return r, r * np.sqrt((s[:, :2] / m[:, :2]) ** 2 + (s[:, 2:] / m[:, 2:]) ** 2)
 
 
-def test_a_trusted_real_throw_is_near_the_box_within_its_sigma(tosses):
+def test_a_trusted_real_throw_is_near_its_objects_value_within_its_sigma(tosses):
     names, res = tosses
     r, rs = _ratios(res)
     trusted = np.asarray(res.converged) & ~np.asarray(res.failed)
+    box = np.array([n.startswith(BOX_EXPORTS) for n in names])
+    # the phone: the box's ratios, within the fit's 3σ plus the band of a real phone against a uniform box
     wrong = [
         f"{names[i]}: {r[i].round(3)} ± {rs[i].round(3)} ({res.diagnosis[i]})"
-        for i in np.flatnonzero(trusted)
+        for i in np.flatnonzero(trusted & box)
         if np.any(np.abs(r[i] - BOX) > 3 * rs[i] + BAND)
     ]
     assert not wrong, wrong
+    # the other body: its trusted flights agree with their median within 3σ plus 0.01 (as the phone's do
+    # below). Measured 2026-12-08: two trusted, 0.483 ± 0.047 : 0.536 ± 0.046 and 0.511 ± 0.11 : 0.529 ± 0.13
+    other = trusted & ~box
+    assert other.sum() >= 2, [f"{n}: {d}" for n, d in zip(names, res.diagnosis, strict=True)]
+    median = np.median(r[other], axis=0)
+    off = [
+        f"{names[i]}: {r[i].round(3)} ± {rs[i].round(3)}"
+        for i in np.flatnonzero(other)
+        if np.any(np.abs(r[i] - median) > 3 * rs[i] + 0.01)
+    ]
+    assert not off, (median, off)
 
 
 def test_a_real_fit_on_the_edge_is_neither_trusted_nor_well_determined(tosses):
@@ -119,14 +141,15 @@ def test_the_gyro_alone_finds_the_phones_flights_without_the_hand(tosses):
     assert not off, (median, off)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="the phone's gyro misfit is correlated over a quarter or more of each flight, flagged by the "
-    "verdict (issue 57): 6 of 41 windows trusted on 2026-12-07",
-)
-def test_most_real_throws_are_trusted_and_agree_with_the_box(tosses):
+def test_every_real_throw_whose_moments_the_data_determine_is_trusted_and_the_phones_agree_with_the_box(tosses):
+    # issue 57's goal: ≥ 90% of the flights whose moments the data determine trusted (measured 12 of 12 on
+    # 2026-12-08; 6 of 12 before, when a misfit correlated over a quarter of the flight was refused)
     names, res = tosses
+    determined = np.asarray(res.well_determined) & ~np.asarray(res.failed)
     trusted = np.asarray(res.converged) & ~np.asarray(res.failed)
-    assert trusted.mean() >= 0.5, [f"{n}: {d}" for n, d in zip(names, res.diagnosis, strict=True)]
+    assert determined.sum() >= 10, determined.sum()
+    assert trusted[determined].mean() >= 0.9, [f"{n}: {d}" for n, d, k in zip(names, res.diagnosis, determined) if k]
     r, _ = _ratios(res)
-    np.testing.assert_allclose(np.median(r[trusted], 0), BOX, atol=BAND)
+    box = np.array([n.startswith(BOX_EXPORTS) for n in names])
+    assert (trusted & box).sum() >= 6  # measured 10
+    np.testing.assert_allclose(np.median(r[trusted & box], 0), BOX, atol=BAND)

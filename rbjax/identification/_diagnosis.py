@@ -156,7 +156,7 @@ def diagnosis(noise_scale, correlation_length, cause_share, significant, structu
         return f"residuals like the noise ({head})"
     else:
         why = "; no candidate (drag, bias, rotor, scale) explains it"
-    tail = "; too structured for σ to be trusted" if bool(structured) else ""
+    tail = "; slow: σ widened for it (fixed-b)" if bool(structured) else ""
     return head + why + tail
 
 

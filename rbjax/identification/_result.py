@@ -15,7 +15,7 @@ from ._layout import Layout
 from ._model import drag_coefficients, normalised_inertia, unpack
 from ._solver import after, solve_small
 from ._tails import chi2_sf, f_sf
-from ._verdict import correlation_length, covariance, honest, structured
+from ._verdict import correlation_length, covariance, fixed_b_factor, honest, structured
 
 
 @pytree_dataclass
@@ -76,12 +76,14 @@ class FitResult:
         rate_rms: RMS gyro residual (rad/s); NaN without ``body_rates``.
         converged: whether the fit can be trusted (``moment_std`` honest for the
             misfit seen): ``solver_converged`` and ``well_determined`` (every
-            ``moment_std`` finite, at most 0.1 of ``tr I``) and not ``on_boundary``
-            and not ``misfit_structured``. Unlike ``model_consistent`` it does not
-            ask the residuals to be white noise: real recordings never are (drag,
-            flexing, scale errors, clock jitter), and ``moment_std`` allows for a
-            correlated misfit (HAC) and for a significant drag, bias, rotor or
-            scale error (``cause_significant``). ``diagnosis`` says what the misfit is.
+            ``moment_std`` finite, at most 0.1 of ``tr I``) and not ``on_boundary``.
+            Unlike ``model_consistent`` it does not ask the residuals to be white
+            noise: real recordings never are (drag, flexing, scale errors, clock
+            jitter), and ``moment_std`` allows for a correlated misfit (HAC, widened
+            for a slow one: fixed-b) and for a significant drag, bias, rotor or
+            scale error (``cause_significant``). A misfit so large that the moments
+            are no longer determined fails ``well_determined``. ``diagnosis`` says
+            what the misfit is.
         iterations: Levenberg–Marquardt steps taken.
         solver_converged: whether Levenberg–Marquardt met its tolerances
             (what ``converged`` meant before the two checks below were added).
@@ -167,15 +169,20 @@ class FitResult:
             correlated misfit): right when the residuals are white noise.
         hac_window: the Bartlett window ``m`` (samples) of the HAC covariance,
             chosen from the data (Andrews' AR(1) plug-in on the moments' scores):
-            1-4 for white residuals.
+            1-4 for white residuals. The HAC σ is widened by ``cv(b) / 1.96``,
+            ``b = m / T`` over the record's ``T`` samples (fixed-b, see ``misfit_structured``).
         correlation_length: ``(3,)`` per sensor (orientation, gyro,
             accelerometer; NaN if absent) ``(1 + ρ) / (1 - ρ)`` of its residuals'
             lag-one autocorrelation ``ρ`` (samples): 1 for white noise, the
             number of consecutive samples a misfit spans otherwise.
         misfit_structured: some sensor's ``correlation_length`` exceeds a quarter
-            of the record's samples, its residuals at least its noise level: the misfit is too slow for the record to
-            show what it does to the estimate (the HAC sum loses its low
-            frequencies), so the fit is not trusted.
+            of the record's samples, its residuals at least its noise level: a
+            misfit this slow leaves the record few independent stretches, and
+            the HAC window is then a sizeable share ``b`` of it. ``moment_std``
+            is widened for that by the fixed-b factor (Kiefer & Vogelsang 2005:
+            1.77 at ``b = 0.5``, :func:`rbjax.identification._verdict.fixed_b_factor`),
+            so ``±2σ`` still covers 95%; reported, not a reason to distrust the fit
+            (it was before 2026-12-08).
         cause_share: ``(4,)`` share of the residual sum of squares that a model
             with each candidate cause, in the order ``(drag, bias, rotor, scale)``,
             would explain beyond the fit's own parameters (a score test on the
@@ -709,6 +716,8 @@ def summarise(
     sampled = jnp.any(kept > 0, axis=1).reshape(-1)  # (S (K+1),): samples, not padding or set aside
     hac = (r_kept.reshape(-1), rows_shape, 12, n_eff / (n_eff - p_eff), sampled)
     C, C_hac, window, U_good, G12 = covariance(J_c, n_rows, n_cont, row_s2, F, hac)
+    # a window that is a sizeable share of the record: the fixed-b widening (._verdict)
+    C_hac = C_hac * fixed_b_factor(window.astype(y.dtype), jnp.sum(sampled).astype(y.dtype)) ** 2
     var_white = jnp.diagonal(C)[:3]
     C12 = honest(C[:12, :12], C_hac)
     if use_rates:
@@ -841,7 +850,7 @@ def summarise(
         residuals=r,
         orientation_rms=q_rms,
         rate_rms=w_rms,
-        converged=solver_ok & well_determined & ~on_boundary & ~misfit_structured,
+        converged=solver_ok & well_determined & ~on_boundary,
         moment_std_white=jnp.sqrt(jnp.where(jnp.isnan(var_white), jnp.inf, var_white)),
         hac_window=window.astype(y.dtype),
         correlation_length=corr_len,

@@ -1,4 +1,4 @@
-"""The fit's covariance: white-noise and autocorrelation-robust (HAC), and when to trust it.
+"""The fit's covariance: white-noise and autocorrelation-robust (HAC, fixed-b), and when to trust it.
 
 Real residuals are not white: unmodelled physics (drag, a flexing body, gyro scale
 errors, clock jitter) leaves a misfit that is smooth over many samples. The
@@ -12,10 +12,14 @@ axes and sensors) estimates the estimate's covariance under correlated errors
 whatever their spectrum, given a window ``m`` longer than their correlation. ``m``
 is chosen from the data (Andrews 1991, AR(1) plug-in for the Bartlett kernel:
 ``m = 1 + 1.1447 (α T)^{1/3}``, ``α = Σ 4ρ²σ⁴/((1-ρ)⁶(1+ρ)²) / Σ σ⁴/(1-ρ)⁴`` over
-the moments' score series). The least-squares scores sum to zero (``Aᵀr = 0``), so
-a window of the order of the record misses what the record cannot show: a misfit
-correlated over a large part of the record is flagged (``misfit_structured``)
-rather than trusted.
+the moments' score series). With a window that is a sizeable share ``b = m / T`` of the record the
+HAC estimate is itself noisy and biased low (the least-squares scores sum to
+zero, ``Aᵀr = 0``, so its partial sums are a bridge that returns to zero), and
+``t = (θ̂ - θ) / σ_HAC`` has fatter tails than a normal. Kiefer & Vogelsang
+(2005, Econometric Theory 21, 1130) give its "fixed-b" limit; σ is widened by
+``cv(b) / 1.96``, ``cv(b)`` that limit's two-sided 95% critical value, so that
+``±2σ`` keeps covering 95% when the misfit is correlated over a large part of
+the record (``misfit_structured``, reported, not refused).
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ __all__ = [
     "correlation_length",
     "rate_sensitivity",
     "honest",
+    "fixed_b_factor",
     "structured",
 ]
 
@@ -215,12 +220,33 @@ def honest(C_white, C_hac, n_moments=3):
     return jnp.where(ok, kappa * C_hac, C_white)
 
 
+# Kiefer & Vogelsang (2005), the Bartlett kernel's 97.5% quantile (two-sided 95%) of the fixed-b
+# limit of t as a cubic in b: 1.9600 + 2.9694 b + 0.4160 b² - 0.5324 b³. Checked against our own
+# estimator by simulation (tests/test_fit_verdict.py: iid normal scores, T = 400): 3.47 at b = 0.5
+# and 4.73 at b = 1 against the cubic's 3.48 and 4.81.
+_FIXED_B = (1.9600, 2.9694, 0.4160, -0.5324)
+
+
+def fixed_b_factor(window, n_samples):
+    """``cv(b) / cv(0)``, ``b = window / n_samples`` clipped to ``[0, 1]``: the HAC σ's widening (≥ 1).
+
+    ``cv(b) = 1.96 + 2.9694 b + 0.4160 b² - 0.5324 b³`` is the two-sided 95%
+    critical value of the fixed-b limit of the HAC t statistic with a Bartlett
+    window of ``b T`` samples (Kiefer & Vogelsang 2005). ``σ_HAC · cv(b) / 1.96``
+    is the half-width of that 95% interval over 1.96, so ``±2σ`` is read as
+    for a normal: 1.00 at ``b = 0`` (a short window), 1.77 at ``b = 0.5``, 2.45 at ``b = 1``.
+    """
+    b = jnp.clip(jnp.asarray(window) / jnp.maximum(jnp.asarray(n_samples), 1), 0, 1)
+    c0, c1, c2, c3 = _FIXED_B
+    return (c0 + b * (c1 + b * (c2 + b * c3))) / c0
+
+
 #: ``misfit_structured`` when the residuals' correlation length exceeds this share of the record's samples
 STRUCTURED_LENGTH = 0.25
 
 
 def structured(corr_length, noise_scale, n_samples):
-    """Whether the misfit is correlated over so much of the record that σ cannot be trusted.
+    """Whether the misfit is correlated over a large part of the record (a diagnostic, not a refusal).
 
     ``corr_length``, ``noise_scale`` ``(3,)`` per sensor (NaN if absent), ``n_samples``
     the record's. Only a sensor whose residuals are at least its noise level
@@ -228,11 +254,10 @@ def structured(corr_length, noise_scale, n_samples):
     of a noise-free recording, smooth but 1e-3 of the level floor) moves the
     estimate by less than the noise does.
     A misfit correlated over more than ``STRUCTURED_LENGTH`` of the record shows
-    fewer than four independent stretches: its low frequencies, which move the
-    estimate most, are what the record cannot show (the scores sum to zero, so
-    the Bartlett sum loses them), and a linearised cause (drag, bias, rotor,
-    scale) no longer describes it (measured: quadratic drag at 15%/s on 2 s,
-    correlated over ~180 of 401 samples).
+    fewer than four independent stretches: the HAC window is then a sizeable share
+    of the record, which :func:`fixed_b_factor` allows for, and a linearised cause
+    (drag, bias, rotor, scale) no longer describes it well (measured: quadratic
+    drag at 15%/s on 2 s, correlated over ~180 of 401 samples).
     """
     slow = jnp.nan_to_num(corr_length) > STRUCTURED_LENGTH * n_samples
     return jnp.any(slow & (jnp.nan_to_num(noise_scale) >= 1))
