@@ -717,6 +717,16 @@ def test_gyro_only_fits_the_shape_from_euler_equations():
     np.testing.assert_array_equal(np.asarray(res.initial_orientation), [1.0, 0.0, 0.0, 0.0])
 
 
+def test_a_flat_start_guess_on_the_edge_is_accepted_and_fits_as_any_other():
+    # a flat body's inertia (I1 + I2 = I3: a disk's diag(1, 1, 2)) is physical and `Body` accepts it, but
+    # the solver's log-Cholesky parameters need Σ = ½ tr I - I positive definite: this start guess raised
+    # numpy's raw LinAlgError ("Matrix is not positive definite") before 2026-12-08. It now starts a hair
+    # inside and reaches the fit of the default start (clean DOP853 rates: model error ~1e-8, so 1e-6)
+    _, wb = _record(T_FAST)
+    res = rb.fit_inertia(T_FAST, body_rates=wb, initial_inertia=np.diag([1.0, 1.0, 2.0]))
+    assert bool(res.converged) and _rel(res.inertia, I_BAR) < 1e-6, res.inertia
+
+
 def test_noise_ten_times_larger_not_told_is_estimated_and_sigma_follows():
     # a gyro 10x noisier (0.1 rad/s) than the tests' 0.01, its level not given: the fit estimates it
     # (second differences) and scales σ by the gyro residuals' own variance, so converged, truth

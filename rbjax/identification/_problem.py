@@ -366,6 +366,11 @@ def prepare(
         else:
             I0 = np.asarray(initial_inertia, np.float64)
             Body(1.0, I0)  # validates a user guess
+            # a flat body's guess (I1 + I2 = I3, e.g. a disk's diag(1, 1, 2)) is physical, but the
+            # log-Cholesky parameters need Σ = ½ tr I - I positive definite: start a hair inside
+            # (1e-3 of the way to the isotropic tensor; the solver moves from there)
+            if np.linalg.eigvalsh(0.5 * np.trace(I0) * np.eye(3) - I0)[0] <= 1e-6 * np.trace(I0):
+                I0 = (1 - 1e-3) * I0 + 1e-3 * np.trace(I0) / 3 * np.eye(3)
         if scale_free:  # the gauge log L00 = 0: rescale so that Σ_xx = 1, drop θ0
             I0 = I0 / (0.5 * np.trace(I0) - I0[0, 0])
         # the gyro bias, the gyro frame's rotation and the drag start at zero
