@@ -178,6 +178,7 @@ def read_blackbox(
                 f"{path}: line {header_no}: no column {want!r} for rotor={rotor!r} (eRPM columns: {have}); pass the "
                 "motor that drives the flywheel (rotor=k reads eRPM[k]), or rotor=None to read no rotor"
             )
+    assert gyro_cols is not None  # refused above
     # units of the columns read (blackbox_decode marks a converted field with its unit)
     time_unit = unit["time"]
     if time_unit not in _TIME_UNITS:
