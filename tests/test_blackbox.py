@@ -121,6 +121,12 @@ def test_arguments_scale_remap_and_flip(log):
     np.testing.assert_allclose(other.accelerations, 0.5 * base.accelerations, rtol=1e-15)
     np.testing.assert_allclose(other.rotor_rates, -14 / 12 * base.rotor_rates, rtol=1e-14)
     assert rb.Recording.from_blackbox(path, rotor=None).rotor_rates is None
+    # a column named by the caller is read in rad/s (INDIflight's omega[k]); an eRPM column by name as eRPM
+    np.testing.assert_array_equal(rb.Recording.from_blackbox(path, rotor="eRPM[0]").rotor_rates, base.rotor_rates)
+    assert base.rotor_rates is not None
+    np.testing.assert_array_equal(
+        rb.Recording.from_blackbox(path, rotor="motor[0]").rotor_rates, np.full(len(base), 1200.0)
+    )
     # the rotor rates travel with window() and into fit_inertia's keyword
     win = base.window(0.4, 0.5)
     np.testing.assert_array_equal(win.rotor_rates, base.rotor_rates[(base.times >= 0.4) & (base.times <= 0.5)])
@@ -217,6 +223,16 @@ def test_the_cli_refuses_a_log_with_erpm_without_the_rotor_axis(log, capsys):
     assert main(["fit", str(path)]) == 2
     err = capsys.readouterr().err
     assert "--rotor-axis" in err and "--no-rotor" in err and str(path) in err
+    # contradictory or incomplete rotor flags, and a plot that would draw the body without its flywheel
+    for extra, said in (
+        (["--no-rotor", "--rotor-axis", "0,0,-1"], "leave --rotor-axis/--rotor-inertia out"),
+        (["--rotor-inertia", "1.7e-6"], "--rotor-inertia needs --rotor-axis"),
+        (["--rotor-axis", "0,0,-1", "--plot", "fit.png"], "--plot does not draw fits with a rotor"),
+        (["--rotor-axis", "0,0"], "expected 3 finite comma-separated numbers"),
+        (["--rotor-axis", "0,0,-1", "--rotor-motor", "2"], "no column 'erpm[2]'"),
+    ):
+        assert main(["fit", str(path), *extra]) == 2, extra
+        assert said in capsys.readouterr().err, extra
     # and the blackbox flags are refused on other files
     assert main(["fit", str(path.with_suffix(".npz")), "--rotor-axis", "0,0,-1"]) == 2
     assert "--rotor-axis appl(ies) to blackbox logs" in capsys.readouterr().err
