@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .._recording import RecordingError, read_recording
 from ._checks import coarse_clock_hint
@@ -195,12 +196,12 @@ class Recording:
     @classmethod
     def from_blackbox(
         cls,
-        path,
+        path: str | Path,
         *,
         gyro_scale: float | None = None,
         acc_1g: float | None = None,
         motor_poles: int = 14,
-        axes=None,
+        axes: ArrayLike | None = None,
         rotor: int | str | None = 0,
         rotor_sign: float = 1.0,
     ) -> Recording:
