@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import re
+import warnings
 import zipfile
 
 import jax
@@ -292,6 +293,18 @@ def test_find_throws_splits_a_flight_at_an_impact():
     (a0, a1), (b0, b1) = windows
     assert 1.0 <= a0 < 1.035 and 1.465 < a1 < 1.5, windows[0]
     assert 1.5 <= b0 < 1.535 and 1.865 < b1 < 1.9, windows[1]
+
+
+def test_a_fast_run_of_two_samples_is_skipped_without_a_numpy_warning():
+    # |ω| above the threshold for two samples only (a flick): no window, and none of numpy's "Mean of
+    # empty slice" RuntimeWarnings, which the impact test's median of no second differences printed on
+    # a real phone toss (12-37-15, 12-38-00) before 2026-12-08
+    t = np.arange(200) * 0.01
+    gyro = np.full((200, 3), 0.1)
+    gyro[100:102] = [6.0, 0.0, 0.0]
+    with warnings.catch_warnings(), pytest.warns(UserWarning, match="no free flight"):
+        warnings.simplefilter("error", RuntimeWarning)
+        assert rb.find_throws(rb.Recording(t, gyro=gyro)) == []
 
 
 def test_find_throws_says_when_a_recording_has_no_flight():

@@ -233,6 +233,8 @@ def _impacts(t: np.ndarray, gyro: np.ndarray, start: int, stop: int) -> np.ndarr
     inertia.
     """
     i = np.arange(start + 1, stop - 1)
+    if i.size == 0:  # a run of 1-2 samples has no second difference (and is too short to keep anyway)
+        return i
     h = 0.5 * (t[i + 1] - t[i - 1])
     jump = np.linalg.norm(gyro[i + 1] - 2 * gyro[i] + gyro[i - 1], axis=-1)
     rate = np.max(np.linalg.norm(gyro[np.stack([i - 1, i, i + 1])], axis=-1), axis=0)
