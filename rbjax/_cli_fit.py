@@ -431,6 +431,8 @@ def _fit_windows(args: argparse.Namespace, rec, rotor: dict) -> int:
         print(f"    diagnosis: {comb['diagnosis']}")
     elif comb is None:
         print("combined: no throw converged; nothing to combine (see the diagnostics above)")
+    elif comb["throws"] == 1:  # one throw has no spread: its own fit and σ are printed above
+        print("combined: one converged throw, its fit above (no spread to take with one)")
     else:
         med = _pm_list(comb["moments"], comb["moments_spread"])
         rat = _pm_list(comb["ratios"], comb["ratios_spread"])

@@ -456,6 +456,19 @@ def test_cli_fits_the_throws_jointly_unless_separate(export, tmp_path, capsys):
     assert "joint" not in json.loads(out.read_text())["combined"]
 
 
+def test_cli_with_one_converged_throw_prints_no_spread_of_zero(tmp_path, capsys):
+    # a median of one throw has spread 0: the combined line read "I/trI = 0.1074 ± 0, ..." on a real
+    # phone toss (12-16-50, one of two throws converged) before 2026-12-08, a σ of zero that no fit
+    # supports. With one throw the line says so and points to that throw's own σ
+    tg, gyro, ta, accel, _ = make_recording(seed=4, flights=((1.0, 0.7),))
+    export = write_phyphox(tmp_path, tg, gyro, ta, accel)
+    assert main(["fit", str(export), "--separate"]) == 0
+    text = capsys.readouterr().out
+    assert text.count("converged (trust) True") == 1, text
+    assert "one converged throw" in text and "median ± spread" not in text, text
+    assert not re.search(r"± 0(?![.0-9])", text), text
+
+
 def test_lists_a_find_throws_user_may_pass_by_mistake_are_named(tmp_path):
     # find_throws gives (t0, t1) pairs, not recordings: fit_inertia names the mix-up and the remedy
     # before it builds anything (NumPy's own "inhomogeneous shape" error was what reached users)

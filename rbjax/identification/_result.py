@@ -393,7 +393,7 @@ class FitResult:
         delta_bic = np.asarray(self.delta_bic)
         line = lambda *i: (  # noqa: E731
             ("on the edge of physical inertias (I1 + I2 = I3), σ undefined: " if bool(edge[i]) else "")
-            + diagnosis(scale[i], length[i], share[i], significant[i], structured[i], estimated[i])
+            + diagnosis(scale[i], length[i], share[i], significant[i], structured[i] & ~edge[i], estimated[i])
             + comparison(MODEL_PARTS, delta_bic[i], fitted[i])
         )
         if structured.ndim == 0:
