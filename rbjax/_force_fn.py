@@ -4,7 +4,7 @@
 a callable ``(state, t) -> Forces`` or a force model; its steps call one
 ``force_fn(state, t) -> Forces`` (world frame, N and N m). This module builds that
 function for the layout the steps run in (see :mod:`rbjax._batching`): batch-first
-``(*B, 3)``, or batch-last ``(3, *B)`` inside ``simulate``'s scan, where per-body
+``(*B, 3)``, or batch-last ``(3, *B)`` (marked so) inside ``simulate``'s scan, where per-body
 laws (:class:`rbjax.PerBodyForce`) are lifted inside the step and every other
 model or callable, written batch-first, is handed a batch-first state.
 """
@@ -14,7 +14,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from ._batching import batch_last, to_batch_first, to_batch_last
+from ._batching import to_batch_first, to_batch_last
 from ._force_model import ForceModel, PerBodyForces, split_per_body
 from ._pytree import replace
 from ._state import Forces, split_constants
@@ -46,18 +46,17 @@ def step_force_fn(
             ``(*B, 3)``, held over the step's stages; otherwise ``f`` is ignored
             and one function serves every step.
         soa: the steps run in the batch-last layout (``simulate``'s scan): states
-            and the returned forces are ``(3, *B)`` per vector field.
+            and the returned forces are ``(3, *B)`` per vector field, marked batch-last.
     """
     to_soa = to_batch_last if soa else _same
     to_aos = to_batch_first if soa else _same
 
     def soa_forces_of(fn: ForceFn) -> ForceFn:
         def soa_forces(state: Any, t: Any) -> Forces:
-            # force callables and models are batch-level code written batch-first
-            with batch_last(False):
-                # the batch's one clock as a scalar time: it broadcasts, and a sharded batch needs
-                # no unsharded (N,) array beside its sharded fields
-                out = fn(replace(to_aos(split_constants(state)[0]), **{**consts, "time": t}), t)
+            # force callables and models are batch-level code written batch-first: they are given a
+            # batch-first state, and the batch's one clock as a scalar time (it broadcasts, and a
+            # sharded batch needs no unsharded (N,) array beside its sharded fields)
+            out = fn(replace(to_aos(split_constants(state)[0]), **{**consts, "time": t}), t)
             return to_soa(out)
 
         return soa_forces

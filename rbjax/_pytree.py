@@ -5,6 +5,13 @@ because that function unflattens through ``__init__``: every jit output, every
 ``tree_map`` would re-run the validation in ``__post_init__`` (and a device-to-host
 copy with it). Here unflattening bypasses ``__init__`` as equinox does, so
 validation runs once, where a user builds the object.
+
+Each object also records the memory layout of its arrays (see :mod:`rbjax._batching`):
+batch-first ``(*B, *core)``, as users build them, or batch-last ``(*core, *B)``, as
+``simulate`` carries its state. The layout is data, not a setting: it rides in the
+treedef (a batch-last object's auxiliary data ends in :data:`_BATCH_LAST`; a batch-first
+object's treedef is what it would be without layouts), so it survives ``jit``,
+``vmap``, ``scan`` and ``tree_map``, and :func:`replace` keeps it.
 """
 
 from __future__ import annotations
@@ -32,6 +39,8 @@ __all__ = [
     "core_ndim_of",
     "core_shape_of",
     "data_fields",
+    "is_batch_last",
+    "with_batch_last",
 ]
 
 
@@ -108,16 +117,22 @@ def pytree_dataclass(cls: type[T]) -> type[T]:
     meta = tuple(f.name for f in fields if _is_static(f))
     keys = tuple(jax.tree_util.GetAttrKey(n) for n in data)
 
+    def aux_of(obj):
+        aux = tuple(getattr(obj, n) for n in meta)
+        return aux + (_BATCH_LAST,) if obj.__dict__.get(_LAYOUT, False) else aux
+
     def flatten_with_keys(obj):
-        return [(k, getattr(obj, n)) for k, n in zip(keys, data)], tuple(getattr(obj, n) for n in meta)
+        return [(k, getattr(obj, n)) for k, n in zip(keys, data)], aux_of(obj)
 
     def flatten(obj):
-        return [getattr(obj, n) for n in data], tuple(getattr(obj, n) for n in meta)
+        return [getattr(obj, n) for n in data], aux_of(obj)
 
     def unflatten(aux, children):
         obj = object.__new__(cls)
         for n, v in zip(meta, aux):
             object.__setattr__(obj, n, v)
+        if len(aux) > len(meta):
+            object.__setattr__(obj, _LAYOUT, True)
         for n, v in zip(data, children):
             object.__setattr__(obj, n, v)
         return obj
@@ -152,17 +167,18 @@ def _convert_before_post_init(cls: type) -> None:
 
 
 def replace(obj: T, **changes: Any) -> T:
-    """``dataclasses.replace`` without re-running ``__init__`` validation.
+    """``dataclasses.replace`` without re-running ``__init__`` validation; the result keeps ``obj``'s layout.
 
     For library-internal updates of values that are already valid (or traced).
     """
     fields = {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)}  # type: ignore[arg-type]
-    return new_unchecked(type(obj), **{**fields, **changes})
+    return with_batch_last(new_unchecked(type(obj), **{**fields, **changes}), is_batch_last(obj))
 
 
 def new_unchecked(cls: type[T], **fields: Any) -> T:
     """Build ``cls(**fields)`` without ``__init__``: for values already known valid
-    (a field not given takes its default; one without a default is a ``KeyError``)."""
+    (a field not given takes its default; one without a default is a ``KeyError``).
+    Batch-first, as ``cls(...)`` is: :func:`with_batch_last` marks it otherwise."""
     obj = object.__new__(cls)
     for f in dataclasses.fields(cls):  # type: ignore[arg-type]
         value = fields[f.name] if f.name in fields or f.default is dataclasses.MISSING else f.default
@@ -187,3 +203,31 @@ def data_fields(obj: Any) -> tuple[str, ...]:
 
 def is_rbjax_dataclass(obj: Any) -> bool:
     return hasattr(type(obj), "_rbjax_data_fields")
+
+
+# The layout of an object's own array fields: an instance attribute, set only on batch-last
+# objects (a constructor, ``dataclasses.replace`` and :func:`new_unchecked` give batch-first
+# ones), and a marker at the end of their treedef's auxiliary data.
+_LAYOUT = "_rbjax_batch_last"
+_BATCH_LAST = "batch-last"
+
+
+def is_batch_last(obj: Any) -> bool:
+    """Whether ``obj``'s own array fields are batch-last, ``(*core, *B)`` (see :mod:`rbjax._batching`)."""
+    return bool(getattr(obj, "__dict__", {}).get(_LAYOUT, False))
+
+
+def with_batch_last(obj: T, on: bool) -> T:
+    """``obj`` (this one object, not the objects in its fields) marked batch-last (``on``) or batch-first.
+
+    Marks only: no array moves (:func:`rbjax._batching.to_batch_last` moves them).
+    """
+    if is_batch_last(obj) == on:
+        return obj
+    new = object.__new__(type(obj))
+    new.__dict__.update(obj.__dict__)
+    if on:
+        object.__setattr__(new, _LAYOUT, True)
+    else:
+        del new.__dict__[_LAYOUT]
+    return new

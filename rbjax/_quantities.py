@@ -26,7 +26,7 @@ from ._math import (
     quat_rotate_inverse_unchecked,
     quat_to_matrix_unchecked,
 )
-from ._pytree import new_unchecked
+from ._pytree import is_batch_last, new_unchecked, with_batch_last
 from ._rotors import rotor_energy, spin_momentum
 from ._state import AnyState, MatrixState, ParticleState, RigidState, State
 from ._typing import ArrayLike
@@ -219,8 +219,8 @@ def to_state(state: MatrixState) -> State:
 
 def _same_motion(cls: type, state: RigidState, **rotational: Array) -> Any:
     """A ``cls`` with ``state``'s body, position, velocity, time and rotors and the given rotational fields
-    (unchecked)."""
-    return new_unchecked(
+    (unchecked), in ``state``'s layout (:mod:`rbjax._batching`)."""
+    new = new_unchecked(
         cls,
         body=state.body,
         position=state.position,
@@ -230,3 +230,4 @@ def _same_motion(cls: type, state: RigidState, **rotational: Array) -> Any:
         rotor_momentum=state.rotor_momentum,
         **rotational,
     )
+    return with_batch_last(new, is_batch_last(state))

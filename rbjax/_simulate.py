@@ -15,7 +15,7 @@ from jax import Array
 from jaxtyping import Float
 
 from . import _checked, _methods, _native
-from ._batching import batch_last, batch_shape, lift, map_leaves, to_batch_first, to_batch_last
+from ._batching import batch_shape, lift, map_leaves, to_batch_first, to_batch_last, with_layout
 from ._body import prepare
 from ._deprecated import renamed_keywords
 from ._force_fn import step_force_fn
@@ -380,8 +380,9 @@ def _simulate(
     dt, t0 = dt.astype(dtype), t0.astype(dtype)
     n_out = steps // save_every
     # Inside the scan the state is carried batch-last ((3, N) per field: one
-    # contiguous row per component), transposed once at each end; the step's
-    # vmapped kernels then compile to one vectorised loop over the batch. Steps
+    # contiguous row per component), transposed once at each end and marked so
+    # in its treedef (rbjax._batching.to_batch_last), which the step's lifted
+    # kernels read; they then compile to one vectorised loop over the batch. Steps
     # that are not layout-agnostic (a user's step or Scene kernel) and force
     # callables see the usual batch-first layout.
     # the native kernel reads the batch-first layout itself: no transposes at either end
@@ -397,8 +398,7 @@ def _simulate(
         # call, in the scan's layout (contiguous rows per component); the native kernels take their frame
         # themselves, and their JAX reference is only differentiated
         principal = method.principal_frame and not native
-        with batch_last(soa):
-            consts_soa["body"] = lift(lambda b: prepare(b, principal))(consts_soa["body"])
+        consts_soa["body"] = lift(lambda b: prepare(b, principal))(consts_soa["body"])
     # checked mode reads the batch-first state: its body prepared once too (|ω| and the energy at each frame)
     consts_checked = consts
     if checks is not None and "body" in consts:
@@ -415,8 +415,10 @@ def _simulate(
         dyn, rec = carry
         k, f = k_and_f
         s = replace(dyn, **consts_soa)
-        with batch_last(soa):
-            new = split_constants(step_fn(s, step_forces(f), t0 + (k0 + k).astype(dtype) * dt, dt))[0]
+        new = split_constants(step_fn(s, step_forces(f), t0 + (k0 + k).astype(dtype) * dt, dt))[0]
+        if soa:
+            # a layout-agnostic step returns the layout it was given: the carry's treedef says so
+            new = with_layout(new, True)
         if checks is not None:
             rec = _checked.after_step(rec, replace(to_aos(new), **consts_checked), k + 1, checks, steps)
         return (new, rec), None

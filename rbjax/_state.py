@@ -30,7 +30,7 @@ from ._math import (
     quat_to_matrix_unchecked,
     quat_tolerance,
 )
-from ._pytree import core_shape_of, field, pytree_dataclass, replace
+from ._pytree import core_shape_of, field, is_batch_last, pytree_dataclass, replace, with_batch_last
 from ._rotors import Rotors, convert_rotors, rotor_rates_of
 from ._trajectory import BatchIndexing
 from ._typing import ArrayLike, array_like, optional_array_like
@@ -186,8 +186,9 @@ class _StateBase(BatchIndexing):
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
-        """Leading batch shape ``B`` (``()`` for a single body)."""
-        return tuple(self.position.shape[:-1])
+        """Leading batch shape ``B`` (``()`` for a single body); trailing in a batch-last state
+        (:mod:`rbjax._batching`)."""
+        return tuple(self.position.shape[1:] if is_batch_last(self) else self.position.shape[:-1])
 
     @property
     def dtype(self) -> Any:
@@ -545,13 +546,15 @@ class Forces:
             return a + b
 
         # both were checked when built; their sum is not re-checked, so that it also adds the
-        # batch-last (3, *B) forces of simulate's scan
-        return replace(
+        # batch-last (3, *B) forces of simulate's scan, and is batch-last when either is (the other
+        # then has no batch dimensions: an empty Forces() or a shared one)
+        total = replace(
             self,
             force=add(self.force, other.force),
             torque=add(self.torque, other.torque),
             rotor_torque=add(self.rotor_torque, other.rotor_torque),
         )
+        return with_batch_last(total, is_batch_last(self) or is_batch_last(other))
 
 
 ForceLike = Union[Forces, Callable[[Any, Array], Forces], None]

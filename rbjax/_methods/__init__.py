@@ -16,9 +16,12 @@ inside is written for one body and lifted with :func:`rbjax._batching.lift`.
 
 Step functions of a layout-agnostic method must not depend on where the batch
 axes are: ``simulate`` runs them with the state in the batch-last layout
-(:func:`rbjax._batching.batch_last`), so batch-level code outside ``lift`` may
-only be elementwise (``x + h k``); anything that names an axis (a norm, a ``@``)
-goes inside a lifted one-body function.
+(:func:`rbjax._batching.to_batch_last`; the state says so in its treedef, and
+``lift`` reads it from there), so batch-level code outside ``lift`` may only be
+elementwise (``x + h k``) and must rebuild states with
+:func:`rbjax._pytree.replace`, which keeps the layout (a constructor or
+``dataclasses.replace`` makes a batch-first object); anything that names an axis
+(a norm, a ``@``) goes inside a lifted one-body function.
 """
 
 from ._base import DEFAULT_METHOD, KINDS, AbstractMethod, KernelFn, Method, OrderWarning, StepFn

@@ -114,8 +114,9 @@ class AbstractMethod(abc.ABC):
         layout_agnostic: the memory layout the steps run in. ``False`` (default):
             states are batch-first, ``(*B, 3)`` per vector field, as a user writes
             them. ``True``: ``simulate`` may hand them in its batch-last layout
-            (``(3, *B)``), so the step must be elementwise outside
-            ``rbjax._batching.lift`` (rbjax's own steps; see :mod:`rbjax._methods`).
+            (``(3, *B)``, marked so in the state itself), so the step must be
+            elementwise outside ``rbjax._batching.lift`` (rbjax's own steps; see
+            :mod:`rbjax._methods`). ``__call__``'s arguments are the same either way.
         native_code: the method's number in the native C++ kernels
             (``rbjax/_native/kernels.cc``), ``None`` for none. Only rbjax's own
             methods have one; a subclass that sets it is refused when defined, and
@@ -269,9 +270,10 @@ class Method(AbstractMethod):
             round-off for every body of that kind. A scene uses the one of its
             kind instead of ``steps`` (see :func:`rbjax._methods.for_kind`).
         layout_agnostic: the steps and kernels lift all per-body work
-            (:func:`rbjax._batching.lift`) and are elementwise elsewhere, so
-            ``simulate`` may run them on its batch-last layout (see
-            :mod:`rbjax._methods`). ``False``: they are always given batch-first states.
+            (:func:`rbjax._batching.lift`, which reads the layout from the state) and
+            are elementwise elsewhere, so ``simulate`` may run them on its batch-last
+            layout (see :mod:`rbjax._methods`). ``False``: they are always given
+            batch-first states.
         batch_first_kernels: the keys of ``kernels`` that need batch-first
             states although ``layout_agnostic`` is true (a user's kernel, added by
             :meth:`with_kernel`).
