@@ -89,15 +89,20 @@ def test_unknown_rotor_inertia_gives_the_inertia_in_units_of_j(clean):
     np.testing.assert_allclose(entries, [I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]], rtol=1e-5)
 
 
-def test_ignoring_the_rotor_is_not_trusted(clean):
-    # before issue 58 such a fit came back trusted 6-12σ from the truth; the verdict now refuses it
+def test_ignoring_the_rotor_gives_no_trusted_wrong_answer(clean):
+    # before issue 58 such a fit came back trusted 6-12σ from the truth. Its misfit is correlated over
+    # much of the flight: refused outright until 2026-12-08, it is now trusted only with a σ widened
+    # for that misfit (fixed-b) which covers the truth (measured: trusted, 0.035 ± 0.052, 0.469 ± 0.057,
+    # 0.496 ± 0.044 against 0.118, 0.409, 0.473: |z| ≤ 1.6), and the misfit is named
     _, w, W = clean
     wn, _ = _noisy(w, W, seed=0)
     res = rb.fit_inertia(T4K, None, body_rates=wn)
     assert res.inertia_units == "trace-normalised"
-    assert not bool(res.converged)
+    z = (np.asarray(res.principal_moments) - TRUE / TRUE.sum()) / np.asarray(res.moment_std)
+    assert not bool(res.converged) or np.all(np.abs(z) < 3), (res.diagnosis, z)
     assert not bool(res.model_consistent)
     assert float(np.max(res.noise_scale[1])) > 10  # measured ~490x the gyro noise
+    assert res.diagnosis.startswith("misfit") and bool(res.misfit_structured), res.diagnosis
 
 
 @pytest.mark.parametrize(
@@ -194,11 +199,39 @@ def test_a_list_and_a_joint_fit_of_throws_with_a_rotor():
     assert np.all(np.abs(z) < 3), z  # measured |z| <= 1.27
     # one body, three throws: more information than any one throw's (measured 0.19-0.38 of the median's)
     np.testing.assert_array_less(np.asarray(joint.moment_std), np.min(np.asarray(each.moment_std), 0))
-    # the rate in 5 rad/s steps: still within 0.1%, but σ does not count the rounding (measured
-    # z = -3.0, -3.4, -4.0 on this joint fit; the throws alone -1.7 to 0.9): a known limitation
-    # (benchmarks/results/fit_rotor_2026-12-07.md), asserted here so that a fix shows
+    # the rate in 5 rad/s steps: still within 0.1%, and σ counts the rounding now (the logged rate's
+    # error, estimated from the telemetry, propagated through the attitude it drifts: _verdict's
+    # telemetry_covariance). Before 2026-12-08 this joint fit read z = -3.0, -3.4, -4.0
     kw["rotor_rates"] = [5.0 * np.round(W / 5.0) for *_, W in throws]
     joint = rb.fit_inertia(times, None, body_rates=rates, joint=True, **kw)
     np.testing.assert_allclose(joint.principal_moments, TRUE, rtol=1e-3)
     z = (np.asarray(joint.principal_moments) - TRUE) / np.asarray(joint.moment_std)
-    assert np.max(np.abs(z)) > 2.5, z
+    assert np.all(np.abs(z) < 3), z
+
+
+@pytest.mark.slow  # 40 throws at 1 kHz, one batched call (~40 s on 2 cores)
+def test_sigma_counts_the_rotor_telemetrys_rounding():
+    # a motor logs its rate in steps (an eRPM resolution); the fit takes the logged rate as exact, and
+    # the rounding, through the attitude it drifts, moved the moments by more than their σ:
+    # benchmarks/fit_rotor.py measured 85% within 2σ and z RMS 1.32 over 60 throws at 1 kHz in 5 rad/s
+    # steps before 2026-12-08, 96.7% and 1.02 after. σ now adds the logged momentum's error, estimated
+    # from the telemetry's roughness, propagated to the estimate (_verdict.telemetry_covariance).
+    # These 40 throws (120 moments; a calibrated σ gives z RMS 1 ± 0.07, 1 sd): z RMS 1.13 and 94.2%
+    # within 2σ without the term, 0.83 and 99.2% with it; ≤ 1.1 and ≥ 0.88 (3.5 sd under 95%)
+    rng = np.random.default_rng(21)
+    throws = [g.random_throw(rng, rate_hz=1000.0) for _ in range(40)]
+    times = throws[0][0]
+    rates = np.stack([w + rng.normal(0, rng.uniform(0.005, 0.05), w.shape) for _, _, w, _ in throws])
+    kw = dict(rotor_axis=g.AXIS, rotor_inertia=g.J_FLYWHEEL)
+    res = rb.fit_inertia(
+        times, None, body_rates=rates, rotor_rates=np.stack([5.0 * np.round(W / 5.0) for *_, W in throws]), **kw
+    )
+    z = (np.asarray(res.principal_moments) - TRUE) / np.asarray(res.moment_std)
+    assert np.all(np.asarray(res.converged)), res.diagnosis
+    rms = np.sqrt(np.mean(z**2))
+    assert rms <= 1.1 and np.mean(np.abs(z) < 2) >= 0.88, (rms, np.sort(np.abs(z).ravel()))
+    # exact telemetry has no roughness to propagate: σ is the fit's own (measured: the term changes it
+    # by 8e-11 relative; z RMS 0.97 with or without it)
+    exact = rb.fit_inertia(times, None, body_rates=rates, rotor_rates=np.stack([W for *_, W in throws]), **kw)
+    z = (np.asarray(exact.principal_moments) - TRUE) / np.asarray(exact.moment_std)
+    assert np.sqrt(np.mean(z**2)) <= 1.1, np.sqrt(np.mean(z**2))

@@ -37,7 +37,15 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from .._rotations_np import CONJ, np_qlog, np_qmul
 
-__all__ = ["noise_std", "orientation_noise_std", "noise_dof", "DOF_PER_RESIDUAL", "FLOOR_EPS", "MODEL_FLOOR"]
+__all__ = [
+    "noise_std",
+    "roughness_covariance",
+    "orientation_noise_std",
+    "noise_dof",
+    "DOF_PER_RESIDUAL",
+    "FLOOR_EPS",
+    "MODEL_FLOOR",
+]
 
 _HALF = 2  # five-sample windows: a quadratic keeps two residual degrees of freedom in each
 #: The lowest level: in units of the fit dtype's epsilon, and relative (see above); times the signal's RMS.
@@ -77,6 +85,23 @@ def noise_std(times: np.ndarray, y: np.ndarray, eps: float) -> np.ndarray:
     a = _centre_weights(times)
     win = sliding_window_view(y, 2 * _HALF + 1, axis=-2)  # (*N, W, 3, 5)
     return _mad(np.einsum("...wdk,wk->...wd", win, a), eps, np.sqrt(np.mean(y**2, axis=(-2, -1))))
+
+
+def roughness_covariance(times: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``(3, 3)``: the covariance of what a local quadratic cannot follow in ``y`` ``(T, 3)`` (y's units squared).
+
+    The mean of ``r_c r_cᵀ`` over the five-sample windows (``r_c`` the centre
+    residual at unit noise gain, as in :func:`noise_std`): for white errors of
+    covariance ``Σ`` it is ``Σ``. A mean, not a MAD: a quantised series (a motor's
+    logged rate in whole steps) sits on one step over some windows and crosses
+    steps in others, and its error's variance is the mean over both (``step²/12``
+    for a steady ramp). Zeros for fewer than five samples.
+    """
+    y = np.asarray(y, np.float64)
+    if y.shape[0] < 2 * _HALF + 1:
+        return np.zeros((3, 3))
+    r = np.einsum("wdk,wk->wd", sliding_window_view(y, 2 * _HALF + 1, axis=0), _centre_weights(times))
+    return r.T @ r / r.shape[0]
 
 
 def orientation_noise_std(times: np.ndarray, q: np.ndarray, eps: float) -> np.ndarray:

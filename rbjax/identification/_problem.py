@@ -29,7 +29,7 @@ from ._linear import (
     np_params_from_inertia,
     skew,
 )
-from ._noise import noise_dof, noise_std, orientation_noise_std
+from ._noise import noise_dof, noise_std, orientation_noise_std, roughness_covariance
 from ._rotor import gyro_attitude
 from ._segments import Segments
 
@@ -427,7 +427,7 @@ def prepare(
             # the rotors' momentum at every segment's samples, linear between them; padding repeats the
             # segment's last sample (the observed rate at its end reads h there, and dt = 0 keeps the state)
             at = starts[:, None] + np.minimum(np.arange(K + 1)[None, :], n_real[:, None])
-            seg = replace(seg, h=h_n[at])
+            seg = replace(seg, h=h_n[at], h_noise=np.broadcast_to(roughness_covariance(t, h_n), (len(starts), 3, 3)))
             if use_accel:
                 seg = replace(seg, h_rate=rotor_rate_at_samples(t, h_n)[at])
         # without orientations segment 0's rotation δ_0 is pinned (delta_free = 0): 3 parameters

@@ -15,7 +15,7 @@ from ._layout import Layout
 from ._model import drag_coefficients, normalised_inertia, unpack
 from ._solver import after, solve_small
 from ._tails import chi2_sf, f_sf
-from ._verdict import correlation_length, covariance, fixed_b_factor, honest, structured
+from ._verdict import correlation_length, covariance, fixed_b_factor, honest, structured, telemetry_covariance
 
 
 @pytree_dataclass
@@ -621,6 +621,18 @@ def consistency(stats: dict) -> np.ndarray:
     return np.minimum(1.0, chi2.shape[-1] * np.min(p_k, axis=-1))
 
 
+def _telemetry(seg, valid, r_g, U_good, G, I, rows_shape, gyro_block):
+    """:func:`._verdict.telemetry_covariance` of the functionals ``G`` describes, from the gyro block's rows."""
+    S, B, K1, _ = rows_shape
+    g = jnp.sqrt(seg.rw[:, gyro_block]) * valid * seg.ww[:, None]  # (S, K+1): the rows' whitening
+    w_meas = jnp.concatenate([seg.w_first[:, None], seg.w_meas], 1)
+    w = w_meas + r_g / jnp.where(g > 0, g, 1)[..., None]  # the model's rates
+    # the functionals move by -G Uᵀ δr, δr = g δω on the gyro rows
+    per_row = (U_good @ G.T).reshape(S, B, K1, 3, -1)[:, gyro_block]  # (S, K+1, 3, f)
+    weights = jnp.moveaxis(-per_row * g[..., None, None], -1, 0)
+    return telemetry_covariance(jnp.linalg.inv(I), w, seg.h, seg.dt, valid, weights, seg.h_noise)
+
+
 def summarise(
     y,
     r,
@@ -726,6 +738,8 @@ def summarise(
         terms = cause_terms(seg, kept, r_kept, U_good, G12, I0, gyro, rows_shape, s2_k[gyro])
         shares, significant, extra, explained, left_by = terms
         C12 = C12 + extra
+        if seg.h is not None:  # the rotors' logged rates carry errors the model takes as exact
+            C12 = C12 + _telemetry(seg, kept[:, gyro], r_kept[:, gyro], U_good, G12, I0, rows_shape, gyro)
     else:
         shares = jnp.full(len(CAUSES), jnp.nan, y.dtype)
         significant = jnp.zeros(len(CAUSES), bool)

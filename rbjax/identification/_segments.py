@@ -59,6 +59,10 @@ class Segments:
             the linear interpolant's slopes on either side (one-sided at the
             recording's ends), for the accelerometer's ``ω̇``; ``None`` without
             rotors or accelerations.
+        h_noise: ``(S, 3, 3)`` the covariance of ``h``'s errors at each sample
+            (``._noise.roughness_covariance`` of the recording's logged momentum:
+            a motor's rate telemetry is quantised and noisy), repeated per segment;
+            ``None`` without rotors. σ allows for it (:func:`._verdict.telemetry_covariance`).
     """
 
     q_start: Any = field(core_ndim=2)
@@ -84,3 +88,4 @@ class Segments:
     tau_b: Any = field(core_ndim=3, default=None)
     h: Any = field(core_ndim=3, default=None)
     h_rate: Any = field(core_ndim=3, default=None)
+    h_noise: Any = field(core_ndim=3, default=None)

@@ -33,6 +33,7 @@ __all__ = [
     "andrews_window",
     "correlation_length",
     "rate_sensitivity",
+    "telemetry_covariance",
     "honest",
     "fixed_b_factor",
     "structured",
@@ -201,6 +202,38 @@ def rate_sensitivity(I_inv, w, dt, valid, forcing, direct, h=None):
         return jnp.concatenate([path, last[None]]) @ I_inv  # (K+1, c, 3)
 
     return (jax.vmap(seg)(L, w, forcing, dt) + direct) * valid[..., None, None]
+
+
+def telemetry_covariance(I_inv, w, h, dt, valid, weights, h_noise):
+    """``(f, f)``: what white errors in the rotors' logged momentum add to the functionals' covariance.
+
+    The fit takes the logged ``h`` (body frame) as exact, yet a motor's rate
+    telemetry is quantised and noisy: an error ``δh_t`` at sample ``t`` (covariance
+    ``h_noise`` ``(S, 3, 3)`` per segment, independent between samples) enters the
+    body rate ``ω = I⁻¹ (L - h)`` at that sample, which the residuals show and the
+    HAC covariance already counts, and turns the body (``δL̇ = δL × ω + L × I⁻¹ δL
+    - L × I⁻¹ δh``, :func:`rate_sensitivity`'s linearisation), which drifts the
+    attitude and so the rates of every later sample of its segment: a random walk
+    that the residuals show only in part, the fit's start state and inertia
+    absorbing the rest. That second, dynamic part is propagated here:
+    ``C = Σ_t λ_tᵀ Σ_h λ_t`` with ``λ_t = ∂(G Uᵀ δr)/∂δh_t`` from the transpose of the
+    linear response (one backward pass per functional).
+
+    ``w (S, K+1, 3)`` the model's body rates, ``h`` the logged momentum, ``dt (S, K)``,
+    ``valid (S, K+1)``; ``weights (f, S, K+1, 3)``: each functional's change per
+    unit of the body-rate residual at each sample (``-G Uᵀ`` on the gyro rows, the
+    rows' whitening included).
+    """
+    zero = jnp.zeros_like(h)
+    L = w @ jnp.linalg.inv(I_inv) + h
+
+    def response(dh):  # δh (S, K+1, 3) -> δω (S, K+1, 3), the dynamic part
+        forcing = -jnp.cross(L, dh @ I_inv)[..., None, :]  # I⁻¹ symmetric: rows of dh @ I⁻¹ are I⁻¹ δh
+        return rate_sensitivity(I_inv, w, dt, valid, forcing, jnp.zeros_like(forcing), h)[..., 0, :]
+
+    transpose = jax.linear_transpose(response, zero)
+    lam = jax.vmap(lambda c: transpose(c)[0])(weights) * valid[..., None]  # (f, S, K+1, 3)
+    return jnp.einsum("fski,sij,gskj->fg", lam, h_noise, lam)
 
 
 def honest(C_white, C_hac, n_moments=3):
