@@ -174,3 +174,17 @@ def test_every_real_throw_whose_moments_the_data_determine_is_trusted_and_the_ph
     box = np.array([n.startswith(BOX_EXPORTS) for n in names])
     assert (trusted & box).sum() >= 6  # measured 10
     np.testing.assert_allclose(np.median(r[trusted & box], 0), BOX, atol=BAND)
+
+
+def test_a_joint_fit_of_the_phones_flights_is_trusted_and_near_the_reference(windows):
+    # issue 57's goal: a joint fit of all throws of one object within ±0.02 of its reference. The
+    # source repository's own simulator uses 1.2667e-4, 4.9128e-4, 6.1194e-4 kg m² (README):
+    # 0.207 : 0.803. Measured 2026-12-08 over the 13 windows of the seven phone exports: 0.2178 ± 0.0024,
+    # 0.7946 ± 0.0025, trusted (the misfit 189x the gyro noise, correlated over 25 samples)
+    names, throws = windows
+    phone = [r for n, r in zip(names, throws, strict=True) if n.startswith(BOX_EXPORTS)]
+    assert len(phone) >= 10, names
+    joint = rb.fit_inertia(phone, joint=True)
+    assert bool(joint.converged), joint.diagnosis
+    m = np.asarray(joint.principal_moments)
+    np.testing.assert_allclose(m[:2] / m[2], [0.207, 0.803], atol=0.02)
