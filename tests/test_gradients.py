@@ -84,7 +84,19 @@ class _Derivatives(NamedTuple):
     u_fd: float  # u · fd
 
 
-def _derivatives(final, args) -> _Derivatives:
+_FORWARD = {}
+
+
+def _forward_jacobian(method):
+    """``jit`` of ``jacfwd`` of :func:`_final` of ``method`` in all nine arguments: one program per
+    method, which the finite-difference and the degenerate-state tests share (their arguments have
+    the same shapes and dtypes, as NumPy arrays; only the values differ)."""
+    if method not in _FORWARD:
+        _FORWARD[method] = jax.jit(jax.jacfwd(lambda *a: _final(method, *a), argnums=tuple(range(9))))
+    return _FORWARD[method]
+
+
+def _derivatives(final, args, jacobian=None) -> _Derivatives:
     """Forward and reverse mode of ``final(*args)`` (a vector) and float64 central differences.
 
     Forward mode: the full Jacobian ``J`` with respect to every argument (``jit`` of ``jacfwd``),
@@ -104,7 +116,7 @@ def _derivatives(final, args) -> _Derivatives:
     rng = np.random.default_rng(1)
     v = [rng.normal(size=np.shape(a)) for a in args]
     u = rng.normal(size=final(*args).shape)
-    J = jax.jit(jax.jacfwd(final, argnums=argnums))(*args)
+    J = (jacobian or jax.jit(jax.jacfwd(final, argnums=argnums)))(*args)
     uJ = jax.jit(lambda *a: jax.vjp(final, *a)[1](u))(*args)
     eps = 1e-4  # perturbed in NumPy: no eager JAX operation (each a compile of its own)
     fd = (final(*(a + eps * d for a, d in zip(args, v))) - final(*(a - eps * d for a, d in zip(args, v)))) / (2 * eps)
@@ -121,7 +133,7 @@ def _derivatives(final, args) -> _Derivatives:
 
 @pytest.mark.parametrize("method", FD_METHODS)
 def test_fwd_and_rev_match_finite_differences(method):
-    d = _derivatives(lambda *a: _final(method, *a), _args())
+    d = _derivatives(lambda *a: _final(method, *a), _args(), _forward_jacobian(method))
     np.testing.assert_allclose(d.Jv, d.fd, rtol=1e-5, atol=1e-5)  # forward mode: central differences
     np.testing.assert_allclose(d.uJ, d.uJ_fwd, rtol=1e-10, atol=1e-12)  # reverse = forward, to round-off
     np.testing.assert_allclose(d.uJv, d.u_fd, rtol=1e-5, atol=1e-5)  # reverse mode: central differences
@@ -132,10 +144,11 @@ def test_gradients_finite_at_degenerate_states(method):
     # zero angular velocity, identity orientation, a sphere (three equal moments), and q -> -q
     sphere = (0.4, 0.4, 0.4, 0.0, 0.0, 0.0)
     a = _args(w0=(0.0, 0.0, 0.0), r0=(0.0, 0.0, 0.0), I=sphere)
-    a = a[:6] + (jnp.zeros((STEPS, 3)), jnp.zeros((STEPS, 3))) + a[8:]
+    # as NumPy arrays, the finite-difference test's types: the same forward-mode program
+    a = [np.asarray(x) for x in a[:6] + (jnp.zeros((STEPS, 3)), jnp.zeros((STEPS, 3))) + a[8:]]
     grads = jax.jacrev(lambda *x: _final(method, *x), argnums=tuple(range(9)))(*a)
     assert all(np.all(np.isfinite(g)) for g in jax.tree.leaves(grads))
-    fwd = jax.jacfwd(lambda *x: _final(method, *x), argnums=tuple(range(9)))(*a)
+    fwd = _forward_jacobian(method)(*a)
     assert all(np.all(np.isfinite(g)) for g in jax.tree.leaves(fwd))
     # at rest nothing moves: d(final L)/d(w0) = I (world = body frame here), exactly
     np.testing.assert_allclose(fwd[5][-3:], 0.4 * np.eye(3), atol=1e-14)
