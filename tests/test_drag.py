@@ -58,10 +58,17 @@ def test_linear_drag_is_fitted_and_its_absence_is_flagged(linear):
     # c₁ / tr I within 3σ, and σ small enough that this says something (under 10% of the value)
     assert abs(c[0] - C1 / MOMENTS.sum()) < 3 * cs[0] and cs[0] < 0.1 * c[0], (c, cs)
     assert c[1] == 0 and np.isnan(cs[1])  # measured c₁/trI = 0.05499 ± 0.00006 (truth 0.055)
-    # the torque-free model cannot lose |L|: its residuals are far above the noise
+    # the torque-free model cannot lose |L|: its residuals are far above the noise, correlated over much
+    # of the throw, and the diagnosis names drag. Refused outright until 2026-12-08; now trusted only with
+    # σ widened for that misfit (fixed-b) and covering the truth (measured: 0.1198 ± 0.026,
+    # 0.3865 ± 0.020, 0.4937 ± 0.0057 against 0.1205, 0.3855, 0.4940), 320-560x the drag fit's σ
     plain = rb.fit_inertia(t, body_rates=w)
-    assert not bool(plain.model_consistent) and not bool(plain.converged)
+    assert not bool(plain.model_consistent)
     assert float(plain.rate_rms) > 3 * GYRO_STD
+    assert "may be drag" in plain.diagnosis, plain.diagnosis
+    mp, sp = np.asarray(plain.principal_moments), np.asarray(plain.moment_std)
+    assert not bool(plain.converged) or np.all(np.abs(mp - TRUTH) < 3 * sp), (plain.diagnosis, mp, sp)
+    assert np.all(sp > s), (sp, s)  # the unmodelled drag costs precision, never claims more
 
 
 @pytest.mark.slow  # "quadratic" compiles its own program (~15 s)
